@@ -1,0 +1,7 @@
+"""``python -m delegation`` runs the CLI."""
+
+import sys
+
+from delegation.cli import main
+
+sys.exit(main())

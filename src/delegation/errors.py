@@ -1,0 +1,44 @@
+"""One exception family for the project, and the `Problem` value every validator reports.
+
+Expected failures inside the planner are values (see ``allocation``); exceptions are for input that
+cannot be understood at all, and each carries the problems found so callers can name node and field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class Problem:
+    """One thing wrong with an input: where (node path or uuid), which field, and what."""
+
+    where: str
+    field: str
+    message: str
+
+    def __str__(self) -> str:
+        if self.field:
+            return f"{self.where}: {self.field}: {self.message}"
+        return f"{self.where}: {self.message}"
+
+
+class DelegationError(Exception):
+    """Base of every exception this package raises on purpose."""
+
+
+class InputError(DelegationError):
+    """Input (JSON, a tree, a command, a scenario) that cannot be accepted, with every problem found."""
+
+    def __init__(self, problems: list[Problem] | Problem | str) -> None:
+        if isinstance(problems, str):
+            problems = [Problem("input", "", problems)]
+        elif isinstance(problems, Problem):
+            problems = [problems]
+        self.problems: list[Problem] = list(problems)
+        super().__init__("; ".join(str(p) for p in self.problems))
+
+    @property
+    def fail_reason(self) -> str:
+        """The text that goes into a response's ``fail-reason``."""
+        return str(self)

@@ -1,0 +1,197 @@
+"""Parameter validation against the task catalogue, and filling in defaults.
+
+Readers are lenient where real WARA-PS traffic is (a ``geopoint`` given as a one-element list, a
+``speed`` given as m/s or ``[7.0]`` as in the seed's observe-position example; unknown params are
+kept); everything else wrong is reported with the node and the field.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from shapely.geometry import LinearRing, Polygon
+
+from delegation.errors import InputError, Problem
+from delegation.geo import GeoPoint
+from delegation.tst.catalogue import CATALOGUE, SPEED_CLASSES, ParamType, TaskSpec
+from delegation.tst.node import TstNode, classify_execunit, map_tree, parse_tree, walk, where
+
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
+    """(field, message) pairs for a GeoPoint value; empty when it is valid."""
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]  # lenient: the seed's observe-position example wraps it in a list
+    if not isinstance(value, dict):
+        return [(field, f"must be a GeoPoint object, not {type(value).__name__}")]
+    out: list[tuple[str, str]] = []
+    for key, lo, hi in (("latitude", -90.0, 90.0), ("longitude", -180.0, 180.0)):
+        v = value.get(key)
+        if v is None:
+            out.append((f"{field}.{key}", "missing"))
+        elif not _is_number(v):
+            out.append((f"{field}.{key}", f"must be a number, not {v!r}"))
+        elif not lo <= v <= hi:
+            out.append((f"{field}.{key}", f"{v} is outside [{lo:g}, {hi:g}]"))
+    alt = value.get("altitude")
+    if alt is not None and not _is_number(alt):
+        out.append((f"{field}.altitude", f"must be a number, not {alt!r}"))
+    return out
+
+
+def read_geopoint(value: Any) -> GeoPoint:
+    """A GeoPoint from a (validated) param value, accepting the one-element-list form."""
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    return GeoPoint.model_validate(value)
+
+
+def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[str, str]]:
+    if spec_type is ParamType.GEOPOINT:
+        return geopoint_problems(value, field)
+    if spec_type is ParamType.GEOPOINTS:
+        if not isinstance(value, list):
+            return [(field, f"must be a list of GeoPoints, not {type(value).__name__}")]
+        return [p for i, v in enumerate(value) for p in geopoint_problems(v, f"{field}[{i}]")]
+    if spec_type is ParamType.GEOPOINTARRAYS:
+        if not isinstance(value, list):
+            return [(field, f"must be a list of GeoPoint lists, not {type(value).__name__}")]
+        return [
+            p
+            for i, v in enumerate(value)
+            for p in _value_problems(ParamType.GEOPOINTS, v, f"{field}[{i}]")
+        ]
+    if spec_type is ParamType.FLOAT64:
+        return [] if _is_number(value) else [(field, f"must be a number, not {value!r}")]
+    if spec_type is ParamType.INT32:
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int) or isinstance(value, bool):
+            return [(field, f"must be an integer, not {value!r}")]
+        if not INT32_MIN <= value <= INT32_MAX:
+            return [(field, f"{value} is outside the int32 range")]
+        return []
+    if spec_type is ParamType.BOOL:
+        return [] if isinstance(value, bool) else [(field, f"must be true or false, not {value!r}")]
+    if spec_type is ParamType.STRING:
+        return [] if isinstance(value, str) else [(field, f"must be a string, not {value!r}")]
+    if spec_type is ParamType.STRINGS:
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            return [(field, "must be a list of strings")]
+        return []
+    if spec_type is ParamType.FLOAT64S:
+        if not isinstance(value, list) or not all(_is_number(v) for v in value):
+            return [(field, "must be a list of numbers")]
+        return []
+    raise AssertionError(spec_type)  # pragma: no cover
+
+
+def _speed_problems(value: Any, field: str) -> list[tuple[str, str]]:
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if isinstance(value, str):
+        if value in SPEED_CLASSES:
+            return []
+        return [(field, f"{value!r} is not one of {', '.join(SPEED_CLASSES)}")]
+    if _is_number(value) and value > 0:
+        return []  # lenient: an explicit m/s, as in the seed's observe-position example
+    return [(field, f"must be one of {', '.join(SPEED_CLASSES)} (or m/s > 0), not {value!r}")]
+
+
+def _polygon_problems(points: list[Any], field: str) -> list[tuple[str, str]]:
+    if len(points) < 3:
+        return [(field, f"a search polygon needs at least 3 points, got {len(points)}")]
+    coords = [(float(p["longitude"]), float(p["latitude"])) for p in points]
+    ring = LinearRing(coords)
+    if not ring.is_simple:
+        return [(field, "the polygon crosses itself")]
+    if Polygon(coords).area == 0.0:
+        return [(field, "the polygon has no area (its points are on a line)")]
+    return []
+
+
+def param_problems(spec: TaskSpec, params: dict[str, Any]) -> list[tuple[str, str]]:
+    """(field, message) pairs for a task node's params; unknown params are allowed and kept."""
+    out: list[tuple[str, str]] = []
+    for name in spec.required:
+        if name not in params or params[name] is None:
+            out.append((f"params.{name}", f"missing: {spec.name} cannot run without it"))
+    for group in spec.one_of:
+        if not any(params.get(g) is not None for g in group):
+            out.append((f"params.{group[0]}", f"missing: {spec.name} needs one of {', '.join(group)}"))
+    for name, value in params.items():
+        pspec = spec.params.get(name)
+        if pspec is None or value is None:
+            continue
+        field = f"params.{name}"
+        if name == "speed" and pspec.type is ParamType.STRING:
+            out.extend(_speed_problems(value, field))
+            continue
+        found = _value_problems(pspec.type, value, field)
+        out.extend(found)
+        if found:
+            continue
+        if spec.name == "search-area" and name == "area":
+            out.extend(_polygon_problems(value, field))
+        elif spec.name == "search-areas" and name == "areas":
+            if not value:
+                out.append((field, "needs at least one area"))
+            for i, area in enumerate(value):
+                out.extend(_polygon_problems(area, f"{field}[{i}]"))
+        elif name in ("radius", "target-size") and value <= 0:
+            out.append((field, f"must be greater than 0, not {value}"))
+    return out
+
+
+def tree_problems(root: TstNode) -> list[Problem]:
+    """Every catalogue problem in a parsed tree: unknown tasks, params, execunit types."""
+    problems: list[Problem] = []
+    for path, node in walk(root):
+        label = where(path, node)
+        try:
+            classify_execunit(node.execunit)
+        except TypeError as exc:
+            problems.append(Problem(label, f"{node.common_key}.execunit", str(exc)))
+        if node.is_control:
+            continue
+        spec = CATALOGUE.get(node.name)
+        if spec is None:
+            problems.append(Problem(label, "name", f"unknown task {node.name!r}: not in the catalogue"))
+            continue
+        problems.extend(Problem(label, f, m) for f, m in param_problems(spec, node.params))
+    return problems
+
+
+def parse_and_validate(data: Any) -> TstNode:
+    """Parse a tree and check it against the catalogue; raise ``InputError`` with every problem."""
+    root = parse_tree(data)
+    problems = tree_problems(root)
+    if problems:
+        raise InputError(problems)
+    return root
+
+
+def with_defaults(root: TstNode) -> TstNode:
+    """The same tree with catalogue defaults filled in where the caller left params out.
+
+    The public example agent silently ignores a ``move-to`` without ``speed``, so the
+    instantiated tree always carries it.
+    """
+
+    def fill(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+        node = node.with_children(children)
+        spec = CATALOGUE.get(node.name)
+        if spec is None or not spec.defaults:
+            return node
+        missing = {k: v for k, v in spec.defaults.items() if k not in node.params}
+        if not missing:
+            return node
+        return node.with_params({**node.params, **missing})
+
+    return map_tree(root, fill)
