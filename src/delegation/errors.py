@@ -28,7 +28,7 @@ class DelegationError(Exception):
 
 
 class InputError(DelegationError):
-    """Input (JSON, a tree, a command, a scenario) that cannot be accepted, with every problem found."""
+    """Input (JSON, a tree, a command, a scenario) that cannot be accepted, with every problem."""
 
     def __init__(self, problems: list[Problem] | Problem | str) -> None:
         if isinstance(problems, str):
@@ -42,3 +42,8 @@ class InputError(DelegationError):
     def fail_reason(self) -> str:
         """The text that goes into a response's ``fail-reason``."""
         return str(self)
+
+
+class MessageError(InputError):
+    """A message (bytes from a topic, or a command file) that is not valid JSON or not a known
+    message of the WARA-PS APIs; ``problems`` say which field is wrong."""

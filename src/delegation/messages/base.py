@@ -1,0 +1,55 @@
+"""The base of every wire model: hyphenated JSON keys, lenient reading, canonical writing.
+
+WARA-PS JSON uses hyphenated keys (``com-uuid``); Python attributes are snake_case and the alias
+generator maps one to the other. Readers ignore extra fields (real traffic carries many); writers
+emit sorted keys and leave out ``None`` fields, as the seed's own examples do.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+
+def hyphenate(name: str) -> str:
+    """``com_uuid`` -> ``com-uuid``."""
+    return name.replace("_", "-")
+
+
+def new_com_uuid() -> str:
+    """A fresh communication uuid (every message we send carries a new one)."""
+    return str(uuid.uuid4())
+
+
+class WireModel(BaseModel):
+    """A WARA-PS JSON message or part of one."""
+
+    model_config = ConfigDict(
+        alias_generator=hyphenate,
+        populate_by_name=True,
+        extra="ignore",
+        validate_assignment=True,
+    )
+
+    #: Wire keys left out when they hold ``""`` or ``[]`` (the seed omits e.g. ``fail-reason`` on
+    #: ``pong`` and ``tasks-executing`` when nothing runs).
+    _omit_empty: ClassVar[frozenset[str]] = frozenset()
+
+    def omit_when_empty(self) -> frozenset[str]:
+        """Keys to drop from the wire form when empty; subclasses refine this."""
+        return self._omit_empty
+
+    def to_wire(self) -> dict[str, Any]:
+        """The canonical JSON object: hyphenated keys, no ``None`` fields."""
+        data = self.model_dump(mode="json", by_alias=True, exclude_none=True)
+        for key in self.omit_when_empty():
+            if key in data and data[key] in ("", []):
+                del data[key]
+        return data
+
+    def to_json(self) -> str:
+        """Canonical text: keys sorted like the seed, compact."""
+        return json.dumps(self.to_wire(), sort_keys=True, separators=(",", ":"), allow_nan=False)

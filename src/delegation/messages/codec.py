@@ -1,0 +1,213 @@
+"""From topic bytes to a model and back: ``decode`` picks the model from the topic (and, for
+commands, from the ``command`` field); ``encode`` writes the seed's canonical JSON.
+
+``decode`` raises ``MessageError`` (an ``InputError``) for anything it cannot accept, and nothing
+else, whatever the bytes.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from delegation.errors import MessageError, Problem
+from delegation.geo import GeoPoint
+from delegation.messages.base import WireModel
+from delegation.messages.delegation_api import (
+    CancelMission,
+    Delegate,
+    DelegationFeedback,
+    DelegationPing,
+    DelegationResponse,
+    GetBids,
+    ListAgents,
+    ListMissions,
+    QueryMission,
+)
+from delegation.messages.direct import (
+    ExecFeedback,
+    ExecResponse,
+    Ping,
+    QueryStatus,
+    SignalExecutor,
+    SignalTask,
+    StartTask,
+)
+from delegation.messages.errors import json_value, validation_problems
+from delegation.messages.info import (
+    DelegationInfo,
+    DirectExecutionInfo,
+    HeartBeat,
+    SensorInfo,
+    TstExecutionInfo,
+)
+from delegation.messages.sensors import SensorReading, sensor_value
+from delegation.messages.tst_exec import (
+    SignalTstNode,
+    SignalTstTree,
+    SignalUnit,
+    StartTst,
+    TstFeedback,
+    TstResponse,
+)
+
+M = TypeVar("M", bound=BaseModel)
+
+#: Every model ``decode`` can return (plus ``SensorReading`` for ``sensor/<name>`` topics).
+Message = WireModel
+
+#: Commands by API: ``{command: model}``.
+EXEC_COMMANDS: dict[str, type[WireModel]] = {
+    "ping": Ping,
+    "start-task": StartTask,
+    "signal-task": SignalTask,
+    "query-status": QueryStatus,
+    "signal-executor": SignalExecutor,
+}
+TST_COMMANDS: dict[str, type[WireModel]] = {
+    "ping": Ping,
+    "start-tst": StartTst,
+    "signal-tst-node": SignalTstNode,
+    "signal-tst-tree": SignalTstTree,
+    "signal-unit": SignalUnit,
+}
+DELEGATION_COMMANDS: dict[str, type[WireModel]] = {
+    "ping": DelegationPing,
+    "delegate": Delegate,
+    "get-bids": GetBids,
+    "query-mission": QueryMission,
+    "list-missions": ListMissions,
+    "list-agents": ListAgents,
+    "cancel-mission": CancelMission,
+}
+COMMANDS: dict[str, dict[str, type[WireModel]]] = {
+    "exec": EXEC_COMMANDS,
+    "tst": TST_COMMANDS,
+    "delegation": DELEGATION_COMMANDS,
+}
+#: Responses and feedback by API.
+RESPONSES: dict[str, type[WireModel]] = {
+    "exec": ExecResponse,
+    "tst": TstResponse,
+    "delegation": DelegationResponse,
+}
+FEEDBACK: dict[str, type[WireModel]] = {
+    "exec": ExecFeedback,
+    "tst": TstFeedback,
+    "delegation": DelegationFeedback,
+}
+#: Info messages by the last topic level.
+INFO: dict[str, type[WireModel]] = {
+    "heartbeat": HeartBeat,
+    "sensor_info": SensorInfo,
+    "direct_execution_info": DirectExecutionInfo,
+    "tst_execution_info": TstExecutionInfo,
+    "delegation_info": DelegationInfo,
+}
+#: Info messages by their ``type`` field (for files without a topic).
+INFO_TYPES: dict[str, type[WireModel]] = {m.model_fields["type"].default: m for m in INFO.values()}
+
+
+def validate_model(model: type[M], data: Any, where: str) -> M:
+    """``model.model_validate(data)``, with errors as a ``MessageError`` naming the fields."""
+    if not isinstance(data, dict):
+        raise MessageError(Problem(where, "", f"must be a JSON object, not {_kind(data)}"))
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise MessageError(validation_problems(exc, where)) from None
+    except (ValueError, TypeError, RecursionError) as exc:  # pragma: no cover - validators' own
+        raise MessageError(Problem(where, "", str(exc))) from None
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "null"
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean"}.get(
+        type(value), "a number"
+    )
+
+
+def parse_command(data: Any, api: str | None = None) -> WireModel:
+    """A command from decoded JSON, by its ``command`` field; ``api`` (exec, tst, delegation)
+    restricts the commands accepted; without it every API's commands are (``ping`` -> ``Ping``)."""
+    where = f"{api}/command" if api else "command"
+    if not isinstance(data, dict):
+        raise MessageError(Problem(where, "", f"must be a JSON object, not {_kind(data)}"))
+    name = data.get("command")
+    if not isinstance(name, str):
+        message = "missing" if name is None else f"must be a string, not {_kind(name)}"
+        raise MessageError(Problem(where, "command", message))
+    tables = [COMMANDS[api]] if api else list(COMMANDS.values())
+    for table in tables:
+        if name in table:
+            return validate_model(table[name], data, name)
+    known = sorted({c for t in tables for c in t})
+    raise MessageError(
+        Problem(where, "command", f"unknown command {name!r}; expected one of {', '.join(known)}")
+    )
+
+
+def parse_message(data: Any) -> WireModel:
+    """A message from decoded JSON without a topic (files, ``delegation validate``): a command
+    by its ``command`` field, an info message by its ``type``, a response by ``response``, a
+    feedback by ``status``. Trees are not messages: see ``delegation.tst``."""
+    if isinstance(data, dict):
+        if "command" in data:
+            return parse_command(data)
+        kind = data.get("type")
+        if isinstance(kind, str) and kind in INFO_TYPES:
+            return validate_model(INFO_TYPES[kind], data, kind)
+        if "response" in data:
+            model: type[WireModel] = TstResponse
+            if "agent-uuid" in data or "task-uuid" in data:
+                model = ExecResponse
+            elif any(k in data for k in ("plan", "bids", "mission", "missions", "agents")):
+                model = DelegationResponse
+            return validate_model(model, data, "response")
+        if "status" in data:
+            if "task-uuid" in data:
+                return validate_model(ExecFeedback, data, "feedback")
+            if "node-uuid" in data:
+                return validate_model(TstFeedback, data, "feedback")
+            return validate_model(DelegationFeedback, data, "feedback")
+    raise MessageError(
+        Problem("message", "", "not a command, info, response or feedback message")
+    )
+
+
+def decode(topic: str, payload: bytes | str) -> WireModel:
+    """The model for ``payload`` arriving on ``topic`` (by its last levels), or ``MessageError``.
+
+    ``.../heartbeat`` -> ``HeartBeat``, ``.../exec/command`` -> the command's model,
+    ``.../tst/feedback`` -> ``TstFeedback``, ``.../sensor/speed`` -> ``SensorReading`` ...
+    """
+    levels = topic.rstrip("/").split("/") if isinstance(topic, str) else []
+    last = levels[-1] if levels else ""
+    parent = levels[-2] if len(levels) > 1 else ""
+    if parent == "sensor" and last:
+        value = sensor_value(last, json_value(payload, f"sensor/{last}"))
+        return SensorReading(sensor=last, value=value)
+    if last in INFO:
+        return validate_model(INFO[last], json_value(payload, last), last)
+    if parent in COMMANDS:
+        where = f"{parent}/{last}"
+        if last == "command":
+            return parse_command(json_value(payload, where), parent)
+        if last == "response":
+            return validate_model(RESPONSES[parent], json_value(payload, where), where)
+        if last == "feedback":
+            return validate_model(FEEDBACK[parent], json_value(payload, where), where)
+    raise MessageError(Problem("topic", "", f"no WARA-PS message is published on {topic!r}"))
+
+
+def encode(model: WireModel | GeoPoint) -> bytes:
+    """Canonical JSON bytes: hyphenated keys, keys sorted like the seed, no ``None`` fields."""
+    data = model.to_wire()
+    try:
+        text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise MessageError(Problem(type(model).__name__, "", f"cannot be encoded: {exc}")) from None
+    return text.encode("utf-8")

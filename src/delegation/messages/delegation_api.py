@@ -1,0 +1,113 @@
+"""The Delegation API on ``delegation/command`` (DESIGN 3.2; the seed names it, we define it).
+
+Commands carrying a tree keep it as raw JSON, like ``start-tst``. Response payloads (plan, bids,
+mission, missions, agents) are plain JSON built by the service; see DESIGN 3.5 for the plan.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any, Literal
+
+from pydantic import Field
+
+from delegation.messages.base import WireModel, new_com_uuid
+
+
+class MissionStatus(StrEnum):
+    """Mission lifecycle events on ``delegation/feedback``."""
+
+    PLANNED = "planned"
+    STARTED = "started"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    ABORTED = "aborted"
+
+
+class Delegate(WireModel):
+    """``delegate``: plan a tree (and with ``start`` also run it)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["delegate"] = "delegate"
+    sender: str = ""
+    tst: dict[str, Any]
+    strategy: str | None = None
+    objective: str | None = None
+    time_limit: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    start: bool = False
+
+
+class GetBids(WireModel):
+    """``get-bids``: every task node x live unit: estimated travel, work, distance or why not."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["get-bids"] = "get-bids"
+    sender: str = ""
+    tst: dict[str, Any]
+
+
+class QueryMission(WireModel):
+    """``query-mission``: status, node statuses and assignments of one mission."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["query-mission"] = "query-mission"
+    root_uuid: str
+    sender: str = ""
+
+
+class ListMissions(WireModel):
+    """``list-missions``: every mission with its status."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["list-missions"] = "list-missions"
+    sender: str = ""
+
+
+class ListAgents(WireModel):
+    """``list-agents``: the live units."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["list-agents"] = "list-agents"
+    sender: str = ""
+
+
+class CancelMission(WireModel):
+    """``cancel-mission``: abort a mission; answered ``ok`` once the engine confirmed."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["cancel-mission"] = "cancel-mission"
+    root_uuid: str
+    sender: str = ""
+
+
+class DelegationPing(WireModel):
+    """``ping`` on ``delegation/command``: answered ``pong``."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["ping"] = "ping"
+    sender: str = ""
+
+
+class DelegationResponse(WireModel):
+    """The answer on ``delegation/response``: ``ok``/``started``/``pong``/``failed``, always with
+    ``fail-reason``, plus the payload of the command answered."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    response_to: str
+    response: str
+    fail_reason: str = ""
+    plan: dict[str, Any] | None = None
+    bids: list[dict[str, Any]] | None = None
+    mission: dict[str, Any] | None = None
+    missions: list[dict[str, Any]] | None = None
+    agents: list[dict[str, Any]] | None = None
+
+
+class DelegationFeedback(WireModel):
+    """Mission lifecycle events on ``delegation/feedback``."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    root_uuid: str
+    status: str
+    fail_reason: str = ""

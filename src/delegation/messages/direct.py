@@ -1,0 +1,112 @@
+"""Direct Execution API (seed section 12): commands to a unit, its responses and task feedback."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any, Literal
+
+from pydantic import Field
+
+from delegation.messages.base import WireModel, new_com_uuid
+
+
+class TaskStatus(StrEnum):
+    """Task feedback statuses (seed 12.4, plus ``enough`` sent by the public example agent).
+
+    Feedback may also carry task-specific strings, so models keep ``status`` a plain ``str``.
+    """
+
+    STARTING = "starting"
+    RUNNING = "running"
+    PAUSED = "paused"
+    FINISHED = "finished"
+    FAILED = "failed"
+    ABORTED = "aborted"
+    ENOUGH = "enough"
+
+
+#: The built-in signals (seed 12.2.2); other names are task specific.
+SIGNALS: tuple[str, ...] = ("$enough", "$pause", "$continue", "$abort")
+
+
+class Ping(WireModel):
+    """``ping``: answered with ``pong`` (seed 12.2.1; also accepted on tst and delegation)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["ping"] = "ping"
+    sender: str = ""
+
+
+class TaskSpecMsg(WireModel):
+    """The ``task`` of a ``start-task``: a task name and its raw params (kept verbatim)."""
+
+    name: str
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class StartTask(WireModel):
+    """``start-task`` (seed 10): run one task on ``execution-unit``."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["start-task"] = "start-task"
+    execution_unit: str
+    sender: str = ""
+    task: TaskSpecMsg
+    task_uuid: str | None = None
+
+
+class SignalTask(WireModel):
+    """``signal-task`` (seed 12.2.2): ``$abort``, ``$enough``, ``$pause``, ``$continue`` or a
+    task-specific signal."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["signal-task"] = "signal-task"
+    sender: str = ""
+    signal: str
+    task_uuid: str
+
+
+class SignalExecutor(WireModel):
+    """``signal-executor`` (seed 12.2.2's second example): a signal to the executor itself."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["signal-executor"] = "signal-executor"
+    sender: str = ""
+    signal: str
+    uuid: str | None = None
+
+
+class QueryStatus(WireModel):
+    """``query-status`` (seed 12.1): the status of a task (running, failed, success, unknown)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["query-status"] = "query-status"
+    sender: str = ""
+    task_uuid: str
+
+
+class ExecResponse(WireModel):
+    """A unit's answer on ``exec/response`` (seed 12.3): ``pong``, ``running``, ``failed``, ...
+
+    ``fail-reason`` is always written except on ``pong``, which the seed shows without it.
+    """
+
+    agent_uuid: str = ""
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    fail_reason: str = ""
+    response: str
+    response_to: str
+    task_uuid: str | None = None
+
+    def omit_when_empty(self) -> frozenset[str]:
+        return frozenset({"fail-reason"}) if self.response == "pong" else frozenset()
+
+
+class ExecFeedback(WireModel):
+    """Task status updates on ``exec/feedback`` (seed 12.4)."""
+
+    agent_uuid: str = ""
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    status: str
+    task_uuid: str
+

@@ -1,0 +1,68 @@
+"""Turning bad bytes and pydantic's errors into ``MessageError`` problems that name the field."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from pydantic import ValidationError
+
+from delegation.errors import MessageError, Problem
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not valid JSON")
+
+
+def json_value(payload: bytes | str, where: str = "message") -> Any:
+    """Decode JSON text; ``NaN``/``Infinity`` and bad UTF-8 are rejected as invalid JSON."""
+    try:
+        text = payload.decode("utf-8") if isinstance(payload, bytes | bytearray) else payload
+        return json.loads(text, parse_constant=_reject_constant)
+    except UnicodeDecodeError as exc:
+        raise MessageError(
+            Problem(where, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+        ) from None
+    except json.JSONDecodeError as exc:
+        raise MessageError(
+            Problem(where, "", f"invalid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})")
+        ) from None
+    except RecursionError:
+        raise MessageError(Problem(where, "", "invalid JSON: nested too deeply")) from None
+    except ValueError as exc:  # NaN/Infinity, integers too long to convert
+        raise MessageError(Problem(where, "", f"invalid JSON: {exc}")) from None
+
+
+def loc_text(loc: tuple[int | str, ...]) -> str:
+    """``("task", "params", 2)`` -> ``task.params[2]``."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def validation_problems(exc: ValidationError, where: str) -> list[Problem]:
+    """One problem per pydantic error, naming the field by its wire (hyphenated) name."""
+    problems: list[Problem] = []
+    for err in exc.errors(include_url=False):
+        # Drop pydantic's internal loc parts (union member names, validator tags).
+        loc = tuple(
+            p for p in err["loc"] if isinstance(p, int) or not str(p).startswith("function-")
+        )
+        field = loc_text(loc)
+        if err["type"] == "missing":
+            message = "missing"
+        elif err["type"] == "extra_forbidden":
+            message = "unknown field"
+        else:
+            message = f"{err['msg']}, got {_short(err.get('input'))}"
+        problems.append(Problem(where, field, message))
+    return problems

@@ -1,0 +1,104 @@
+"""TST Execution API (seed section 14): start and signal trees, responses, node feedback.
+
+``start-tst`` keeps its ``tst`` as raw JSON so that unknown fields survive forwarding; parse it with
+``delegation.tst.parse_and_validate``.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any, Literal
+
+from pydantic import Field
+
+from delegation.messages.base import WireModel, new_com_uuid
+
+
+class NodeStatus(StrEnum):
+    """TST node statuses (seed 14.5)."""
+
+    NOT_ACTIVE = "not-active"
+    ACTIVE = "active"
+    WAITING = "waiting"
+    RUNNING = "running"
+    PAUSED = "paused"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    ABORTED = "aborted"
+    REVOKED = "revoked"
+
+
+#: Statuses after which a node never changes again.
+TERMINAL_NODE_STATUSES: frozenset[str] = frozenset(
+    {NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED, NodeStatus.REVOKED}
+)
+
+
+class StartTst(WireModel):
+    """``start-tst`` (seed 11): execute a tree (fully instantiated for an engine, partially for a
+    delegator)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["start-tst"] = "start-tst"
+    receiver: str | None = None
+    sender: str = ""
+    tst: dict[str, Any]
+
+
+class SignalTstNode(WireModel):
+    """``signal-tst-node`` (seed 14.3.1): a signal to one node."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["signal-tst-node"] = "signal-tst-node"
+    node_uuid: str
+    sender: str = ""
+    signal: str
+
+
+class SignalTstTree(WireModel):
+    """``signal-tst-tree`` (seed 14.3.2): a signal to every node of the tree under ``node-uuid``."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["signal-tst-tree"] = "signal-tst-tree"
+    node_uuid: str
+    sender: str = ""
+    signal: str
+
+
+class SignalUnit(WireModel):
+    """``signal-unit`` (seed 14.3.3): a signal to every running node on ``unit`` (``/dji21``)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    command: Literal["signal-unit"] = "signal-unit"
+    sender: str = ""
+    signal: str
+    unit: str
+
+
+class TstResponse(WireModel):
+    """The answer on ``tst/response`` (seed 14.4): ``ok``, ``started`` (with ``root-uuid``),
+    ``failed`` (with ``fail-reason``), ``pong``.
+
+    The seed writes ``fail-reason`` on ``started``/``failed`` and leaves it out of ``ok``/``pong``.
+    """
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    fail_reason: str = ""
+    response: str
+    response_to: str
+    root_uuid: str | None = None
+
+    def omit_when_empty(self) -> frozenset[str]:
+        if self.response in ("ok", "pong"):
+            return frozenset({"fail-reason"})
+        return frozenset()
+
+
+class TstFeedback(WireModel):
+    """Node status updates on ``tst/feedback`` (seed 14.5)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    fail_reason: str = ""
+    node_uuid: str
+    root_flag: bool = False
+    status: str
