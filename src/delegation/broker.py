@@ -1,0 +1,274 @@
+"""Brokers we start ourselves: the embedded amqtt default and a private mosquitto.
+
+Both listen on 127.0.0.1 only, on a free port, and are started and stopped explicitly (or as
+context managers). `EmbeddedBroker` is the default when no broker is configured: pure Python,
+MQTT 3.1.1 only, ~5k msg/s (DESIGN 4). `PrivateMosquitto` is for tests and benchmarks where the
+`mosquitto` binary exists.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import shutil
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from delegation.errors import DelegationError
+from delegation.mqtt import BrokerSettings
+
+log = logging.getLogger(__name__)
+
+LOOPBACK = "127.0.0.1"
+
+
+class BrokerError(DelegationError):
+    """A broker we tried to start did not come up (or did not stop)."""
+
+
+def free_port(host: str = LOOPBACK) -> int:
+    """A TCP port that is free on ``host`` right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for_port(host: str, port: int, deadline: float) -> bool:
+    """True once ``host:port`` accepts a TCP connection, False at ``deadline`` (monotonic)."""
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection((host, port), timeout=0.5):
+                return True
+        except OSError:
+            time.sleep(0.05)  # polling a port that is not open yet: nothing to wait on
+    return False
+
+
+class EmbeddedBroker:
+    """amqtt in-process, on its own thread and event loop, bound to 127.0.0.1 on a free port."""
+
+    kind = "amqtt"
+
+    def __init__(self, host: str = LOOPBACK, port: int = 0) -> None:
+        if host not in (LOOPBACK, "localhost", "::1"):
+            raise BrokerError(f"the embedded broker listens on loopback only, not {host!r}")
+        self.host = LOOPBACK if host == "localhost" else host
+        self._requested_port = port
+        self.port = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._broker: Any = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+
+    def config(self) -> dict[str, Any]:
+        """amqtt's configuration: one TCP listener, anonymous clients allowed, nothing else."""
+        return {
+            "listeners": {
+                "default": {"type": "tcp", "bind": f"{self.host}:{self._requested_port}"},
+            },
+            "plugins": {
+                "amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True},
+            },
+        }
+
+    def start(self, timeout: float = 10.0) -> EmbeddedBroker:
+        if self._thread is not None:
+            return self
+        self._ready.clear()
+        self._error = None
+        self._thread = threading.Thread(target=self._run, name="amqtt-broker", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout):
+            self.stop()
+            raise BrokerError(f"amqtt did not start within {timeout}s")
+        if self._error is not None:
+            error = self._error
+            self.stop()
+            raise BrokerError(f"amqtt did not start: {error}") from error
+        log.info("embedded amqtt broker on %s:%d", self.host, self.port)
+        return self
+
+    def _run(self) -> None:
+        from amqtt.broker import Broker
+
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        asyncio.set_event_loop(loop)
+
+        async def boot() -> None:
+            broker = Broker(self.config())
+            await broker.start()
+            self._broker = broker
+            # The listener was bound to port 0; read the port the OS chose.
+            server = broker._servers["default"].instance
+            self.port = int(server.sockets[0].getsockname()[1])
+
+        try:
+            loop.run_until_complete(boot())
+        except BaseException as exc:  # report any start failure to start()
+            self._error = exc
+            self._ready.set()
+            loop.close()
+            return
+        self._ready.set()
+        try:
+            loop.run_forever()
+        finally:
+            with contextlib.suppress(Exception):
+                pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+                for task in pending:
+                    task.cancel()
+                loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+            loop.close()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Shut the broker down and join its thread (idempotent)."""
+        thread, loop, broker = self._thread, self._loop, self._broker
+        if thread is None:
+            return
+        if loop is not None and broker is not None and loop.is_running():
+            fut = asyncio.run_coroutine_threadsafe(broker.shutdown(), loop)
+            try:
+                fut.result(timeout)
+            except Exception as exc:  # shutting down: log, then stop the loop anyway
+                log.warning("amqtt shutdown: %s", exc)
+        if loop is not None and loop.is_running():
+            loop.call_soon_threadsafe(loop.stop)
+        thread.join(timeout)
+        if thread.is_alive():
+            raise BrokerError("amqtt thread did not stop")
+        self._thread = None
+        self._broker = None
+        self._loop = None
+
+    def settings(self) -> BrokerSettings:
+        """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
+        return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
+
+    def __enter__(self) -> EmbeddedBroker:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+MOSQUITTO_CONF = """\
+listener {port} {host}
+allow_anonymous true
+persistence false
+set_tcp_nodelay true
+max_queued_messages 0
+log_dest file {log}
+log_type error
+log_type warning
+"""
+
+
+def mosquitto_binary() -> str | None:
+    """The ``mosquitto`` executable, from PATH or /usr/sbin; None when not installed."""
+    found = shutil.which("mosquitto")
+    if found:
+        return found
+    for candidate in ("/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto"):
+        if Path(candidate).is_file():
+            return candidate
+    return None
+
+
+class PrivateMosquitto:
+    """A mosquitto child process on a free loopback port, with the settings DESIGN 4 asks for."""
+
+    kind = "mosquitto"
+
+    def __init__(self, binary: str | None = None, host: str = LOOPBACK) -> None:
+        found = binary or mosquitto_binary()
+        if found is None:
+            raise BrokerError("mosquitto is not installed")
+        self.binary = found
+        self.host = host
+        self.port = 0
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+
+    def start(self, timeout: float = 10.0, attempts: int = 3) -> PrivateMosquitto:
+        if self._proc is not None:
+            return self
+        self._dir = tempfile.TemporaryDirectory(prefix="delegation-mosquitto-")
+        last = ""
+        for _ in range(attempts):
+            self.port = free_port(self.host)
+            conf = Path(self._dir.name) / "mosquitto.conf"
+            logfile = Path(self._dir.name) / "mosquitto.log"
+            conf.write_text(MOSQUITTO_CONF.format(port=self.port, host=self.host, log=logfile))
+            self._proc = subprocess.Popen(
+                [self.binary, "-c", str(conf)],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+            )
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline and self._proc.poll() is None:
+                if wait_for_port(self.host, self.port, min(deadline, time.monotonic() + 0.5)):
+                    log.info("private mosquitto on %s:%d", self.host, self.port)
+                    return self
+            # It exited (port taken between probe and bind?) or never opened the port.
+            last = self._collect_failure(logfile)
+            self._kill()
+        self._cleanup_dir()
+        raise BrokerError(f"mosquitto did not start: {last}")
+
+    def _collect_failure(self, logfile: Path) -> str:
+        text = ""
+        if self._proc is not None and self._proc.poll() is not None and self._proc.stderr:
+            text = self._proc.stderr.read().decode(errors="replace").strip()
+        if not text and logfile.exists():
+            text = logfile.read_text(errors="replace").strip()
+        return text or "port did not open in time"
+
+    def _kill(self) -> None:
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        if proc.stderr:
+            proc.stderr.close()
+
+    def _cleanup_dir(self) -> None:
+        if self._dir is not None:
+            self._dir.cleanup()
+            self._dir = None
+
+    def stop(self) -> None:
+        """Terminate the process and remove its files (idempotent)."""
+        self._kill()
+        self._cleanup_dir()
+
+    @property
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def settings(self) -> BrokerSettings:
+        return BrokerSettings(host=self.host, port=self.port, protocol="5")
+
+    def __enter__(self) -> PrivateMosquitto:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+#: Either kind of broker we start ourselves.
+LocalBroker = EmbeddedBroker | PrivateMosquitto

@@ -1,0 +1,185 @@
+"""Shared fixtures: real brokers for `@pytest.mark.mqtt` tests, unique topic prefixes, collectors.
+
+The session-scoped ``broker`` fixture is parametrised over every broker available here: a private
+``mosquitto`` (when the binary exists) and the in-process ``amqtt`` broker, so each MQTT test runs
+against both in one ``pytest`` run. ``DELEGATION_TEST_BROKERS=amqtt`` (comma-separated) narrows it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from delegation.broker import EmbeddedBroker, LocalBroker, PrivateMosquitto, mosquitto_binary
+from delegation.mqtt import BrokerSettings, Message, MqttClient, Wildcard
+
+
+def _broker_kinds() -> list[Any]:
+    wanted = os.environ.get("DELEGATION_TEST_BROKERS", "mosquitto,amqtt").split(",")
+    kinds: list[Any] = []
+    for kind in (k.strip() for k in wanted if k.strip()):
+        if kind == "mosquitto" and mosquitto_binary() is None:
+            kinds.append(pytest.param(kind, marks=pytest.mark.skip(reason="no mosquitto binary")))
+        else:
+            kinds.append(kind)
+    return kinds
+
+
+@pytest.fixture(scope="session", params=_broker_kinds())
+def broker(request: pytest.FixtureRequest) -> Iterator[LocalBroker]:
+    """A broker for the whole session, on a free loopback port; stopped at the end."""
+    kind = request.param
+    started: LocalBroker = PrivateMosquitto() if kind == "mosquitto" else EmbeddedBroker()
+    started.start()
+    try:
+        yield started
+    finally:
+        started.stop()
+
+
+@pytest.fixture
+def mqtt_settings(broker: LocalBroker) -> BrokerSettings:
+    """Client settings for the session's broker."""
+    return broker.settings()
+
+
+@pytest.fixture
+def broker_kind(broker: LocalBroker) -> str:
+    """``mosquitto`` or ``amqtt``: for the few tests whose deadlines must allow for amqtt."""
+    return broker.kind
+
+
+@pytest.fixture
+def prefix() -> str:
+    """A topic prefix of this test alone, so tests never see each other's messages."""
+    return f"test-{uuid.uuid4().hex[:12]}"
+
+
+class Collector:
+    """A plain MQTT client that records what arrives on its filters; tests wait on it.
+
+    ``wait_for`` blocks on a condition variable (no sleeping) until a recorded message satisfies a
+    predicate, or fails the test at the deadline with what did arrive.
+    """
+
+    def __init__(self, settings: BrokerSettings, patterns: list[str]) -> None:
+        self.patterns = [Wildcard(p) for p in patterns]
+        self.messages: list[Message] = []
+        self._cond = threading.Condition()
+        self.client = MqttClient(settings, f"collector-{uuid.uuid4().hex[:8]}", sink=self._record)
+        for p in patterns:
+            self.client.subscribe(p)
+
+    def _record(self, message: Message) -> None:
+        with self._cond:
+            self.messages.append(message)
+            self._cond.notify_all()
+
+    def start(self) -> Collector:
+        self.client.connect()
+        # Make sure the subscriptions are active before the test goes on: round-trip a probe.
+        probe = f"collector-probe/{self.client.client_id}"
+        self.client.subscribe(probe)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            self.client.publish(probe, b"probe", qos=1)
+            with self._cond:
+                if self._cond.wait_for(
+                    lambda: any(m.topic == probe for m in self.messages), timeout=0.5
+                ):
+                    break
+        else:
+            raise AssertionError("collector subscriptions not active within 10 s")
+        self.client.unsubscribe(probe)
+        with self._cond:
+            self.messages = [m for m in self.messages if m.topic != probe]
+        return self
+
+    def stop(self) -> None:
+        self.client.disconnect()
+
+    def publish(self, topic: str, payload: dict[str, Any] | bytes | str, qos: int = 1) -> None:
+        data = json.dumps(payload).encode() if isinstance(payload, dict) else payload
+        self.client.publish(topic, data, qos=qos)
+
+    def wait_for(
+        self,
+        predicate: Callable[[Message], bool],
+        timeout: float = 10.0,
+        what: str = "a message",
+    ) -> Message:
+        """The first recorded message (old or new) that satisfies ``predicate``."""
+        found: list[Message] = []
+
+        def check() -> bool:
+            for m in self.messages:
+                try:
+                    ok = predicate(m)
+                except (ValueError, KeyError, TypeError):
+                    ok = False
+                if ok:
+                    found.append(m)
+                    return True
+            return False
+
+        with self._cond:
+            if not self._cond.wait_for(check, timeout=timeout):
+                seen = [f"{m.topic}: {m.text[:200]}" for m in self.messages[-15:]]
+                raise AssertionError(f"no {what} within {timeout}s; last seen:\n" + "\n".join(seen))
+        return found[0]
+
+    def wait_json(
+        self,
+        topic_filter: str,
+        predicate: Callable[[dict[str, Any]], bool] = lambda _d: True,
+        timeout: float = 10.0,
+        what: str | None = None,
+    ) -> dict[str, Any]:
+        """The first JSON object on a topic matching ``topic_filter`` satisfying ``predicate``."""
+        wc = Wildcard(topic_filter)
+
+        def pred(m: Message) -> bool:
+            if not wc.matches(m.topic):
+                return False
+            data = json.loads(m.payload)
+            return isinstance(data, dict) and bool(predicate(data))
+
+        found = self.wait_for(pred, timeout, what or f"message on {topic_filter}")
+        return dict(json.loads(found.payload))
+
+    def json_on(self, topic_filter: str) -> list[dict[str, Any]]:
+        """Every JSON object recorded so far on topics matching ``topic_filter``."""
+        wc = Wildcard(topic_filter)
+        out: list[dict[str, Any]] = []
+        with self._cond:
+            for m in self.messages:
+                if wc.matches(m.topic):
+                    try:
+                        data = json.loads(m.payload)
+                    except ValueError:
+                        continue
+                    if isinstance(data, dict):
+                        out.append(data)
+        return out
+
+
+@pytest.fixture
+def collector(mqtt_settings: BrokerSettings) -> Iterator[Callable[..., Collector]]:
+    """A factory: ``collector("prefix/#")`` starts a `Collector`; all are stopped after the test."""
+    made: list[Collector] = []
+
+    def make(*patterns: str) -> Collector:
+        c = Collector(mqtt_settings, list(patterns)).start()
+        made.append(c)
+        return c
+
+    yield make
+    for c in made:
+        c.stop()
