@@ -1,0 +1,312 @@
+"""Scale sweep: every strategy on a grid of generated scenarios (units x tasks).
+
+Shows where each strategy stops being usable. Cells run from small to large; once a strategy's
+run takes longer than the budget (wall time, seconds), every later cell at least as large (units x
+tasks) is *skipped* for that strategy and kept as a ``skipped`` record naming the cell that
+exceeded, so nothing is silently dropped. ``optimal`` runs with the time limit it is given.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from delegation.bench.generate import GeneratorOptions, generate_scenario
+from delegation.bench.runner import ProgressFn, check_choice, run_one, scenarios_from_dicts
+from delegation.errors import DelegationError, InputError, Problem
+
+#: The default grid: runs in a few minutes on 2 cores with the default budget and time limit.
+DEFAULT_UNITS: tuple[int, ...] = (5, 20, 50, 200)
+DEFAULT_TASKS: tuple[int, ...] = (10, 50, 200, 1000)
+DEFAULT_BUDGET = 20.0
+
+OK, OVER_BUDGET, SKIPPED, FAILED = "ok", "over-budget", "skipped", "failed"
+
+
+@dataclass
+class ScaleRecord:
+    """One strategy on one grid cell; ``status`` says whether it ran, and how it went."""
+
+    strategy: str
+    objective: str
+    units: int
+    tasks: int
+    seed: int
+    status: str
+    wall_time: float | None = None
+    solve_time: float | None = None
+    objective_value: float | None = None
+    unassigned: int | None = None
+    #: objective / the best strategy's on this cell (among plans with the fewest unassigned).
+    relative_to_best: float | None = None
+    note: str = ""
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def size(self) -> int:
+        """Problem size: units x tasks (the cost tables' size)."""
+        return self.units * self.tasks
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "size": self.size}
+
+
+SCALE_FIELDS: tuple[str, ...] = (*ScaleRecord.__dataclass_fields__, "size")
+
+
+def grid(units: Sequence[int], tasks: Sequence[int]) -> list[tuple[int, int]]:
+    """Cells ordered from small to large (by units x tasks, then units)."""
+    problems = [
+        Problem("scale", kind, f"sizes must be >= 1, not {v}")
+        for kind, values in (("units", units), ("tasks", tasks))
+        for v in values
+        if v < 1
+    ]
+    if problems or not units or not tasks:
+        raise InputError(problems or [Problem("scale", "", "needs at least one size of each")])
+    cells = {(int(u), int(t)) for u in units for t in tasks}
+    return sorted(cells, key=lambda c: (c[0] * c[1], c[0], c[1]))
+
+
+def run_scale(
+    strategies: Sequence[str] | None = None,
+    *,
+    objectives: Sequence[str] = ("makespan",),
+    units: Sequence[int] = DEFAULT_UNITS,
+    tasks: Sequence[int] = DEFAULT_TASKS,
+    budget: float = DEFAULT_BUDGET,
+    time_limit: float = 5.0,
+    generator: GeneratorOptions | None = None,
+    progress: ProgressFn | None = None,
+) -> list[ScaleRecord]:
+    """Run the sweep; one record per strategy x objective x cell, skipped cells included."""
+    from delegation.allocation import OBJECTIVES, STRATEGIES
+
+    strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
+    objectives = check_choice("objectives", objectives, OBJECTIVES)
+    if not budget > 0:
+        raise InputError(Problem("budget", "", f"must be > 0 seconds, not {budget}"))
+    base = generator or GeneratorOptions()
+    cells = grid(units, tasks)
+    total = len(cells) * len(strategies) * len(objectives)
+    done = 0
+    #: (strategy, objective) -> the cell where it exceeded the budget, and its time.
+    stopped: dict[tuple[str, str], tuple[int, int, float]] = {}
+    records: list[ScaleRecord] = []
+    for n_units, n_tasks in cells:
+        options = GeneratorOptions(**{**base.__dict__, "units": n_units, "tasks": n_tasks})
+        cell_records: list[ScaleRecord] = []
+        needed = [
+            (s, o)
+            for o in objectives
+            for s in strategies
+            if not _blocked(stopped.get((s, o)), n_units, n_tasks)
+        ]
+        item = tree = unit_states = None
+        if needed:
+            item = scenarios_from_dicts([generate_scenario(options)])[0]
+            tree, unit_states = item.scenario.tree(), item.scenario.units()
+        for objective in objectives:
+            for strategy in strategies:
+                record = ScaleRecord(strategy, objective, n_units, n_tasks, options.seed, SKIPPED)
+                block = stopped.get((strategy, objective))
+                if _blocked(block, n_units, n_tasks):
+                    assert block is not None
+                    bu, bt, took = block
+                    record.note = f"skipped: took {took:.1f} s > budget {budget:g} s at {bu}x{bt}"
+                else:
+                    assert item is not None and tree is not None and unit_states is not None
+                    try:
+                        run, _plan = run_one(
+                            item,
+                            tree,
+                            unit_states,
+                            strategy=strategy,
+                            objective=objective,
+                            time_limit=time_limit,
+                        )
+                    except DelegationError as exc:
+                        record.status, record.note = FAILED, str(exc)
+                    else:
+                        record.wall_time, record.solve_time = run.wall_time, run.solve_time
+                        record.objective_value, record.unassigned = (
+                            run.objective_value,
+                            run.unassigned,
+                        )
+                        record.problems = run.problems
+                        record.status = OK
+                        if run.wall_time > budget:
+                            record.status = OVER_BUDGET
+                            record.note = f"took {run.wall_time:.1f} s > budget {budget:g} s"
+                            stopped[(strategy, objective)] = (n_units, n_tasks, run.wall_time)
+                cell_records.append(record)
+                done += 1
+                if progress:
+                    progress(done, total, f"{n_units}x{n_tasks} {strategy}/{objective}")
+        _relative(cell_records)
+        records.extend(cell_records)
+    return records
+
+
+def _blocked(block: tuple[int, int, float] | None, units: int, tasks: int) -> bool:
+    return block is not None and units * tasks >= block[0] * block[1]
+
+
+def _relative(records: Sequence[ScaleRecord]) -> None:
+    for objective in {r.objective for r in records}:
+        ran = [
+            r
+            for r in records
+            if r.objective == objective
+            and r.status in (OK, OVER_BUDGET)
+            and r.objective_value is not None
+            and r.unassigned is not None
+        ]
+        if not ran:
+            continue
+        fewest = min(r.unassigned for r in ran if r.unassigned is not None)
+        comparable = [r for r in ran if r.unassigned == fewest]
+        best = min(r.objective_value for r in comparable if r.objective_value is not None)
+        for r in comparable:
+            assert r.objective_value is not None
+            r.relative_to_best = r.objective_value / best if best > 0 else 1.0
+
+
+# --------------------------------------------------------------------------- output
+
+
+def write_scale_csv(records: Sequence[ScaleRecord], path: str | Path) -> Path:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(SCALE_FIELDS)
+        for record in records:
+            row = record.to_dict()
+            writer.writerow([_cell(row[f]) for f in SCALE_FIELDS])
+    return out
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, list):
+        return " | ".join(map(str, value))
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def scale_plot(
+    records: Sequence[ScaleRecord], path: str | Path, *, budget: float | None = None
+) -> Path:
+    """Two log-x panels over problem size (units x tasks): wall time (log-log), and objective
+    relative to the best strategy on the cell. Over-budget runs are ringed in red; skipped cells
+    are marked with an x on the budget line."""
+    import matplotlib
+
+    from delegation.bench.plots import new_figure
+
+    fig = new_figure(11.0, 4.6)
+    ax_time, ax_rel = fig.subplots(1, 2)
+    cmap = matplotlib.colormaps["tab10"]
+    strategies = list(dict.fromkeys(r.strategy for r in records))
+    objectives = list(dict.fromkeys(r.objective for r in records))
+    styles = ["-", "--", ":", "-."]
+    for si, strategy in enumerate(strategies):
+        for oi, objective in enumerate(objectives):
+            mine = sorted(
+                (r for r in records if r.strategy == strategy and r.objective == objective),
+                key=lambda r: (r.size, r.units),
+            )
+            label = strategy if len(objectives) == 1 else f"{strategy}/{objective}"
+            colour, style = cmap(si % 10), styles[oi % len(styles)]
+            ran = [r for r in mine if r.wall_time is not None]
+            if ran:
+                ax_time.plot(
+                    [r.size for r in ran],
+                    [r.wall_time for r in ran],
+                    style,
+                    marker="o",
+                    ms=4,
+                    color=colour,
+                    label=label,
+                )
+                over = [r for r in ran if r.status == OVER_BUDGET]
+                ax_time.plot(
+                    [r.size for r in over],
+                    [r.wall_time for r in over],
+                    "o",
+                    ms=10,
+                    mfc="none",
+                    mec="red",
+                )
+            skipped = [r for r in mine if r.status == SKIPPED]
+            if skipped and budget:
+                ax_time.plot(
+                    [r.size for r in skipped], [budget] * len(skipped), "x", color=colour, ms=7
+                )
+            rel = [r for r in mine if r.relative_to_best is not None]
+            if rel:
+                ax_rel.plot(
+                    [r.size for r in rel],
+                    [r.relative_to_best for r in rel],
+                    style,
+                    marker="o",
+                    ms=4,
+                    color=colour,
+                    label=label,
+                )
+    if budget:
+        ax_time.axhline(budget, color="red", lw=0.8, ls="--", label=f"budget {budget:g} s")
+    ax_time.set_xscale("log")
+    ax_time.set_yscale("log")
+    ax_time.set_xlabel("problem size (units x tasks)")
+    ax_time.set_ylabel("wall time per plan (s)")
+    ax_time.set_title("planning time (x: skipped after exceeding the budget)", fontsize=10)
+    ax_time.grid(True, which="both", alpha=0.3)
+    ax_time.legend(fontsize=8)
+    ax_rel.set_xscale("log")
+    values = [r.relative_to_best for r in records if r.relative_to_best is not None]
+    if values and max(values) / max(min(values), 1e-9) > 4:
+        ax_rel.set_yscale("log")
+    ax_rel.axhline(1.0, color="black", lw=0.8)
+    ax_rel.set_xlabel("problem size (units x tasks)")
+    ax_rel.set_ylabel("objective / best strategy's")
+    ax_rel.set_title("plan quality (1 = best on that cell)", fontsize=10)
+    ax_rel.grid(True, which="both", alpha=0.3)
+    if values:
+        ax_rel.legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png")
+    return out
+
+
+def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
+    """Per strategy x objective: the largest cell it ran within budget, and where it stopped."""
+    rows = []
+    keys = list(dict.fromkeys((r.strategy, r.objective) for r in records))
+    for strategy, objective in keys:
+        mine = [r for r in records if r.strategy == strategy and r.objective == objective]
+        ok = [r for r in mine if r.status == OK]
+        largest = max(ok, key=lambda r: (r.size, r.units), default=None)
+        over = [r for r in mine if r.status == OVER_BUDGET]
+        rel = [r.relative_to_best for r in ok if r.relative_to_best is not None]
+        rows.append(
+            {
+                "strategy": strategy,
+                "objective": objective,
+                "largest_within_budget": f"{largest.units}x{largest.tasks}" if largest else "",
+                "largest_time": largest.wall_time if largest else None,
+                "exceeded_at": ", ".join(f"{r.units}x{r.tasks}" for r in over),
+                "skipped": sum(r.status == SKIPPED for r in mine),
+                "failed": sum(r.status == FAILED for r in mine),
+                "median_relative": float(np.median(rel)) if rel else None,
+            }
+        )
+    return rows

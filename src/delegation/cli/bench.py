@@ -1,0 +1,348 @@
+"""``delegation bench``: compare allocation strategies on scenario files or generated scenarios.
+
+Three modes: scenario files/folders (table, ``--out`` CSV/JSON/PNGs), ``--generate`` (random
+scenarios from a seed; ``--save`` writes them as YAML), and ``--scale`` (a units x tasks sweep
+with a time budget, written as CSV + PNG). The library does the work; this module parses and
+renders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from delegation.errors import InputError, Problem
+
+
+def _words(text: str) -> list[str]:
+    return [w.strip() for w in text.split(",") if w.strip()]
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(w) for w in _words(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers, not {text!r}"
+        ) from None
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "bench",
+        help="benchmark allocation strategies on scenarios",
+        description=(
+            "Run every chosen strategy x objective on every scenario (files, folders, or "
+            "--generate'd), report makespan, total time, distance, solve time, unassigned tasks, "
+            "bound/gap and the ratio to 'nearest'; --scale sweeps units x tasks instead."
+        ),
+    )
+    parser.add_argument(
+        "scenarios",
+        nargs="*",
+        metavar="SCENARIO",
+        help="scenario files (YAML/JSON) or folders of them",
+    )
+    parser.add_argument(
+        "--strategies",
+        type=_words,
+        default=None,
+        help="comma-separated (default: all: nearest,auction,optimal)",
+    )
+    parser.add_argument(
+        "--objectives",
+        type=_words,
+        default=None,
+        help="comma-separated (default: makespan,total; --scale: makespan)",
+    )
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="runs of each combination (default 1)"
+    )
+    parser.add_argument(
+        "--time-limit",
+        type=float,
+        default=5.0,
+        help="seconds for strategies that search (optimal); default 5",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="folder for results.csv, results.json, results.md and PNG plots "
+        "(--scale: scale.csv, scale.png, scale.md; default bench-out)",
+    )
+    parser.add_argument("--no-plots", action="store_true", help="write no PNGs")
+    parser.add_argument(
+        "--max-map-tasks",
+        type=int,
+        default=400,
+        help="draw route maps only for scenarios with at most this many tasks",
+    )
+
+    gen = parser.add_argument_group("generated scenarios (--generate, and the --scale grid)")
+    gen.add_argument("--generate", action="store_true", help="benchmark random scenarios")
+    gen.add_argument(
+        "--count",
+        type=int,
+        default=1,
+        help="scenarios per size, seeds SEED, SEED+1, ... (default 1)",
+    )
+    gen.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    gen.add_argument(
+        "--units",
+        type=_ints,
+        default=None,
+        help="units per scenario, comma-separated (default 5; --scale: 5,20,50,200)",
+    )
+    gen.add_argument(
+        "--tasks",
+        type=_ints,
+        default=None,
+        help="tasks per scenario, comma-separated (default 20; --scale: 10,50,200,1000)",
+    )
+    gen.add_argument(
+        "--site", default="granso", help="granso, motala or linkoping (default granso)"
+    )
+    gen.add_argument(
+        "--mix",
+        default=None,
+        help="task types and weights, e.g. move-to=2,search-area=1 (default: all five equally)",
+    )
+    gen.add_argument("--structure", default="mixed", help="mixed (conc of seqs), conc or seq")
+    gen.add_argument(
+        "--radius", type=float, default=2000.0, help="metres around the site (default 2000)"
+    )
+    gen.add_argument("--homes", action="store_true", help="units return home (closed tours)")
+    gen.add_argument(
+        "--save", type=Path, default=None, help="write the generated scenarios as YAML here"
+    )
+
+    scale = parser.add_argument_group("scale sweep (--scale)")
+    scale.add_argument("--scale", action="store_true", help="sweep a grid of units x tasks")
+    scale.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="seconds per plan; a strategy that exceeds it skips larger sizes (default 20)",
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    console = Console()
+    err = Console(stderr=True)
+    if args.scale:
+        return _run_scale(args, console, err)
+    return _run_bench(args, console, err)
+
+
+@contextmanager
+def _progress(err: Any, description: str) -> Iterator[Callable[[int, int, str], None]]:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[label]}"),
+        console=err,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(description, total=None, label="")
+
+        def update(done: int, total: int, label: str) -> None:
+            bar.update(task, completed=done, total=total, label=label)
+
+        yield update
+
+
+def _generator_options(args: argparse.Namespace, units: int, tasks: int, seed: int) -> Any:
+    from delegation.bench.generate import GeneratorOptions, parse_mix
+
+    extra: dict[str, Any] = {}
+    if args.mix:
+        extra["mix"] = parse_mix(args.mix)
+    return GeneratorOptions(
+        units=units,
+        tasks=tasks,
+        site=args.site,
+        seed=seed,
+        structure=args.structure,
+        radius=args.radius,
+        homes=args.homes,
+        **extra,
+    )
+
+
+def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from delegation.bench.generate import generate_scenario
+
+    if args.count < 1:
+        raise InputError(Problem("count", "", f"must be at least 1, not {args.count}"))
+    out = []
+    for units in args.units or [5]:
+        for tasks in args.tasks or [20]:
+            for i in range(args.count):
+                out.append(generate_scenario(_generator_options(args, units, tasks, args.seed + i)))
+    return out
+
+
+def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
+    from delegation.bench.generate import save_scenarios
+    from delegation.bench.report import markdown_table, results_table, write_csv, write_json
+    from delegation.bench.runner import load_scenarios, run_bench, scenarios_from_dicts
+
+    if not args.scenarios and not args.generate:
+        raise InputError(Problem("bench", "", "give scenario files/folders, --generate or --scale"))
+    loaded, failures = load_scenarios(args.scenarios)
+    if args.generate:
+        data = _generated(args)
+        if args.save:
+            for path in save_scenarios(data, args.save):
+                err.print(f"wrote {path}")
+        loaded += scenarios_from_dicts(data)
+    for failure in failures:
+        err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
+
+    with _progress(err, "planning") as update:
+        result = run_bench(
+            loaded,
+            strategies=args.strategies,
+            objectives=args.objectives,
+            repeat=args.repeat,
+            time_limit=args.time_limit,
+            progress=update,
+        )
+    for failure in result.failures:
+        err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
+    failures += result.failures
+
+    if result.records:
+        console.print(results_table(result.records))
+    for record in result.violations:
+        err.print(
+            f"[red]invariant violated[/red] {record.source} {record.strategy}/{record.objective}: "
+            + "; ".join(record.problems),
+            markup=True,
+            highlight=False,
+        )
+    if args.out:
+        meta = {
+            "strategies": args.strategies,
+            "objectives": args.objectives,
+            "repeat": args.repeat,
+            "time_limit": args.time_limit,
+            "command": " ".join(["delegation", *sys.argv[2:]]),
+        }
+        written = [
+            write_csv(result.records, args.out / "results.csv"),
+            write_json(result.records, args.out / "results.json", failures=failures, meta=meta),
+        ]
+        md = args.out / "results.md"
+        md.write_text(markdown_table(result.records) + "\n", encoding="utf-8")
+        written.append(md)
+        if not args.no_plots and result.records:
+            from delegation.bench.plots import write_plots
+
+            with _progress(err, "plotting") as update:
+                update(0, 1, "")
+                written += write_plots(result, args.out, max_map_tasks=args.max_map_tasks)
+        err.print(f"wrote {len(written)} files to {args.out}")
+    return 1 if failures or result.violations else 0
+
+
+def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
+    from rich.table import Table
+
+    from delegation.bench.scale import (
+        DEFAULT_BUDGET,
+        DEFAULT_TASKS,
+        DEFAULT_UNITS,
+        run_scale,
+        scale_plot,
+        summary_rows,
+        write_scale_csv,
+    )
+
+    budget = args.budget if args.budget is not None else DEFAULT_BUDGET
+    out: Path = args.out or Path("bench-out")
+    with _progress(err, "scale sweep") as update:
+        records = run_scale(
+            args.strategies,
+            objectives=args.objectives or ["makespan"],
+            units=args.units or DEFAULT_UNITS,
+            tasks=args.tasks or DEFAULT_TASKS,
+            budget=budget,
+            time_limit=args.time_limit,
+            generator=_generator_options(args, 1, 1, args.seed),
+            progress=update,
+        )
+    rows = summary_rows(records)
+    table = Table(
+        title=f"Scale sweep (budget {budget:g} s per plan, time limit {args.time_limit:g} s)"
+    )
+    for header in (
+        "strategy",
+        "objective",
+        "largest within budget",
+        "its time s",
+        "exceeded at",
+        "skipped",
+        "failed",
+        "median vs best",
+    ):
+        table.add_column(header)
+    for row in rows:
+        table.add_row(
+            row["strategy"],
+            row["objective"],
+            row["largest_within_budget"] or "-",
+            "-" if row["largest_time"] is None else f"{row['largest_time']:.2f}",
+            row["exceeded_at"] or "-",
+            str(row["skipped"]),
+            str(row["failed"]),
+            "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
+        )
+    console.print(table)
+    written = [write_scale_csv(records, out / "scale.csv")]
+    md = out / "scale.md"
+    md.write_text(_scale_markdown(rows) + "\n", encoding="utf-8")
+    written.append(md)
+    if not args.no_plots:
+        written.append(scale_plot(records, out / "scale.png", budget=budget))
+    for path in written:
+        err.print(f"wrote {path}")
+    violations = [r for r in records if r.problems]
+    for r in violations:
+        err.print(
+            f"[red]invariant violated[/red] {r.units}x{r.tasks} {r.strategy}: "
+            + "; ".join(r.problems)
+        )
+    failed = [r for r in records if r.status == "failed"]
+    for r in failed:
+        err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
+    return 1 if violations or failed else 0
+
+
+def _scale_markdown(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        "| strategy | objective | largest within budget | its time s | exceeded at | skipped | "
+        "median vs best |",
+        "|---|---|---|---:|---|---:|---:|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['strategy']} | {row['objective']} | {row['largest_within_budget'] or '-'} | "
+            + ("-" if row["largest_time"] is None else f"{row['largest_time']:.2f}")
+            + f" | {row['exceeded_at'] or '-'} | {row['skipped']} | "
+            + ("-" if row["median_relative"] is None else f"{row['median_relative']:.3f}")
+            + " |"
+        )
+    return "\n".join(lines)
