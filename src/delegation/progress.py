@@ -1,0 +1,178 @@
+"""Following a mission: a pure progress model fed with feedback, rendered with rich.
+
+``submit`` and ``demo`` feed it the service's ``tst/feedback`` and ``delegation/feedback`` with
+wall-clock ``now``; it keeps one row per task (unit, status, planned and actual times) and renders
+a live table and a plan-vs-actual summary per unit. Actual times are mission seconds: wall seconds
+since the mission started, times ``speedup`` (the simulation's time factor), so they compare with
+the plan's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from rich.table import Table
+
+from delegation.tst.node import parse_tree, walk
+
+_FINAL_NODE = frozenset({"succeeded", "failed", "aborted", "revoked"})
+_FINAL_MISSION = frozenset({"succeeded", "failed", "aborted"})
+_STYLE = {
+    "succeeded": "green",
+    "failed": "red",
+    "aborted": "red",
+    "revoked": "red",
+    "running": "yellow",
+    "paused": "magenta",
+}
+
+
+@dataclass(slots=True)
+class TaskRow:
+    """One task node of the mission: who runs it, the plan's times, and what happened."""
+
+    node_uuid: str
+    name: str
+    unit: str
+    planned_start: float
+    planned_end: float
+    status: str = "not-active"
+    started: float | None = None  # mission seconds
+    ended: float | None = None
+
+
+class MissionProgress:
+    """The state of one mission as seen from its feedback (no I/O, ``now`` passed in)."""
+
+    def __init__(self, plan: dict[str, Any], speedup: float = 1.0) -> None:
+        self.plan = plan
+        self.speedup = speedup
+        tree = parse_tree(plan["tst"])
+        self.root_uuid: str = tree.node_uuid or ""
+        order = {n.node_uuid: i for i, (_, n) in enumerate(walk(tree))}
+        assignments = sorted(
+            plan.get("assignments", []), key=lambda a: order.get(a.get("node-uuid"), 0)
+        )
+        self.rows: dict[str, TaskRow] = {
+            a["node-uuid"]: TaskRow(
+                node_uuid=a["node-uuid"],
+                name=a.get("name", ""),
+                unit=str(a.get("execunit", "")),
+                planned_start=float(a.get("start", 0.0)),
+                planned_end=float(a.get("end", 0.0)),
+            )
+            for a in assignments
+        }
+        self.status = "planned"
+        self.fail_reason = ""
+        self.started_at: float | None = None  # wall clock
+        self.ended_at: float | None = None
+        self.root_status = "not-active"
+
+    # ----------------------------------------------------------------- feeding
+
+    def _mission_time(self, now: float) -> float:
+        if self.started_at is None:
+            self.started_at = now
+        return (now - self.started_at) * self.speedup
+
+    def on_node(self, node_uuid: str, status: str, now: float) -> bool:
+        """A ``tst/feedback`` for a node; True if it changed something shown."""
+        if node_uuid == self.root_uuid:
+            self.root_status = status
+            if status == "running" and self.started_at is None:
+                self.started_at = now
+        row = self.rows.get(node_uuid)
+        if row is None or row.status in _FINAL_NODE or row.status == status:
+            return node_uuid == self.root_uuid
+        row.status = status
+        t = self._mission_time(now)
+        if status == "running" and row.started is None:
+            row.started = t
+        if status in _FINAL_NODE:
+            row.ended = t
+        return True
+
+    def on_mission(self, status: str, fail_reason: str, now: float) -> None:
+        """A lifecycle event from ``delegation/feedback``."""
+        if self.status in _FINAL_MISSION:
+            return
+        self.status = status
+        self.fail_reason = fail_reason
+        if status in ("started", "running") and self.started_at is None:
+            self.started_at = now
+        if status in _FINAL_MISSION:
+            self.ended_at = now
+
+    @property
+    def done(self) -> bool:
+        return self.status in _FINAL_MISSION
+
+    @property
+    def succeeded(self) -> bool:
+        return self.status == "succeeded"
+
+    @property
+    def elapsed(self) -> float | None:
+        """Mission seconds from start to end (or to the last event)."""
+        if self.started_at is None:
+            return None
+        end = self.ended_at if self.ended_at is not None else self.started_at
+        return (end - self.started_at) * self.speedup
+
+    # ----------------------------------------------------------------- summaries
+
+    def unit_summary(self) -> list[dict[str, Any]]:
+        """Per unit: tasks, tasks succeeded, planned end and actual end (mission seconds)."""
+        units: dict[str, dict[str, Any]] = {}
+        for row in self.rows.values():
+            u = units.setdefault(
+                row.unit,
+                {"unit": row.unit, "tasks": 0, "succeeded": 0, "planned-end": 0.0,
+                 "actual-end": None},
+            )
+            u["tasks"] += 1
+            u["succeeded"] += row.status == "succeeded"
+            u["planned-end"] = max(u["planned-end"], row.planned_end)
+            if row.ended is not None:
+                u["actual-end"] = max(u["actual-end"] or 0.0, row.ended)
+        return sorted(units.values(), key=lambda u: u["unit"])
+
+    # ----------------------------------------------------------------- rendering
+
+    def table(self) -> Table:
+        """The live view: a line per task with its unit and status."""
+        title = f"mission {self.root_uuid[:8]}  [{self.status}]"
+        table = Table(title=title, title_justify="left", expand=False)
+        for col in ("task", "unit", "status", "plan start", "plan end", "actual start",
+                    "actual end"):
+            table.add_column(col, justify="right" if "start" in col or "end" in col else "left")
+        for row in self.rows.values():
+            style = _STYLE.get(row.status, "")
+            table.add_row(
+                row.name,
+                row.unit,
+                f"[{style}]{row.status}[/]" if style else row.status,
+                f"{row.planned_start:.0f}",
+                f"{row.planned_end:.0f}",
+                _fmt(row.started),
+                _fmt(row.ended),
+            )
+        return table
+
+    def summary_table(self) -> Table:
+        """Plan vs actual per unit, in mission seconds."""
+        table = Table(title="plan vs actual (mission seconds)", title_justify="left")
+        for col in ("unit", "tasks", "succeeded", "planned end", "actual end", "difference"):
+            table.add_column(col, justify="left" if col == "unit" else "right")
+        for u in self.unit_summary():
+            actual = u["actual-end"]
+            diff = "-" if actual is None else f"{actual - u['planned-end']:+.0f}"
+            table.add_row(u["unit"], str(u["tasks"]), str(u["succeeded"]),
+                          f"{u['planned-end']:.0f}", _fmt(actual), diff)
+        return table
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
