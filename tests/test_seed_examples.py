@@ -86,15 +86,35 @@ def route(path: Path) -> tuple[str, type]:
 def test_every_seed_section_has_examples() -> None:
     names = [p.name for p in FILES]
     assert len(names) == 39
-    for section in ("5.1", "5.2", "5.3", "10.1.1", "10.1.9", "11.1.1", "11.1.4", "11.1.5",
-                    "11.1.9", "12.2.1", "12.3.3", "12.4", "14.3.3", "14.4.4", "14.5"):
+    for section in (
+        "5.1",
+        "5.2",
+        "5.3",
+        "10.1.1",
+        "10.1.9",
+        "11.1.1",
+        "11.1.4",
+        "11.1.5",
+        "11.1.9",
+        "12.2.1",
+        "12.3.3",
+        "12.4",
+        "14.3.3",
+        "14.4.4",
+        "14.5",
+    ):
         assert any(n.startswith(section + "-") for n in names), section
 
 
 def test_every_repaired_file_is_listed_in_the_readme() -> None:
     readme = (SEED_DIR / "README.md").read_text()
-    for name in ("11.1.4-move-path.json", "11.1.5-move-to.json", "11.1.8-search-areas.json",
-                 "12.2.2-signal-task.json", "10.1.3-look-at-positions.json"):
+    for name in (
+        "11.1.4-move-path.json",
+        "11.1.5-move-to.json",
+        "11.1.8-search-areas.json",
+        "12.2.2-signal-task.json",
+        "10.1.3-look-at-positions.json",
+    ):
         assert f"`{name}`" in readme
 
 
@@ -117,8 +137,9 @@ def test_seed_example_round_trips(path: Path) -> None:
         assert encoded.decode() == strip_ws(text)
 
 
-@pytest.mark.parametrize("path", [p for p in FILES if p.name.startswith("11.")],
-                         ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "path", [p for p in FILES if p.name.startswith("11.")], ids=lambda p: p.name
+)
 def test_seed_start_tst_tree_validates_and_round_trips(path: Path) -> None:
     message = decode(f"{BASE}/tst/command", path.read_bytes())
     assert isinstance(message, StartTst)
@@ -127,8 +148,9 @@ def test_seed_start_tst_tree_validates_and_round_trips(path: Path) -> None:
     assert tree.node_uuid == message.tst["common_params"]["node-uuid"]
 
 
-@pytest.mark.parametrize("path", [p for p in FILES if p.name.startswith("10.")],
-                         ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "path", [p for p in FILES if p.name.startswith("10.")], ids=lambda p: p.name
+)
 def test_seed_start_task_params_validate(path: Path) -> None:
     message = decode(f"{BASE}/exec/command", path.read_bytes())
     assert isinstance(message, StartTask)
