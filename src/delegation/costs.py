@@ -1,0 +1,566 @@
+"""The cost model of DESIGN 3.6: what each unit would need to do each task, as numpy tables.
+
+Every strategy plans on the same ``CostTables`` so that their plans mean the same thing:
+
+* **distance**: straight lines in a mission-local ENU frame (the geodesic within 0.1 % inside
+  50 km), altitude ignored;
+* **speed**: the unit's m/s for the task's ``speed`` class (default ``standard``); an explicit
+  m/s (the seed's ``"speed": [7.0]``) is used as given, capped at the unit's ``fast``;
+* **where a task starts and ends, and its work**:
+
+  =========================  ================================  ===================================
+  task                       start -> end                      work
+  =========================  ================================  ===================================
+  move-to                    waypoint                          none
+  move-path, navigate        first -> last waypoint            polyline length / speed
+  search-area                the sweep's two ends              boustrophedon path length / speed
+  search-areas               first sweep's start -> last end   all sweeps + connectors / speed
+  search-around-position     the sweep's ends (circle)         boustrophedon path length / speed
+  observe-position           geopoint                          ``duration`` s (open-ended if < 0
+                                                               or missing)
+  go-home                    the unit's ``home``               none (travel only)
+  land                       ``p`` if given, else in place     ``LAND_TIME_S``
+  take-off                   in place                          ``TAKE_OFF_TIME_S``
+  look-at-*, image-object-   in place (no travel)              open-ended
+  detection, others
+  =========================  ================================  ===================================
+
+* **sweep width**: the camera footprint ``w = 2 h tan(FOV/2) (1 - overlap)`` at the unit's sweep
+  altitude, but never wider than the swath in which a target of ``target-size`` still spans
+  ``MIN_TARGET_PIXELS`` of an ``IMAGE_PIXELS``-wide image (see ``sweep_width``);
+* **capability**: the unit lists the task in ``tasks-available``, is alive, and its remaining
+  endurance (``battery * endurance``) covers travel + work (+ the way home, where it has one) of the
+  task on its own. Open-ended tasks count travel only.
+
+Travel and work use the same speed. The tables are built with numpy over units x tasks; only the
+per-task geometry (and one coverage path per distinct sweep width) is computed in Python.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from delegation.coverage import (
+    circle_polygon,
+    coverage_length,
+    coverage_path,
+    multi_coverage_path,
+    path_length,
+)
+from delegation.errors import InputError
+from delegation.fleet import SPEED_KEYS, UnitState
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.tst.node import TstNode
+from delegation.tst.validate import read_geopoint
+
+__all__ = [
+    "IMAGE_PIXELS",
+    "LAND_TIME_S",
+    "MIN_TARGET_PIXELS",
+    "SWEEP_OVERLAP",
+    "TAKE_OFF_TIME_S",
+    "CostTables",
+    "TaskGeometry",
+    "cost_tables",
+    "coverage_length",
+    "coverage_path",
+    "sweep_width",
+    "task_geometry",
+    "task_path",
+    "unit_speed",
+]
+
+log = logging.getLogger(__name__)
+
+#: Overlap between neighbouring sweep lanes.
+SWEEP_OVERLAP = 0.2
+#: Width of the camera image in pixels, and how many pixels a target must span to be detected.
+IMAGE_PIXELS = 1280
+MIN_TARGET_PIXELS = 16
+#: Fixed times for vertical manoeuvres (horizontal travel is not involved).
+TAKE_OFF_TIME_S = 20.0
+LAND_TIME_S = 30.0
+#: ``target-size`` when a search task leaves it out (the catalogue default).
+DEFAULT_TARGET_SIZE = 2.0
+
+_SPEED_INDEX = {k: i for i, k in enumerate(SPEED_KEYS)}
+
+# --------------------------------------------------------------------------- speeds, widths
+
+
+def unit_speed(unit: UnitState, speed_param: object) -> float:
+    """The unit's m/s for a task's ``speed`` parameter.
+
+    ``None`` means ``standard``; a class name uses the unit's value; an explicit positive number
+    (or the seed's one-element list ``[7.0]``) is taken as m/s, capped at the unit's ``fast``.
+    """
+    value = speed_param
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if value is None:
+        return float(unit.speeds["standard"])
+    if isinstance(value, str):
+        if value not in _SPEED_INDEX:
+            raise InputError(f"speed {value!r} is not one of {', '.join(SPEED_KEYS)}")
+        return float(unit.speeds[value])
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        v = float(value)
+        if math.isfinite(v) and v > 0.0:
+            return min(v, float(unit.speeds["fast"]))
+    raise InputError(
+        f"speed must be one of {', '.join(SPEED_KEYS)} or m/s > 0, not {speed_param!r}"
+    )
+
+
+def footprint_width(unit: UnitState) -> float:
+    """The camera footprint across track (m): ``2 h tan(FOV/2) (1 - overlap)``."""
+    h = unit.effective_sweep_altitude
+    fov = math.radians(unit.camera_fov_deg)
+    return 2.0 * h * math.tan(fov / 2.0) * (1.0 - SWEEP_OVERLAP)
+
+
+def detection_width(target_size: float) -> float:
+    """The widest swath (m) in which a target of ``target_size`` m spans enough pixels."""
+    return float(target_size) * IMAGE_PIXELS / MIN_TARGET_PIXELS
+
+
+def sweep_width(unit: UnitState, target_size: float) -> float:
+    """Lane spacing (m) for a search by ``unit`` for targets of ``target_size`` m.
+
+    The narrower of the unit's footprint and the detection swath: a drone at 40 m with a 60 degree
+    camera sweeps 37 m lanes; looking for 0.3 m targets narrows them to 24 m.
+    """
+    if not math.isfinite(target_size) or target_size <= 0.0:
+        raise InputError(f"target-size must be a positive number of metres, not {target_size!r}")
+    width = min(footprint_width(unit), detection_width(target_size))
+    if not width > 0.0:
+        raise InputError(f"unit {unit.name} has no usable sensor footprint (width {width})")
+    return width
+
+
+# --------------------------------------------------------------------------- task geometry
+
+
+@dataclass(frozen=True, slots=True)
+class TaskGeometry:
+    """Where a task happens, in GeoPoints (frame-free), as the cost model reads it.
+
+    ``kind`` is one of ``point`` (start = end = ``points[0]``), ``path`` (a polyline through
+    ``points``), ``areas`` (polygons to sweep), ``home`` (the unit's home) or ``inplace``.
+    """
+
+    kind: str
+    points: tuple[GeoPoint, ...] = ()
+    areas: tuple[tuple[GeoPoint, ...], ...] = ()
+    circle: tuple[GeoPoint, float] | None = None
+    target_size: float = DEFAULT_TARGET_SIZE
+    fixed_time: float = 0.0
+    open_ended: bool = False
+
+
+def _target_size(params: dict[str, Any]) -> float:
+    value = params.get("target-size")
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return DEFAULT_TARGET_SIZE
+
+
+def task_geometry(node: TstNode) -> TaskGeometry:
+    """Read a (validated) task node's geometry per the table in the module docstring."""
+    p = node.params
+    name = node.name
+    if name == "move-to":
+        return TaskGeometry("point", (read_geopoint(p["waypoint"]),))
+    if name in ("move-path", "navigate"):
+        pts = tuple(read_geopoint(v) for v in p["waypoints"])
+        return TaskGeometry("path", pts) if pts else TaskGeometry("inplace")
+    if name == "search-area":
+        area = tuple(read_geopoint(v) for v in p["area"])
+        return TaskGeometry("areas", areas=(area,), target_size=_target_size(p))
+    if name == "search-areas":
+        areas = tuple(tuple(read_geopoint(v) for v in area) for area in p["areas"])
+        return TaskGeometry("areas", areas=areas, target_size=_target_size(p))
+    if name == "search-around-position":
+        centre = read_geopoint(p["geopoint"])
+        radius = p.get("radius", 50.0)
+        return TaskGeometry(
+            "areas", points=(centre,), circle=(centre, float(radius)), target_size=_target_size(p)
+        )
+    if name == "observe-position":
+        duration = p.get("duration")
+        if isinstance(duration, int | float) and not isinstance(duration, bool) and duration >= 0:
+            return TaskGeometry(
+                "point", (read_geopoint(p["geopoint"]),), fixed_time=float(duration)
+            )
+        return TaskGeometry("point", (read_geopoint(p["geopoint"]),), open_ended=True)
+    if name == "go-home":
+        return TaskGeometry("home")
+    if name == "land":
+        if p.get("p") is not None and not p.get("land-at-current-position-flag", False):
+            return TaskGeometry("point", (read_geopoint(p["p"]),), fixed_time=LAND_TIME_S)
+        return TaskGeometry("inplace", fixed_time=LAND_TIME_S)
+    if name == "take-off":
+        return TaskGeometry("inplace", fixed_time=TAKE_OFF_TIME_S)
+    # look-at-*, image-object-detection and anything else: done where the unit is, until $enough.
+    return TaskGeometry("inplace", open_ended=True)
+
+
+def _geo_points(g: TaskGeometry) -> list[GeoPoint]:
+    pts = list(g.points)
+    for area in g.areas:
+        pts.extend(area)
+    return pts
+
+
+def _polygons_xy(g: TaskGeometry, frame: LocalFrame) -> list[np.ndarray]:
+    if g.circle is not None:
+        centre, radius = g.circle
+        return [circle_polygon(frame.point_xy(centre), radius)]
+    return [frame.points_xy(list(area)) for area in g.areas]
+
+
+def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:
+    if len(polygons) == 1:
+        return coverage_path(polygons[0], width)
+    return multi_coverage_path(polygons, width)
+
+
+def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None) -> list[GeoPoint]:
+    """The points the unit moves through to do the task's work (for simulators and maps).
+
+    ``move-to``/``observe-position``: the point; ``move-path``: the waypoints; searches: the
+    boustrophedon sweep with the unit's own sweep width, at the altitude of the area's first point
+    (the centre for ``search-around-position``); ``go-home``: the home (if known); in-place tasks:
+    an empty list.
+    """
+    g = task_geometry(node)
+    if g.kind in ("point", "path"):
+        return list(g.points)
+    if g.kind == "home":
+        return [unit.home] if unit.home is not None else []
+    if g.kind != "areas":
+        return []
+    pts = _geo_points(g)
+    frame = frame or LocalFrame.around(pts)
+    path = _sweep_xy(_polygons_xy(g, frame), sweep_width(unit, g.target_size))
+    altitude = pts[0].altitude
+    lat, lon = frame.to_geo(path[:, 0], path[:, 1])
+    return [
+        GeoPoint(latitude=float(a), longitude=float(b), altitude=altitude)
+        for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon), strict=True)
+    ]
+
+
+# --------------------------------------------------------------------------- the tables
+
+
+@dataclass(frozen=True, eq=False)
+class CostTables:
+    """Everything a strategy needs about units x tasks, as arrays (indices follow ``units`` and
+    ``tasks``).
+
+    ``start_xy``/``end_xy`` rows are NaN where the point depends on the unit (``go-home``: its home)
+    or where the task is done in place (``travels`` False: the unit stays where it is); use
+    ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
+    For search tasks ``end_xy`` is the end of the sweep at the narrowest sweep width among the units
+    that offer the task (the end lane depends on how many lanes a unit needs; the start does not).
+    Open-ended tasks have ``work_time`` 0.
+    """
+
+    units: tuple[UnitState, ...]
+    tasks: tuple[TstNode, ...]
+    frame: LocalFrame
+    unit_xy: np.ndarray
+    home_xy: np.ndarray
+    start_xy: np.ndarray
+    end_xy: np.ndarray
+    speed: np.ndarray
+    work_time: np.ndarray
+    work_distance: np.ndarray
+    travels: np.ndarray
+    open_ended: np.ndarray
+    capable: np.ndarray
+    endurance: np.ndarray
+    #: (U, T) the unit lists the task in tasks-available.
+    listed: np.ndarray
+    #: (U, T) seconds the task alone needs: travel from the unit + work (+ the way home).
+    need_time: np.ndarray
+    #: (T,) True for go-home (start and end are the unit's home).
+    to_home: np.ndarray
+    #: (U, T) sweep width (m) for search tasks, NaN elsewhere.
+    width: np.ndarray
+    #: Whether busy units were excluded (``cost_tables(exclude_busy=True)``).
+    exclude_busy: bool = False
+
+    @property
+    def n_units(self) -> int:
+        return len(self.units)
+
+    @property
+    def n_tasks(self) -> int:
+        return len(self.tasks)
+
+    def unit_index(self, name: str) -> int | None:
+        """Index of the unit called ``name`` (with or without ``/``), or None."""
+        key = name.strip("/")
+        for i, u in enumerate(self.units):
+            if u.name == key:
+                return i
+        return None
+
+    def reason(self, u: int, t: int) -> str | None:
+        """Why unit ``u`` cannot take task ``t`` (None when it can)."""
+        if self.capable[u, t]:
+            return None
+        unit, task = self.units[u], self.tasks[t]
+        if not unit.alive:
+            return f"{unit.name} is not alive (no recent heartbeat)"
+        if not self.listed[u, t]:
+            return f"{unit.name} does not offer {task.name}"
+        if self.exclude_busy and unit.busy:
+            return f"{unit.name} is busy with another task"
+        need, have = float(self.need_time[u, t]), float(self.endurance[u])
+        if not math.isfinite(need):
+            return f"{unit.name} has no usable sensor footprint for {task.name}"
+        if not need <= have:
+            return (
+                f"{unit.name} has {have:.0f} s of endurance left but {task.name} needs "
+                f"{need:.0f} s" + (" including the way home" if unit.home is not None else "")
+            )
+        return f"{unit.name} cannot take {task.name}"  # pragma: no cover - all causes above
+
+    def start_for(self, u: int, t: int) -> np.ndarray | None:
+        """Where unit ``u`` starts task ``t`` (None: where it already is)."""
+        if not self.travels[t]:
+            return None
+        if self.to_home[t]:
+            home = self.home_xy[u]
+            return None if np.isnan(home).any() else home
+        return np.asarray(self.start_xy[t])
+
+    def end_for(self, u: int, t: int) -> np.ndarray | None:
+        """Where unit ``u`` is after task ``t`` (None: where it was before)."""
+        if not self.travels[t]:
+            return None
+        if self.to_home[t]:
+            home = self.home_xy[u]
+            return None if np.isnan(home).any() else home
+        return np.asarray(self.end_xy[t])
+
+    def dist_unit_to_start(self) -> np.ndarray:
+        """(U, T) metres from each unit's position to each task's start.
+
+        0 for in-place tasks; for ``go-home`` the distance to the unit's home (0 when unknown).
+        """
+        d = _pairwise(self.unit_xy, self.start_xy)
+        d[:, ~self.travels] = 0.0
+        if self.to_home.any():
+            home_d = np.hypot(*(self.home_xy - self.unit_xy).T)
+            home_d = np.where(np.isnan(home_d), 0.0, home_d)
+            d[:, self.to_home] = home_d[:, None]
+        return d
+
+    def dist_end_to_start(self) -> np.ndarray:
+        """(T, T) metres from the end of task i to the start of task j.
+
+        Column j is 0 when j is done in place; row i is NaN when i is done in place or is
+        ``go-home`` (the unit's position then depends on the unit or on what it did before), and
+        column j is NaN when j is ``go-home``.
+        """
+        d = _pairwise(self.end_xy, self.start_xy)
+        d[:, ~self.travels] = 0.0
+        d[~self.travels | self.to_home, :] = np.nan
+        d[:, self.to_home] = np.nan
+        return d
+
+    def dist_end_to_home(self) -> np.ndarray:
+        """(T, U) metres from the end of task t to unit u's home; NaN where u has no home or the
+        end is not a fixed point (in-place tasks); 0 for ``go-home``."""
+        d = _pairwise(self.end_xy, self.home_xy)
+        no_home = np.isnan(self.home_xy).any(axis=1)
+        d[self.to_home, :] = 0.0
+        d[:, no_home] = np.nan
+        d[~self.travels, :] = np.nan
+        return d
+
+
+def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    diff = a[:, None, :] - b[None, :, :]
+    return np.asarray(np.hypot(diff[..., 0], diff[..., 1]), dtype=float)
+
+
+def _speed_spec(node: TstNode) -> tuple[int, float]:
+    """(speed class index or -1, explicit m/s or NaN) of a task node."""
+    value = node.params.get("speed")
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if value is None:
+        return _SPEED_INDEX["standard"], math.nan
+    if isinstance(value, str):
+        if value not in _SPEED_INDEX:
+            raise InputError(
+                f"{node.name}: params.speed: {value!r} is not one of {', '.join(SPEED_KEYS)}"
+            )
+        return _SPEED_INDEX[value], math.nan
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return -1, float(value)
+    raise InputError(f"{node.name}: params.speed: must be a speed class or m/s > 0, not {value!r}")
+
+
+def cost_tables(
+    units: Sequence[UnitState],
+    tasks: Sequence[TstNode],
+    frame: LocalFrame | None = None,
+    *,
+    exclude_busy: bool = False,
+) -> CostTables:
+    """Build the cost tables for ``units`` x ``tasks`` (task nodes, in the order given).
+
+    ``frame`` defaults to one centred on every unit, home and task point. With ``exclude_busy``,
+    units already executing a task cannot take new ones (the live service's choice); offline
+    planning leaves it off.
+    """
+    units_t = tuple(units)
+    tasks_t = tuple(tasks)
+    n_u, n_t = len(units_t), len(tasks_t)
+    geoms = [task_geometry(node) for node in tasks_t]
+
+    if frame is None:
+        pts: list[GeoPoint] = [u.position for u in units_t]
+        pts += [u.home for u in units_t if u.home is not None]
+        for g in geoms:
+            pts += _geo_points(g)
+        frame = LocalFrame.around(pts)
+
+    unit_xy = frame.points_xy([u.position for u in units_t]).reshape(n_u, 2)
+    home_xy = np.full((n_u, 2), np.nan)
+    homes = [(i, u.home) for i, u in enumerate(units_t) if u.home is not None]
+    if homes:
+        home_xy[[i for i, _ in homes]] = frame.points_xy([h for _, h in homes])
+
+    # Unit-independent task facts.
+    kinds = [g.kind for g in geoms]
+    travels = np.array([k not in ("inplace",) for k in kinds], dtype=bool).reshape(n_t)
+    to_home = np.array([k == "home" for k in kinds], dtype=bool).reshape(n_t)
+    open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(n_t)
+    fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(n_t)
+    start_xy = np.full((n_t, 2), np.nan)
+    end_xy = np.full((n_t, 2), np.nan)
+    path_len = np.zeros(n_t)
+
+    # Speeds: (U, 3) per class, then (U, T) per task.
+    unit_speeds = np.array(
+        [[float(u.speeds[k]) for k in SPEED_KEYS] for u in units_t], dtype=float
+    ).reshape(n_u, 3)
+    specs = [_speed_spec(node) for node in tasks_t]
+    cls = np.array([s[0] for s in specs], dtype=int).reshape(n_t)
+    explicit = np.array([s[1] for s in specs], dtype=float).reshape(n_t)
+    speed = unit_speeds[:, np.clip(cls, 0, 2)]
+    speed = np.where(cls[None, :] < 0, np.minimum(explicit[None, :], unit_speeds[:, 2:3]), speed)
+
+    # Capability by listing: one column per distinct task name.
+    names = sorted({n.name for n in tasks_t})
+    name_col = {name: i for i, name in enumerate(names)}
+    offers = np.array([[name in u.tasks for name in names] for u in units_t], dtype=bool)
+    offers = offers.reshape(n_u, len(names))
+    listed = offers[:, [name_col[n.name] for n in tasks_t]].reshape(n_u, n_t)
+
+    # Sweep widths: (U,) footprint against (T,) detection swath.
+    footprint = np.array([_footprint_or_nan(u) for u in units_t], dtype=float).reshape(n_u)
+    detect = np.array(
+        [detection_width(g.target_size) if g.kind == "areas" else np.nan for g in geoms]
+    ).reshape(n_t)
+    width = np.minimum(footprint[:, None], detect[None, :])
+    width = np.where(width > 0.0, width, np.nan)  # no usable footprint: cannot search
+
+    work_distance = np.zeros((n_u, n_t))
+    for t, g in enumerate(geoms):
+        if g.kind == "point":
+            start_xy[t] = end_xy[t] = frame.point_xy(g.points[0])
+        elif g.kind == "path":
+            xy = frame.points_xy(list(g.points))
+            start_xy[t], end_xy[t] = xy[0], xy[-1]
+            path_len[t] = path_length(xy)
+        elif g.kind == "areas":
+            polygons = _polygons_xy(g, frame)
+            col = width[:, t]
+            ref = _reference_width(col, listed[:, t])
+            for w in np.unique(col[np.isfinite(col)]):
+                path = _sweep_xy(polygons, float(w))
+                work_distance[col == w, t] = path_length(path)
+                if w == ref:
+                    start_xy[t], end_xy[t] = path[0], path[-1]
+            if np.isnan(start_xy[t]).any():  # no unit at all: a nominal sweep for the geometry
+                path = _sweep_xy(polygons, detection_width(g.target_size))
+                start_xy[t], end_xy[t] = path[0], path[-1]
+    work_distance += path_len[None, :]
+    searches = np.array([k == "areas" for k in kinds], dtype=bool).reshape(n_t)
+    work_distance[np.isnan(width) & searches[None, :]] = np.inf
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        work_time = np.where(work_distance > 0.0, work_distance / speed, 0.0) + fixed_time[None, :]
+    work_time = np.where(open_ended[None, :], 0.0, work_time)
+
+    endurance = np.array(
+        [math.inf if u.remaining_endurance is None else u.remaining_endurance for u in units_t],
+        dtype=float,
+    ).reshape(n_u)
+    alive = np.array([u.alive for u in units_t], dtype=bool).reshape(n_u)
+    busy = np.array([u.busy for u in units_t], dtype=bool).reshape(n_u)
+
+    tables = CostTables(
+        units=units_t,
+        tasks=tasks_t,
+        frame=frame,
+        unit_xy=unit_xy,
+        home_xy=home_xy,
+        start_xy=start_xy,
+        end_xy=end_xy,
+        speed=speed,
+        work_time=work_time,
+        work_distance=work_distance,
+        travels=travels,
+        open_ended=open_ended,
+        capable=np.zeros((n_u, n_t), dtype=bool),
+        endurance=endurance,
+        listed=listed,
+        need_time=np.zeros((n_u, n_t)),
+        to_home=to_home,
+        width=width,
+        exclude_busy=exclude_busy,
+    )
+
+    # Time the task alone needs: there, the work, and home again where the unit has a home.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        back = tables.dist_end_to_home().T  # (U, T), NaN where no home / in place
+        back = np.where(np.isnan(back), 0.0, back)
+        need = (tables.dist_unit_to_start() + back) / speed + work_time
+    need_time = np.where(np.isfinite(need), need, np.inf)
+
+    capable = listed & alive[:, None] & (need_time <= endurance[:, None])
+    if exclude_busy:
+        capable &= ~busy[:, None]
+    tables.need_time[...] = need_time
+    tables.capable[...] = capable
+    return tables
+
+
+def _footprint_or_nan(unit: UnitState) -> float:
+    try:
+        return footprint_width(unit)
+    except (ValueError, OverflowError):  # pragma: no cover - absurd FOV values
+        return math.nan
+
+
+def _reference_width(col: np.ndarray, listed: np.ndarray) -> float:
+    """The narrowest width among units offering the task (else among all units), or NaN."""
+    for mask in (listed & np.isfinite(col), np.isfinite(col)):
+        if mask.any():
+            return float(col[mask].min())
+    return math.nan

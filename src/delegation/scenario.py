@@ -1,0 +1,340 @@
+"""Scenario files (DESIGN 3.7): a fleet and a mission, in YAML or JSON.
+
+Scenarios serve the benchmark, the demo, the simulator and the tests alike. A bad file is answered
+with one ``InputError`` whose problems name the file and the field
+(``scenarios/x.yaml: agents[1].position.latitude: missing``).
+
+Agent fields (hyphenated like the rest of WARA-PS): ``name``, ``type`` (air | ground | surface |
+subsurface), ``position``, ``tasks``, optional ``speeds`` (m/s per class; missing classes from the
+type's defaults, see ``delegation.fleet``), ``battery`` (0..1), ``endurance`` (s at full battery),
+``home``, ``camera-fov`` (degrees), ``sweep-altitude`` (m), ``rate`` (Hz, for simulated units).
+
+``berlin52_scenario`` turns the TSPLIB instance into a delegation scenario for the planning
+benchmark (see /work/shared/benchmarks/README.md).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from delegation.errors import InputError, Problem
+from delegation.fleet import AGENT_TYPES, DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.tst import CATALOGUE, TstNode, parse_and_validate
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "AgentSpec",
+    "Scenario",
+    "berlin52_scenario",
+    "load_scenario",
+    "read_tsplib",
+    "scenario_from_dict",
+]
+
+
+def _hyphenate(name: str) -> str:
+    return name.replace("_", "-")
+
+
+class AgentSpec(BaseModel):
+    """One unit of a scenario's fleet."""
+
+    model_config = ConfigDict(
+        alias_generator=_hyphenate, populate_by_name=True, extra="forbid", frozen=True
+    )
+
+    name: str = Field(min_length=1)
+    type: str
+    position: GeoPoint
+    tasks: list[str]
+    speeds: dict[str, float] | None = None
+    battery: float | None = Field(default=None, ge=0.0, le=1.0)
+    endurance: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    home: GeoPoint | None = None
+    camera_fov: float | None = Field(default=None, gt=0.0, lt=180.0)
+    sweep_altitude: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    rate: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        name = value.strip().strip("/")
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
+            raise ValueError(f"{value!r} is not a unit name (letters, digits, _ . - only)")
+        return name
+
+    @field_validator("type")
+    @classmethod
+    def _type(cls, value: str) -> str:
+        if value not in AGENT_TYPES:
+            raise ValueError(f"{value!r} is not one of {', '.join(AGENT_TYPES)}")
+        return value
+
+    @field_validator("tasks")
+    @classmethod
+    def _tasks(cls, value: list[str]) -> list[str]:
+        unknown = [t for t in value if t not in CATALOGUE]
+        if unknown:
+            raise ValueError(
+                f"unknown task(s) {', '.join(map(repr, unknown))}: not in the catalogue"
+            )
+        return value
+
+    @field_validator("speeds")
+    @classmethod
+    def _speeds(cls, value: dict[str, float] | None) -> dict[str, float] | None:
+        if value is None:
+            return None
+        for key, v in value.items():
+            if key not in SPEED_KEYS:
+                raise ValueError(f"{key!r} is not one of {', '.join(SPEED_KEYS)}")
+            if not v > 0.0 or v != v or v == float("inf"):
+                raise ValueError(f"{key}: must be a positive number of m/s, not {v}")
+        return value
+
+    def unit(self) -> UnitState:
+        """The planner's view of this unit (alive, idle, at its position)."""
+        return make_unit(
+            self.name,
+            self.type,
+            self.position,
+            self.tasks,
+            self.speeds,
+            battery=self.battery,
+            endurance=self.endurance,
+            home=self.home,
+            camera_fov_deg=DEFAULT_CAMERA_FOV_DEG if self.camera_fov is None else self.camera_fov,
+            sweep_altitude=self.sweep_altitude,
+        )
+
+    def profile(self) -> dict[str, Any]:
+        """What a fleet profile holds for this unit (see ``delegation.fleet``)."""
+        return self.model_dump(
+            by_alias=True,
+            exclude_none=True,
+            include={"speeds", "battery", "endurance", "home", "camera_fov", "sweep_altitude"},
+        )
+
+
+class Scenario(BaseModel):
+    """A fleet and a mission (the TST as a C2 tool would send it, kept raw)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(min_length=1)
+    description: str = Field(min_length=1)
+    agents: list[AgentSpec]
+    mission: dict[str, Any]
+    #: Where the scenario came from (a file path or ``<dict>``), for messages.
+    source: str = Field(default="<dict>", exclude=True)
+
+    def tree(self) -> TstNode:
+        """The mission, parsed and validated against the task catalogue."""
+        try:
+            return parse_and_validate(self.mission)
+        except InputError as exc:
+            raise _in_mission(exc, self.source) from None
+
+    def units(self) -> list[UnitState]:
+        """The fleet as the planner sees it."""
+        return [a.unit() for a in self.agents]
+
+    def agent(self, name: str) -> AgentSpec | None:
+        """The agent called ``name`` (with or without ``/``)."""
+        key = name.strip("/")
+        return next((a for a in self.agents if a.name == key), None)
+
+    def profiles(self) -> dict[str, dict[str, Any]]:
+        """Fleet profiles by unit name, for a ``FleetRegistry`` that runs this scenario live."""
+        return {a.name: a.profile() for a in self.agents}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scenario as file data (hyphenated keys, no empty optionals)."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "agents": [
+                a.model_dump(by_alias=True, exclude_none=True, mode="json") for a in self.agents
+            ],
+            "mission": self.mission,
+        }
+
+
+def _in_mission(exc: InputError, source: str) -> InputError:
+    return InputError(
+        [Problem(f"{source}: mission {p.where}", p.field, p.message) for p in exc.problems]
+    )
+
+
+def _loc(loc: tuple[int | str, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
+    """Build and check a scenario: its fields, unique agent names, and the mission tree."""
+    if not isinstance(data, dict):
+        raise InputError(
+            Problem(source, "", "a scenario must be a mapping (name, description, agents, mission)")
+        )
+    try:
+        scenario = Scenario.model_validate({**data, "source": source})
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            msg = err["msg"]
+            if err["type"] == "missing":
+                msg = "missing"
+            elif err["type"] == "extra_forbidden":
+                msg = "unknown field"
+            msg = msg.removeprefix("Value error, ")
+            problems.append(Problem(source, _loc(err["loc"]), msg))
+        raise InputError(problems) from None
+    seen: set[str] = set()
+    for i, agent in enumerate(scenario.agents):
+        if agent.name in seen:
+            raise InputError(
+                Problem(source, f"agents[{i}].name", f"duplicate agent name {agent.name!r}")
+            )
+        seen.add(agent.name)
+    scenario.tree()  # raises InputError naming file, node and field
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load a scenario file (``.yaml``/``.yml`` or ``.json``; other suffixes are tried as YAML)."""
+    p = Path(path)
+    source = str(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
+    try:
+        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            Problem(
+                source, "", f"not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
+            )
+        ) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise InputError(Problem(source, "", f"not valid YAML{where}: {problem}")) from None
+    return scenario_from_dict(data, source)
+
+
+# --------------------------------------------------------------------------- berlin52
+
+
+def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
+    """The node coordinates of a TSPLIB ``EUC_2D`` file, in file order."""
+    source = str(path)
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
+    coords: list[tuple[float, float]] = []
+    in_section = False
+    for number, line in enumerate(lines, start=1):
+        text = line.strip()
+        if text.startswith("NODE_COORD_SECTION"):
+            in_section = True
+            continue
+        if not in_section or not text:
+            continue
+        if text == "EOF" or not text[0].isdigit():
+            break
+        parts = text.split()
+        if len(parts) < 3:
+            raise InputError(Problem(source, f"line {number}", "expected 'id x y'"))
+        try:
+            coords.append((float(parts[1]), float(parts[2])))
+        except ValueError:
+            raise InputError(Problem(source, f"line {number}", f"not numbers: {text!r}")) from None
+    if not coords:
+        raise InputError(Problem(source, "NODE_COORD_SECTION", "no coordinates found"))
+    return coords
+
+
+def berlin52_scenario(
+    path_to_tsp: str | Path,
+    units: int,
+    speed: float = 1.0,
+    site: tuple[float, float] = (57.76, 16.68),
+) -> Scenario:
+    """A TSPLIB instance as an mTSP delegation scenario (benchmarks/README.md).
+
+    Points are east/north metres (1 unit = 1 m) around ``site``, the bounding box centred on it;
+    node 1 is the depot, where every unit starts and has its ``home``; every other node is a
+    ``move-to`` (``node-uuid`` ``<name>-<id>``) under one ``conc``. All units are identical
+    ``air`` units with ``speed`` m/s in every speed class, so time x speed = distance.
+    """
+    if units < 1:
+        raise InputError(Problem("berlin52_scenario", "units", f"must be at least 1, not {units}"))
+    if not speed > 0.0:
+        raise InputError(Problem("berlin52_scenario", "speed", f"must be positive, not {speed}"))
+    coords = read_tsplib(path_to_tsp)
+    name = Path(path_to_tsp).stem
+    xs = [c[0] for c in coords]
+    ys = [c[1] for c in coords]
+    cx, cy = (min(xs) + max(xs)) / 2.0, (min(ys) + max(ys)) / 2.0
+    frame = LocalFrame(site[0], site[1])
+    points = [frame.geopoint(x - cx, y - cy) for x, y in coords]
+    depot = points[0]
+
+    def wire(p: GeoPoint) -> dict[str, Any]:
+        return p.to_wire()
+
+    agents = [
+        {
+            "name": f"u{k}",
+            "type": "air",
+            "position": wire(depot),
+            "home": wire(depot),
+            "speeds": {"slow": speed, "standard": speed, "fast": speed},
+            "tasks": ["move-to"],
+        }
+        for k in range(units)
+    ]
+    children = [
+        {
+            "name": "move-to",
+            "common_params": {"execunit": "*", "node-uuid": f"{name}-{i + 1}"},
+            "params": {"speed": "standard", "waypoint": wire(p)},
+        }
+        for i, p in enumerate(points)
+        if i > 0
+    ]
+    mission = {
+        "name": "conc",
+        "common_params": {"node-uuid": f"{name}-root"},
+        "children": children,
+    }
+    return scenario_from_dict(
+        {
+            "name": f"{name}-{units}u",
+            "description": (
+                f"TSPLIB {name} as an mTSP: {units} identical unit(s) at {speed:g} m/s start and "
+                f"end at node 1; the other {len(children)} nodes are move-tos under one conc."
+            ),
+            "agents": agents,
+            "mission": mission,
+        },
+        source=str(path_to_tsp),
+    )
