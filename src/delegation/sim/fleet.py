@@ -1,0 +1,98 @@
+"""A simulated fleet: one `SimUnit` per scenario agent, started and stopped together."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Sequence
+
+from delegation.fleet import UnitState
+from delegation.mqtt import DEFAULT_PREFIX, BrokerSettings
+from delegation.scenario import Scenario
+from delegation.sim.unit import SimUnit
+
+log = logging.getLogger(__name__)
+
+
+class SimFleet:
+    """Simulated units for a list of `UnitState`s (or a scenario's agents, with their rates)."""
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        units: Sequence[UnitState],
+        *,
+        prefix: str = DEFAULT_PREFIX,
+        role: str = "simulation",
+        speedup: float = 1.0,
+        rates: dict[str, float] | None = None,
+        example_agent: bool = False,
+    ) -> None:
+        rates = rates or {}
+        self.units: dict[str, SimUnit] = {}
+        for unit in units:
+            if unit.name in self.units:
+                raise ValueError(f"two simulated units are named {unit.name!r}")
+            self.units[unit.name] = SimUnit(
+                settings,
+                unit,
+                prefix=prefix,
+                role=role,
+                rate=rates.get(unit.name),
+                speedup=speedup,
+                example_agent=example_agent,
+            )
+
+    @classmethod
+    def from_scenario(
+        cls,
+        settings: BrokerSettings,
+        scenario: Scenario,
+        *,
+        prefix: str = DEFAULT_PREFIX,
+        role: str = "simulation",
+        speedup: float = 1.0,
+        example_agent: bool = False,
+    ) -> SimFleet:
+        rates = {a.name: a.rate for a in scenario.agents if a.rate is not None}
+        return cls(
+            settings,
+            scenario.units(),
+            prefix=prefix,
+            role=role,
+            speedup=speedup,
+            rates=rates,
+            example_agent=example_agent,
+        )
+
+    def start(self, timeout: float = 10.0) -> SimFleet:
+        """Start every unit; if one fails, stop those already started and re-raise."""
+        started: list[SimUnit] = []
+        try:
+            for unit in self.units.values():
+                unit.start(timeout)
+                started.append(unit)
+        except BaseException:
+            for unit in started:
+                unit.stop()
+            raise
+        log.info("simulated fleet of %d units started", len(started))
+        return self
+
+    def stop(self) -> None:
+        for unit in self.units.values():
+            unit.stop()
+
+    def __iter__(self) -> Iterator[SimUnit]:
+        return iter(self.units.values())
+
+    def __getitem__(self, name: str) -> SimUnit:
+        return self.units[name.strip("/")]
+
+    def __len__(self) -> int:
+        return len(self.units)
+
+    def __enter__(self) -> SimFleet:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

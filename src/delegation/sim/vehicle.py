@@ -1,0 +1,267 @@
+"""A simulated vehicle without MQTT and without a clock: tasks, motion, battery.
+
+`SimVehicle` is driven by `step(dt)` with simulated seconds, so its kinematics are tested
+directly; `delegation.sim.unit.SimUnit` puts it on MQTT and feeds it ``dt`` from an injectable
+clock times a speed-up factor.
+
+Work follows the cost model (`delegation.costs`), so simulated missions take as long as the planner
+says: a task flies the points of `costs.task_path` (a move-to's waypoint, a move-path's waypoints,
+the boustrophedon sweep of a search with the unit's own sweep width) at the unit's speed for the
+task's ``speed`` class, in straight lines in a local ENU frame, then stays for the task's fixed time
+(``duration`` of observe-position, take-off, land) or, for open-ended tasks, until ``$enough``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+from delegation.errors import InputError
+from delegation.fleet import UnitState
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.tst.catalogue import CATALOGUE, is_vehicle_task
+from delegation.tst.node import TstNode
+from delegation.tst.validate import param_problems
+
+log = logging.getLogger(__name__)
+
+#: Fail reasons, spelled like the public example agent's.
+ALREADY_RUNNING = "A task is already running"
+NOT_SUPPORTED = "Task is not supported"
+INVALID_TASK_UUID = "Invalid task-uuid"
+BATTERY_EMPTY = "battery depleted"
+
+#: Endurance (s at full battery) assumed for draining when a unit's endurance is unknown.
+DEFAULT_ENDURANCE_S = 3600.0
+#: How many finished tasks a vehicle remembers for query-status.
+HISTORY = 1000
+
+
+class TaskState(StrEnum):
+    """What a task on the vehicle is doing; the values are the feedback statuses sent."""
+
+    RUNNING = "running"
+    """Moving along its path or holding (observing, looking)."""
+    PAUSED = "paused"
+    """Stopped by ``$pause`` until ``$continue``."""
+    FINISHED = "finished"
+    """Reached the end of its work, or ended by ``$enough``."""
+    ENOUGH = "enough"
+    """Ended by ``$enough`` (the public example agent's spelling; ours says ``finished``)."""
+    FAILED = "failed"
+    """Could not go on (battery)."""
+    ABORTED = "aborted"
+    """Ended by ``$abort``."""
+
+
+ENDED = frozenset({TaskState.FINISHED, TaskState.ENOUGH, TaskState.FAILED, TaskState.ABORTED})
+
+
+@dataclass
+class SimTask:
+    """One task on the vehicle: where it still has to go, and how long it then stays."""
+
+    uuid: str
+    name: str
+    vehicle: bool
+    legs: list[tuple[float, float, float]]  # remaining (east, north, altitude) points
+    speed: float
+    hold: float  # seconds to stay after the last leg; math.inf: until $enough
+    state: TaskState = TaskState.RUNNING
+    fail_reason: str = ""
+    travelled: float = 0.0
+    elapsed: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class TaskEvent:
+    """A status change the vehicle reports (the MQTT unit turns it into exec/feedback)."""
+
+    task_uuid: str
+    status: str
+    fail_reason: str = ""
+
+
+@dataclass
+class SimVehicle:
+    """A unit's body and its running tasks. Pure: time only advances through `step`."""
+
+    unit: UnitState
+    example_agent: bool = False
+    frame: LocalFrame = field(init=False)
+    east: float = field(init=False, default=0.0)
+    north: float = field(init=False, default=0.0)
+    altitude: float = field(init=False, default=0.0)
+    speed: float = field(init=False, default=0.0)
+    heading: float = field(init=False, default=0.0)
+    course: float = field(init=False, default=0.0)
+    battery: float = field(init=False, default=1.0)
+    sim_time: float = field(init=False, default=0.0)
+    odometer: float = field(init=False, default=0.0)
+    tasks: dict[str, SimTask] = field(init=False, default_factory=dict)
+    history: OrderedDict[str, str] = field(init=False, default_factory=OrderedDict)
+
+    def __post_init__(self) -> None:
+        p = self.unit.position
+        self.frame = LocalFrame(p.latitude, p.longitude)
+        self.altitude = p.altitude
+        self.battery = 1.0 if self.unit.battery is None else float(self.unit.battery)
+        self.home = self.unit.home or p
+
+    # ---- what the sensors show
+
+    @property
+    def position(self) -> GeoPoint:
+        return self.frame.geopoint(self.east, self.north, self.altitude)
+
+    @property
+    def endurance(self) -> float:
+        return float(self.unit.endurance) if self.unit.endurance else DEFAULT_ENDURANCE_S
+
+    @property
+    def busy(self) -> bool:
+        """True while a vehicle task (one that moves the platform) is on."""
+        return any(t.vehicle for t in self.tasks.values())
+
+    def executing(self) -> list[tuple[str, str]]:
+        """(task-name, task-uuid) of every task on, for ``tasks-executing``."""
+        return [(t.name, t.uuid) for t in self.tasks.values()]
+
+    def status_of(self, task_uuid: str) -> str:
+        """For query-status: a task's state, or ``unknown``."""
+        task = self.tasks.get(task_uuid)
+        if task is not None:
+            return task.state.value
+        return self.history.get(task_uuid, "unknown")
+
+    # ---- commands
+
+    def start_task(self, name: str, params: dict[str, Any], task_uuid: str) -> str | None:
+        """Start a task; the fail reason when it is refused, else None."""
+        if name not in self.unit.tasks:
+            return NOT_SUPPORTED
+        vehicle = is_vehicle_task(name)
+        if self.example_agent and self.tasks:
+            return ALREADY_RUNNING
+        if vehicle and self.busy:
+            return ALREADY_RUNNING
+        if task_uuid in self.tasks or task_uuid in self.history:
+            return f"task-uuid {task_uuid} was already used"
+        if vehicle and self.battery <= 0.0:
+            return BATTERY_EMPTY
+        try:
+            task = self._plan(name, params, task_uuid, vehicle)
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            return f"bad parameters for {name}: {exc}"
+        self.tasks[task_uuid] = task
+        return None
+
+    def _plan(self, name: str, params: dict[str, Any], task_uuid: str, vehicle: bool) -> SimTask:
+        # Imported here: the cost model pulls in shapely/numpy work only a simulator needs.
+        from delegation.costs import task_geometry, task_path, unit_speed
+
+        spec = CATALOGUE.get(name)
+        if spec is not None:
+            problems = param_problems(spec, params)
+            if problems:
+                raise ValueError("; ".join(f"{f}: {m}" for f, m in problems))
+        node = TstNode(name=name, params=dict(params))
+        geometry = task_geometry(node)
+        speed = unit_speed(self.unit, params.get("speed"))
+        points = [self.home] if name == "go-home" else task_path(node, self.unit, self.frame)
+        legs = []
+        for p in points:
+            east, north = self.frame.point_xy(p)
+            legs.append((east, north, p.altitude))
+        hold = math.inf if geometry.open_ended else float(geometry.fixed_time)
+        return SimTask(task_uuid, name, vehicle, legs, speed, hold)
+
+    def signal(self, task_uuid: str, signal: str) -> tuple[str | None, TaskEvent | None]:
+        """Apply ``$abort``/``$enough``/``$pause``/``$continue``: (fail reason or None, event)."""
+        task = self.tasks.get(task_uuid)
+        if task is None:
+            return INVALID_TASK_UUID, None
+        if signal == "$abort":
+            return None, self._end(task, TaskState.ABORTED)
+        if signal == "$enough":
+            return None, self._end(
+                task, TaskState.ENOUGH if self.example_agent else TaskState.FINISHED
+            )
+        if signal == "$pause":
+            task.state = TaskState.PAUSED
+            self.speed = 0.0
+            return None, TaskEvent(task.uuid, TaskState.PAUSED.value)
+        if signal == "$continue":
+            task.state = TaskState.RUNNING
+            return None, TaskEvent(task.uuid, TaskState.RUNNING.value)
+        return f"signal {signal!r} is not supported", None
+
+    def _end(self, task: SimTask, state: TaskState, reason: str = "") -> TaskEvent:
+        task.state = state
+        task.fail_reason = reason
+        self.tasks.pop(task.uuid, None)
+        self.history[task.uuid] = state.value
+        while len(self.history) > HISTORY:
+            self.history.popitem(last=False)
+        if not self.busy:
+            self.speed = 0.0
+        return TaskEvent(task.uuid, state.value, reason)
+
+    # ---- time
+
+    def step(self, dt: float) -> list[TaskEvent]:
+        """Advance ``dt`` simulated seconds; the status changes that happened."""
+        if dt <= 0.0:
+            return []
+        self.sim_time += dt
+        events: list[TaskEvent] = []
+        moving = False
+        for task in list(self.tasks.values()):
+            if task.state is not TaskState.RUNNING:
+                continue
+            remaining = dt
+            if task.vehicle and task.legs:
+                remaining = self._move(task, remaining)
+                moving = True
+            if not task.legs and remaining > 0.0:
+                task.elapsed += remaining
+                if task.vehicle:
+                    self.speed = 0.0
+                if task.elapsed >= task.hold:
+                    events.append(self._end(task, TaskState.FINISHED))
+        if any(t.vehicle for t in self.tasks.values()) or moving:
+            self.battery = max(0.0, self.battery - dt / self.endurance)
+            if self.battery <= 0.0:
+                for task in [t for t in self.tasks.values() if t.vehicle]:
+                    events.append(self._end(task, TaskState.FAILED, BATTERY_EMPTY))
+        return events
+
+    def _move(self, task: SimTask, dt: float) -> float:
+        """Fly along the task's legs for up to ``dt`` s; the seconds left once they are done."""
+        budget = task.speed * dt
+        while task.legs and budget > 0.0:
+            east, north, alt = task.legs[0]
+            de, dn = east - self.east, north - self.north
+            dist = math.hypot(de, dn)
+            if dist > 1e-9:
+                self.heading = self.course = math.degrees(math.atan2(de, dn)) % 360.0
+            if dist <= budget:
+                self.east, self.north, self.altitude = east, north, alt
+                budget -= dist
+                task.travelled += dist
+                self.odometer += dist
+                task.legs.pop(0)
+            else:
+                f = budget / dist
+                self.east += de * f
+                self.north += dn * f
+                self.altitude += (alt - self.altitude) * f
+                task.travelled += budget
+                self.odometer += budget
+                budget = 0.0
+        self.speed = task.speed if task.legs else 0.0
+        return budget / task.speed if task.speed > 0 else 0.0

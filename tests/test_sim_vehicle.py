@@ -1,0 +1,180 @@
+"""The simulated vehicle without MQTT: time advances only through step(dt)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from delegation.costs import task_path
+from delegation.fleet import make_unit
+from delegation.geo import GeoPoint, LocalFrame, distance_m, path_length_m
+from delegation.sim.vehicle import (
+    ALREADY_RUNNING,
+    BATTERY_EMPTY,
+    INVALID_TASK_UUID,
+    NOT_SUPPORTED,
+    SimVehicle,
+    TaskEvent,
+)
+from delegation.tst.node import TstNode
+
+START = GeoPoint(latitude=57.7605, longitude=16.6815, altitude=40.0)
+FRAME = LocalFrame(START.latitude, START.longitude)
+TASKS = [
+    "move-to",
+    "move-path",
+    "search-area",
+    "search-around-position",
+    "observe-position",
+    "look-at-position",
+    "go-home",
+    "take-off",
+]
+
+
+def at(east: float, north: float, alt: float = 40.0) -> GeoPoint:
+    return FRAME.geopoint(east, north, alt)
+
+
+def vehicle(example: bool = False, **kw) -> SimVehicle:
+    unit = make_unit(
+        "dji0", "air", START, TASKS, speeds={"slow": 2.0, "standard": 5.0, "fast": 10.0}, **kw
+    )
+    return SimVehicle(unit, example_agent=example)
+
+
+def run_until(v: SimVehicle, seconds: float, dt: float = 0.1) -> list[TaskEvent]:
+    events: list[TaskEvent] = []
+    for _ in range(round(seconds / dt)):
+        events.extend(v.step(dt))
+    return events
+
+
+def test_move_to_takes_distance_over_speed() -> None:
+    v = vehicle()
+    target = at(300.0, 400.0)  # 500 m away
+    assert (
+        v.start_task("move-to", {"waypoint": target.to_wire(), "speed": "standard"}, "t1") is None
+    )
+    assert v.busy and v.executing() == [("move-to", "t1")]
+    assert run_until(v, 99.0) == []  # 500 m at 5 m/s is 100 s
+    assert v.speed == 5.0
+    assert v.heading == pytest.approx(math.degrees(math.atan2(300, 400)), abs=0.5)
+    events = run_until(v, 1.5)
+    assert events == [TaskEvent("t1", "finished")]
+    assert distance_m(v.position, target) < 0.5
+    assert not v.busy and v.speed == 0.0
+    assert v.status_of("t1") == "finished"
+
+
+def test_one_big_step_equals_many_small_ones() -> None:
+    path = [at(100, 0).to_wire(), at(100, 100).to_wire(), at(0, 100).to_wire()]
+    a, b = vehicle(), vehicle()
+    for v in (a, b):
+        assert v.start_task("move-path", {"waypoints": path, "speed": "fast"}, "p") is None
+    a.step(17.3)
+    run_until(b, 17.3, dt=0.01)
+    assert distance_m(a.position, b.position) < 0.05
+    assert a.odometer == pytest.approx(173.0, abs=0.1)
+
+
+def test_move_path_flies_the_polyline() -> None:
+    v = vehicle()
+    pts = [at(0, 200), at(200, 200), at(200, 0)]
+    v.start_task("move-path", {"waypoints": [p.to_wire() for p in pts], "speed": "slow"}, "p")
+    length = path_length_m([START, *pts])
+    assert run_until(v, length / 2.0 - 1.0) == []
+    assert run_until(v, 2.0) == [TaskEvent("p", "finished")]
+    assert v.odometer == pytest.approx(length, rel=0.005)
+
+
+def test_search_area_flies_the_coverage_sweep() -> None:
+    v = vehicle()
+    area = [at(0, 0, 0), at(200, 0, 0), at(200, 100, 0), at(0, 100, 0)]
+    params = {"area": [p.to_wire() for p in area], "speed": "fast"}
+    assert v.start_task("search-area", params, "s") is None
+    sweep = task_path(TstNode("search-area", params=params), v.unit, FRAME)
+    assert len(sweep) >= 4  # a real boustrophedon, several lanes
+    expected = distance_m(START, sweep[0]) + path_length_m(sweep)
+    events = run_until(v, expected / 10.0 + 1.0)
+    assert events == [TaskEvent("s", "finished")]
+    assert v.odometer == pytest.approx(expected, rel=0.005)
+    assert distance_m(v.position, sweep[-1]) < 0.5
+
+
+def test_one_vehicle_task_at_a_time_and_unknown_tasks() -> None:
+    v = vehicle()
+    far = {"waypoint": at(1000, 0).to_wire(), "speed": "standard"}
+    assert v.start_task("move-to", far, "a") is None
+    assert v.start_task("move-to", far, "b") == ALREADY_RUNNING
+    assert v.start_task("navigate", {"waypoints": []}, "c") == NOT_SUPPORTED
+    # A camera task does not move the platform: it runs alongside.
+    look = {"geopoint": at(0, 50).to_wire()}
+    assert v.start_task("look-at-position", look, "d") is None
+    # The example agent runs one task of any kind.
+    ex = vehicle(example=True)
+    assert ex.start_task("move-to", far, "a") is None
+    assert ex.start_task("look-at-position", look, "d") == ALREADY_RUNNING
+
+
+def test_bad_parameters_are_refused_with_the_field() -> None:
+    v = vehicle()
+    reason = v.start_task("move-to", {"speed": "standard"}, "x")
+    assert reason is not None and "waypoint" in reason
+    reason = v.start_task("move-to", {"waypoint": at(1, 1).to_wire(), "speed": "warp"}, "y")
+    assert reason is not None and "speed" in reason
+    assert not v.busy
+
+
+def test_pause_continue_abort() -> None:
+    v = vehicle()
+    v.start_task("move-to", {"waypoint": at(0, 1000).to_wire(), "speed": "standard"}, "t")
+    run_until(v, 10.0)
+    reason, event = v.signal("t", "$pause")
+    assert reason is None and event == TaskEvent("t", "paused")
+    here = v.position
+    run_until(v, 20.0)
+    assert distance_m(here, v.position) < 1e-6 and v.speed == 0.0
+    assert v.signal("t", "$continue") == (None, TaskEvent("t", "running"))
+    run_until(v, 10.0)
+    assert distance_m(START, v.position) == pytest.approx(100.0, abs=0.5)
+    assert v.signal("t", "$abort") == (None, TaskEvent("t", "aborted"))
+    assert not v.busy and v.status_of("t") == "aborted"
+    assert v.signal("t", "$abort") == (INVALID_TASK_UUID, None)
+
+
+def test_open_ended_tasks_end_with_enough() -> None:
+    v = vehicle()
+    v.start_task("look-at-position", {"geopoint": at(10, 10).to_wire()}, "l")
+    assert run_until(v, 500.0) == []
+    assert v.signal("l", "$enough") == (None, TaskEvent("l", "finished"))
+    ex = vehicle(example=True)
+    ex.start_task("look-at-position", {"geopoint": at(10, 10).to_wire()}, "l")
+    assert ex.signal("l", "$enough") == (None, TaskEvent("l", "enough"))
+
+
+def test_observe_position_travels_then_stays_for_duration() -> None:
+    v = vehicle()
+    params = {"geopoint": at(0, 100).to_wire(), "duration": 30, "speed": "standard"}
+    v.start_task("observe-position", params, "o")
+    assert run_until(v, 20.0 + 29.0) == []  # 100 m at 5 m/s, then 30 s
+    assert run_until(v, 1.5) == [TaskEvent("o", "finished")]
+
+
+def test_go_home_returns_home() -> None:
+    home = at(-200, 0, 0)
+    v = vehicle(home=home)
+    v.start_task("go-home", {"speed": "fast"}, "h")
+    assert run_until(v, 21.0) == [TaskEvent("h", "finished")]
+    assert distance_m(v.position, home) < 0.5
+
+
+def test_battery_drains_and_fails_the_task() -> None:
+    v = vehicle(battery=0.5, endurance=100.0)
+    v.start_task("move-to", {"waypoint": at(0, 10_000).to_wire(), "speed": "standard"}, "t")
+    assert run_until(v, 40.0) == []
+    assert v.battery == pytest.approx(0.1, abs=0.01)
+    events = run_until(v, 11.0)
+    assert events == [TaskEvent("t", "failed", BATTERY_EMPTY)]
+    assert v.start_task("move-to", {"waypoint": at(0, 0).to_wire()}, "u") == BATTERY_EMPTY
