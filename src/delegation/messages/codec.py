@@ -114,12 +114,20 @@ def validate_model(model: type[M], data: Any, where: str) -> M:
     """``model.model_validate(data)``, with errors as a ``MessageError`` naming the fields."""
     if not isinstance(data, dict):
         raise MessageError(Problem(where, "", f"must be a JSON object, not {_kind(data)}"))
+    # Writers may leave com-uuid to its default (a fresh one); on the wire it is required, or the
+    # answer could not name what it answers.
+    problems: list[Problem] = []
+    if "com_uuid" in model.model_fields and "com-uuid" not in data and "com_uuid" not in data:
+        problems.append(Problem(where, "com-uuid", "missing"))
     try:
-        return model.model_validate(data)
+        message = model.model_validate(data)
     except ValidationError as exc:
-        raise MessageError(validation_problems(exc, where)) from None
-    except (ValueError, TypeError, RecursionError) as exc:  # pragma: no cover - validators' own
-        raise MessageError(Problem(where, "", str(exc))) from None
+        raise MessageError(problems + validation_problems(exc, where)) from None
+    except RecursionError:  # pragma: no cover - JSON this deep is refused by json_value first
+        raise MessageError(Problem(where, "", "nested too deeply")) from None
+    if problems:
+        raise MessageError(problems)
+    return message
 
 
 def _kind(value: Any) -> str:
@@ -173,9 +181,7 @@ def parse_message(data: Any) -> WireModel:
             if "node-uuid" in data:
                 return validate_model(TstFeedback, data, "feedback")
             return validate_model(DelegationFeedback, data, "feedback")
-    raise MessageError(
-        Problem("message", "", "not a command, info, response or feedback message")
-    )
+    raise MessageError(Problem("message", "", "not a command, info, response or feedback message"))
 
 
 def decode(topic: str, payload: bytes | str) -> WireModel:

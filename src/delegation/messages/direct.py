@@ -109,4 +109,3 @@ class ExecFeedback(WireModel):
     com_uuid: str = Field(default_factory=new_com_uuid)
     status: str
     task_uuid: str
-

@@ -9,11 +9,11 @@ which parameters it cannot run without, and the defaults the service fills in.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 
-class ParamType(str, Enum):
+class ParamType(StrEnum):
     """Parameter types as the seed names them."""
 
     GEOPOINT = "geopoint"
@@ -27,7 +27,7 @@ class ParamType(str, Enum):
     FLOAT64S = "float64s"
 
 
-class SpeedClass(str, Enum):
+class SpeedClass(StrEnum):
     """Qualitative speed levels; their m/s are per unit (fleet profile or scenario)."""
 
     SLOW = "slow"

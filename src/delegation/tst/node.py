@@ -219,7 +219,9 @@ def parse_tree(data: Any) -> TstNode:
             continue
         uid = node.common_params.get("node-uuid")
         if uid is not None and not isinstance(uid, str):
-            problems.append(Problem(where(path, node), "common_params.node-uuid", "must be a string"))
+            problems.append(
+                Problem(where(path, node), "common_params.node-uuid", "must be a string")
+            )
         elif isinstance(uid, str) and uid:
             if uid in seen_uuids:
                 problems.append(
@@ -263,7 +265,9 @@ def _build_node(
     problems: list[Problem] = []
     name = raw.get("name")
     if not isinstance(name, str) or not name:
-        problems.append(Problem(path, "name", "missing" if name is None else "must be a non-empty string"))
+        problems.append(
+            Problem(path, "name", "missing" if name is None else "must be a non-empty string")
+        )
         return None, problems
     present = [k for k in COMMON_KEYS if k in raw]
     common_key = present[0] if present else COMMON_KEY
@@ -284,8 +288,11 @@ def _build_node(
         problems.append(Problem(path, "params", f"must be an object, not {_kind(params)}"))
         params = {}
     raw_children = raw.get("children") or []
-    children = tuple(built.pop(f"{path}/children[{i}]") for i in range(len(raw_children))
-                     if f"{path}/children[{i}]" in built)
+    children = tuple(
+        built.pop(f"{path}/children[{i}]")
+        for i in range(len(raw_children))
+        if f"{path}/children[{i}]" in built
+    )
     if len(children) != len(raw_children):
         # A child failed to build; its own problem is already reported.
         return None, problems

@@ -21,7 +21,19 @@ INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
 
 def _is_number(v: Any) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+    """A finite JSON number that fits a float (huge integers do not)."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+def _short(value: Any) -> str:
+    """``repr`` cut to a readable length for messages."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
@@ -36,12 +48,12 @@ def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
         if v is None:
             out.append((f"{field}.{key}", "missing"))
         elif not _is_number(v):
-            out.append((f"{field}.{key}", f"must be a number, not {v!r}"))
+            out.append((f"{field}.{key}", f"must be a number, not {_short(v)}"))
         elif not lo <= v <= hi:
             out.append((f"{field}.{key}", f"{v} is outside [{lo:g}, {hi:g}]"))
     alt = value.get("altitude")
     if alt is not None and not _is_number(alt):
-        out.append((f"{field}.altitude", f"must be a number, not {alt!r}"))
+        out.append((f"{field}.altitude", f"must be a number, not {_short(alt)}"))
     return out
 
 
@@ -68,19 +80,23 @@ def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[
             for p in _value_problems(ParamType.GEOPOINTS, v, f"{field}[{i}]")
         ]
     if spec_type is ParamType.FLOAT64:
-        return [] if _is_number(value) else [(field, f"must be a number, not {value!r}")]
+        return [] if _is_number(value) else [(field, f"must be a number, not {_short(value)}")]
     if spec_type is ParamType.INT32:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         if not isinstance(value, int) or isinstance(value, bool):
-            return [(field, f"must be an integer, not {value!r}")]
+            return [(field, f"must be an integer, not {_short(value)}")]
         if not INT32_MIN <= value <= INT32_MAX:
-            return [(field, f"{value} is outside the int32 range")]
+            return [(field, f"{_short(value)} is outside the int32 range")]
         return []
     if spec_type is ParamType.BOOL:
-        return [] if isinstance(value, bool) else [(field, f"must be true or false, not {value!r}")]
+        return (
+            []
+            if isinstance(value, bool)
+            else [(field, f"must be true or false, not {_short(value)}")]
+        )
     if spec_type is ParamType.STRING:
-        return [] if isinstance(value, str) else [(field, f"must be a string, not {value!r}")]
+        return [] if isinstance(value, str) else [(field, f"must be a string, not {_short(value)}")]
     if spec_type is ParamType.STRINGS:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             return [(field, "must be a list of strings")]
@@ -98,10 +114,10 @@ def _speed_problems(value: Any, field: str) -> list[tuple[str, str]]:
     if isinstance(value, str):
         if value in SPEED_CLASSES:
             return []
-        return [(field, f"{value!r} is not one of {', '.join(SPEED_CLASSES)}")]
+        return [(field, f"{_short(value)} is not one of {', '.join(SPEED_CLASSES)}")]
     if _is_number(value) and value > 0:
         return []  # lenient: an explicit m/s, as in the seed's observe-position example
-    return [(field, f"must be one of {', '.join(SPEED_CLASSES)} (or m/s > 0), not {value!r}")]
+    return [(field, f"must be one of {', '.join(SPEED_CLASSES)} (or m/s > 0), not {_short(value)}")]
 
 
 def _polygon_problems(points: list[Any], field: str) -> list[tuple[str, str]]:
@@ -124,7 +140,9 @@ def param_problems(spec: TaskSpec, params: dict[str, Any]) -> list[tuple[str, st
             out.append((f"params.{name}", f"missing: {spec.name} cannot run without it"))
     for group in spec.one_of:
         if not any(params.get(g) is not None for g in group):
-            out.append((f"params.{group[0]}", f"missing: {spec.name} needs one of {', '.join(group)}"))
+            out.append(
+                (f"params.{group[0]}", f"missing: {spec.name} needs one of {', '.join(group)}")
+            )
     for name, value in params.items():
         pspec = spec.params.get(name)
         if pspec is None or value is None:
@@ -162,7 +180,9 @@ def tree_problems(root: TstNode) -> list[Problem]:
             continue
         spec = CATALOGUE.get(node.name)
         if spec is None:
-            problems.append(Problem(label, "name", f"unknown task {node.name!r}: not in the catalogue"))
+            problems.append(
+                Problem(label, "name", f"unknown task {node.name!r}: not in the catalogue")
+            )
             continue
         problems.extend(Problem(label, f, m) for f, m in param_problems(spec, node.params))
     return problems
