@@ -14,7 +14,8 @@ from typing import Any
 
 from rich.table import Table
 
-from delegation.tst.node import parse_tree, walk
+from delegation.errors import InputError
+from delegation.tst.node import TstNode, parse_tree, walk
 
 _FINAL_NODE = frozenset({"succeeded", "failed", "aborted", "revoked"})
 _FINAL_MISSION = frozenset({"succeeded", "failed", "aborted"})
@@ -64,6 +65,11 @@ class MissionProgress:
             )
             for a in assignments
         }
+        self.open_ended: frozenset[str] = frozenset(
+            n.node_uuid for _, n in walk(tree)
+            if n.node_uuid in self.rows and _is_open_ended(n)
+        )
+        self.enough_sent: set[str] = set()
         self.status = "planned"
         self.fail_reason = ""
         self.started_at: float | None = None  # wall clock
@@ -104,6 +110,15 @@ class MissionProgress:
             self.started_at = now
         if status in _FINAL_MISSION:
             self.ended_at = now
+
+    def due_for_enough(self) -> list[str]:
+        """Open-ended tasks (look-at-*, ...) still running once every other task has ended: an
+        operator ends them with ``$enough`` so that the mission can finish."""
+        closed = [r for u, r in self.rows.items() if u not in self.open_ended]
+        if any(r.status not in _FINAL_NODE for r in closed):
+            return []
+        return [u for u in self.open_ended
+                if u not in self.enough_sent and self.rows[u].status not in _FINAL_NODE]
 
     @property
     def done(self) -> bool:
@@ -172,6 +187,15 @@ class MissionProgress:
             table.add_row(u["unit"], str(u["tasks"]), str(u["succeeded"]),
                           f"{u['planned-end']:.0f}", _fmt(actual), diff)
         return table
+
+
+def _is_open_ended(node: TstNode) -> bool:
+    from delegation.costs import task_geometry
+
+    try:
+        return task_geometry(node).open_ended
+    except (KeyError, ValueError, TypeError, InputError):
+        return False
 
 
 def _fmt(value: float | None) -> str:
