@@ -35,11 +35,16 @@ by unit name or agent type (a name entry wins), each value with any of ``speeds`
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import TYPE_CHECKING, Any
 
 from delegation.geo import GeoPoint
+
+if TYPE_CHECKING:
+    from delegation.messages import HeartBeat
 
 log = logging.getLogger(__name__)
 
@@ -146,3 +151,323 @@ def make_unit(
         tasks=frozenset(tasks),
         **kw,
     )
+
+
+# --------------------------------------------------------------------------- the live registry
+
+#: Topic suffixes after a unit's base topic that the registry reads, with how many levels they add.
+_SUFFIX_LEVELS: dict[str, int] = {
+    "heartbeat": 1,
+    "sensor_info": 1,
+    "direct_execution_info": 1,
+    "tst_execution_info": 1,
+    "delegation_info": 1,
+}
+#: Sensors that carry the battery's state of charge.
+_BATTERY_SENSORS: frozenset[str] = frozenset({"battery_state", "battery", "battery_level"})
+
+
+def split_unit_topic(topic: str) -> tuple[str, str] | None:
+    """(base topic, rest) for a topic under a unit, e.g. ``(waraps/unit/air/simulation/dji0,
+    sensor/position)``; None for topics the registry does not read."""
+    levels = topic.strip("/").split("/")
+    if len(levels) >= 2 and levels[-1] in _SUFFIX_LEVELS:
+        return "/".join(levels[:-1]), levels[-1]
+    if len(levels) >= 3 and levels[-2] in ("sensor", "exec", "tst", "delegation"):
+        return "/".join(levels[:-2]), "/".join(levels[-2:])
+    return None
+
+
+def _type_from_base(base: str) -> str | None:
+    """The agent type in ``{prefix}/unit/{type}/{role}/{name}``, if the topic follows the scheme."""
+    levels = base.split("/")
+    if len(levels) >= 4 and levels[-4] == "unit" and levels[-3] in AGENT_TYPES:
+        return levels[-3]
+    return None
+
+
+def _battery_fraction(value: Any) -> float | None:
+    """A state of charge in 0..1 from a number (0..1 or percent) or a ROS BatteryState object."""
+    if isinstance(value, dict):
+        for key in ("percentage", "percent", "level", "value", "data", "battery"):
+            if key in value:
+                return _battery_fraction(value[key])
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    v = float(value)
+    if not math.isfinite(v) or v < 0.0:
+        return None
+    if v > 1.0:
+        v = v / 100.0 if v <= 100.0 else 1.0
+    return v
+
+
+class FleetEventKind(Enum):
+    """Things the registry noticed while observing (for logs and re-delegation)."""
+
+    APPEARED = "appeared"
+    """First heartbeat from a unit."""
+    REBOOTED = "rebooted"
+    """A heartbeat with a new ``agent-uuid``: the unit lost its tasks."""
+
+
+@dataclass(frozen=True, slots=True)
+class FleetEvent:
+    """One registry event: what, which unit, when (``now`` of the message)."""
+
+    kind: FleetEventKind
+    name: str
+    at: float
+
+
+@dataclass(slots=True)
+class _Record:
+    """What the registry knows about one unit (mutable, private)."""
+
+    name: str
+    base_topic: str
+    agent_type: str | None = None
+    agent_uuid: str | None = None
+    levels: tuple[str, ...] = ()
+    rate: float | None = None
+    last_heartbeat: float | None = None
+    last_seen: float | None = None
+    position: GeoPoint | None = None
+    battery: float | None = None
+    sensors: tuple[str, ...] = ()
+    tasks_available: frozenset[str] = frozenset()
+    tasks_executing: tuple[tuple[str, str], ...] = ()
+    has_direct_execution: bool = False
+    reboots: int = 0
+    extra_sensors: dict[str, Any] = field(default_factory=dict)
+
+
+class FleetRegistry:
+    """Live units built from heartbeat, sensor_info, direct_execution_info and sensor messages.
+
+    Pure: ``observe`` is fed decoded messages (``delegation.messages.decode``) with the time they
+    arrived, ``snapshot`` is asked with the current time; nothing here reads the clock. Liveness
+    uses arrival times, not the units' ``stamp`` (their clocks are not ours). Not thread-safe: the
+    caller serialises calls.
+
+    A unit is keyed by the last level of its base topic (``.../dji0`` -> ``dji0``). Only units on
+    the direct execution level (by heartbeat ``levels`` or a ``direct_execution_info``) with a
+    known position appear in ``snapshot``; TST engines and delegators do not.
+    """
+
+    def __init__(
+        self,
+        profiles: dict[str, dict[str, Any]] | None = None,
+        min_timeout: float = 5.0,
+        periods: float = 3.0,
+    ) -> None:
+        self.profiles: dict[str, dict[str, Any]] = dict(profiles or {})
+        self.min_timeout = float(min_timeout)
+        self.periods = float(periods)
+        self._units: dict[str, _Record] = {}
+        self._events: list[FleetEvent] = []
+
+    # ------------------------------------------------------------------ feeding
+
+    def observe(self, topic: str, message: Any, now: float) -> None:
+        """Take in one decoded message that arrived on ``topic`` at ``now``.
+
+        Reads ``HeartBeat``, ``SensorInfo``, ``DirectExecutionInfo`` and sensor values (a
+        ``SensorReading`` or the bare value from ``parse_sensor``); other messages only refresh
+        ``last_seen``. Topics outside a unit are ignored.
+        """
+        # Imported here so that ``UnitState`` users do not load every message model.
+        from delegation.messages import DirectExecutionInfo, HeartBeat, SensorInfo, SensorReading
+
+        parts = split_unit_topic(topic)
+        if parts is None:
+            log.debug("fleet: ignoring %s (not under a unit)", topic)
+            return
+        base, rest = parts
+        name = base.rsplit("/", 1)[-1]
+        rec = self._units.get(name)
+        if rec is None:
+            rec = self._units[name] = _Record(name=name, base_topic=base)
+        rec.last_seen = now if rec.last_seen is None else max(rec.last_seen, now)
+
+        if isinstance(message, HeartBeat):
+            self._heartbeat(rec, base, message, now)
+        elif isinstance(message, DirectExecutionInfo):
+            rec.has_direct_execution = True
+            rec.tasks_available = frozenset(t.name for t in message.tasks_available)
+            rec.tasks_executing = tuple((t.task_name, t.task_uuid) for t in message.tasks_executing)
+        elif isinstance(message, SensorInfo):
+            rec.sensors = tuple(message.sensor_data_provided)
+        elif rest.startswith("sensor/"):
+            sensor = rest.split("/", 1)[1]
+            value = message.value if isinstance(message, SensorReading) else message
+            self._sensor(rec, sensor, value)
+        if rec.agent_type is None:
+            rec.agent_type = _type_from_base(base)
+
+    def _heartbeat(self, rec: _Record, base: str, hb: HeartBeat, now: float) -> None:
+        if rec.last_heartbeat is None:
+            self._events.append(FleetEvent(FleetEventKind.APPEARED, rec.name, now))
+        elif rec.agent_uuid is not None and hb.agent_uuid != rec.agent_uuid:
+            log.info(
+                "fleet: %s rebooted (agent-uuid %s -> %s)", rec.name, rec.agent_uuid, hb.agent_uuid
+            )
+            rec.tasks_executing = ()
+            rec.reboots += 1
+            self._events.append(FleetEvent(FleetEventKind.REBOOTED, rec.name, now))
+        if hb.name and hb.name != rec.name:
+            log.debug("fleet: heartbeat name %r differs from topic name %r", hb.name, rec.name)
+        rec.base_topic = base
+        rec.agent_uuid = hb.agent_uuid
+        rec.agent_type = hb.agent_type or rec.agent_type
+        rec.levels = tuple(hb.levels)
+        rec.rate = hb.rate
+        rec.last_heartbeat = now if rec.last_heartbeat is None else max(rec.last_heartbeat, now)
+
+    def _sensor(self, rec: _Record, sensor: str, value: Any) -> None:
+        if sensor == "position":
+            if isinstance(value, GeoPoint):
+                rec.position = value
+            elif isinstance(value, dict):
+                try:
+                    rec.position = GeoPoint.model_validate(value)
+                except ValueError:
+                    log.debug("fleet: %s sent a bad position %r", rec.name, value)
+        elif sensor in _BATTERY_SENSORS:
+            fraction = _battery_fraction(value)
+            if fraction is not None:
+                rec.battery = fraction
+        else:
+            rec.extra_sensors[sensor] = value
+
+    def forget(self, name: str) -> None:
+        """Drop a unit (e.g. one that has been dead for long)."""
+        self._units.pop(name.strip("/"), None)
+
+    def drain_events(self) -> list[FleetEvent]:
+        """The events noticed since the last call (appearances, reboots), oldest first."""
+        events, self._events = self._events, []
+        return events
+
+    # ------------------------------------------------------------------ reading
+
+    def timeout(self, rate: float | None) -> float:
+        """How long a heartbeat at ``rate`` Hz keeps a unit alive: ``periods / rate``, at least
+        ``min_timeout`` (also for a missing or non-positive rate)."""
+        if rate is None or not rate > 0.0 or not math.isfinite(rate):
+            return self.min_timeout
+        return max(self.min_timeout, self.periods / rate)
+
+    def is_alive(self, name: str, now: float) -> bool:
+        """True while the unit's last heartbeat is fresher than its timeout."""
+        rec = self._units.get(name.strip("/"))
+        return rec is not None and self._alive(rec, now)
+
+    def _alive(self, rec: _Record, now: float) -> bool:
+        if rec.last_heartbeat is None:
+            return False
+        return now - rec.last_heartbeat < self.timeout(rec.rate)
+
+    def base_topic(self, name: str) -> str | None:
+        """The unit's base topic (its heartbeat topic minus ``/heartbeat``), if known."""
+        rec = self._units.get(name.strip("/"))
+        return rec.base_topic if rec is not None else None
+
+    def names(self) -> list[str]:
+        """Every unit heard of, sorted."""
+        return sorted(self._units)
+
+    def last_seen(self, name: str) -> float | None:
+        """When any message from the unit last arrived."""
+        rec = self._units.get(name.strip("/"))
+        return rec.last_seen if rec is not None else None
+
+    def executing(self, name: str) -> list[tuple[str, str]]:
+        """(task-name, task-uuid) the unit last reported executing."""
+        rec = self._units.get(name.strip("/"))
+        return list(rec.tasks_executing) if rec is not None else []
+
+    def _profile(self, rec: _Record) -> dict[str, Any]:
+        merged: dict[str, Any] = {}
+        if rec.agent_type and rec.agent_type in self.profiles:
+            merged.update(self.profiles[rec.agent_type])
+        if rec.name in self.profiles:
+            merged.update(self.profiles[rec.name])
+        return merged
+
+    def unit(self, name: str, now: float) -> UnitState | None:
+        """The planner's view of one unit, or None when unknown or without a position."""
+        rec = self._units.get(name.strip("/"))
+        if rec is None or rec.position is None:
+            return None
+        return self._state(rec, now)
+
+    def _state(self, rec: _Record, now: float) -> UnitState:
+        assert rec.position is not None
+        profile = self._profile(rec)
+        agent_type = rec.agent_type or str(profile.get("type", "air"))
+        speeds = profile.get("speeds")
+        home = profile.get("home")
+        battery = rec.battery if rec.battery is not None else profile.get("battery")
+        fov = profile.get("camera-fov", profile.get("camera_fov_deg"))
+        altitude = profile.get("sweep-altitude", profile.get("sweep_altitude"))
+        endurance = profile.get("endurance")
+        return UnitState(
+            name=rec.name,
+            agent_type=agent_type,
+            position=rec.position,
+            speeds=complete_speeds(agent_type, speeds),
+            tasks=rec.tasks_available,
+            alive=self._alive(rec, now),
+            busy=bool(rec.tasks_executing),
+            battery=None if battery is None else float(battery),
+            endurance=None if endurance is None else float(endurance),
+            home=None if home is None else GeoPoint.model_validate(home),
+            camera_fov_deg=DEFAULT_CAMERA_FOV_DEG if fov is None else float(fov),
+            sweep_altitude=None if altitude is None else float(altitude),
+            base_topic=rec.base_topic,
+        )
+
+    def _is_executor(self, rec: _Record) -> bool:
+        return rec.has_direct_execution or "direct execution" in rec.levels
+
+    def snapshot(self, now: float) -> list[UnitState]:
+        """Every known unit on the direct execution level with a position, ``alive`` set for
+        ``now``, sorted by name."""
+        return [
+            self._state(rec, now)
+            for name, rec in sorted(self._units.items())
+            if rec.position is not None and self._is_executor(rec)
+        ]
+
+    def agents(self, now: float, *, alive_only: bool = False) -> list[dict[str, Any]]:
+        """Every unit heard of as JSON-ready rows (hyphenated keys) for ``list-agents`` and the
+        ``agents`` command: name, type, base-topic, levels, alive, busy, state, position (or
+        None), tasks-available, tasks-executing, battery, last-seen, last-heartbeat, reboots."""
+        rows = []
+        for name, rec in sorted(self._units.items()):
+            alive = self._alive(rec, now)
+            if alive_only and not alive:
+                continue
+            rows.append(
+                {
+                    "name": name,
+                    "type": rec.agent_type,
+                    "base-topic": rec.base_topic,
+                    "levels": list(rec.levels),
+                    "alive": alive,
+                    "busy": bool(rec.tasks_executing),
+                    "state": "busy" if rec.tasks_executing else "idle",
+                    "position": rec.position.to_wire() if rec.position is not None else None,
+                    "tasks-available": sorted(rec.tasks_available),
+                    "tasks-executing": [
+                        {"task-name": n, "task-uuid": u} for n, u in rec.tasks_executing
+                    ],
+                    "battery": rec.battery,
+                    "last-seen": rec.last_seen,
+                    "last-heartbeat": rec.last_heartbeat,
+                    "reboots": rec.reboots,
+                }
+            )
+        return rows
