@@ -211,12 +211,17 @@ def parse_tree(data: Any) -> TstNode:
         raise InputError(problems)
 
     built: dict[str, TstNode] = {}
-    seen_uuids: dict[str, str] = {}
+    made: list[tuple[str, TstNode]] = []
     for path, raw, _depth, _parent in reversed(order):
         node, node_problems = _build_node(path, raw, built)
         problems.extend(node_problems)
         if node is None:
             continue
+        built[path] = node
+        made.append((path, node))
+    # Uuids in tree order, so that the later of two nodes is the one called a duplicate.
+    seen_uuids: dict[str, str] = {}
+    for path, node in reversed(made):
         uid = node.common_params.get("node-uuid")
         if uid is not None and not isinstance(uid, str):
             problems.append(
@@ -233,7 +238,6 @@ def parse_tree(data: Any) -> TstNode:
                 )
             else:
                 seen_uuids[uid] = path
-        built[path] = node
     if problems:
         # Report in tree order, not build order.
         problems.sort(key=lambda p: _path_key(p.where))
