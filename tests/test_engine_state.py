@@ -1,0 +1,292 @@
+"""The engine's tree state machine, message by message, without MQTT or a clock."""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import pytest
+
+from delegation.engine_state import (
+    Action,
+    EngineCore,
+    NodeChanged,
+    SendSignal,
+    SendStartTask,
+    check_instantiated,
+)
+from delegation.errors import InputError
+from delegation.messages import NodeStatus as S
+from delegation.tst.node import parse_tree
+
+WP = {"latitude": 57.76, "longitude": 16.68, "altitude": 40.0}
+
+
+def task(uid: str, unit: str = "/dji0", name: str = "move-to") -> dict[str, Any]:
+    return {
+        "name": name,
+        "common_params": {"execunit": unit, "node-uuid": uid},
+        "params": {"waypoint": WP, "speed": "standard"},
+    }
+
+
+def ctl(kind: str, uid: str, *children: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "name": kind,
+        "common_params": {"execunit": "/op0", "node-uuid": uid},
+        "children": list(children),
+        "params": {},
+    }
+
+
+def core(*units: str) -> EngineCore:
+    counter = itertools.count()
+    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", resend_after=2.0, max_attempts=3)
+    for u in units:
+        c.unit_seen(u, 0.0)
+    return c
+
+
+def starts(actions: list[Action]) -> list[SendStartTask]:
+    return [a for a in actions if isinstance(a, SendStartTask)]
+
+
+def changes(actions: list[Action]) -> list[tuple[str, S]]:
+    return [(a.node_uuid, a.status) for a in actions if isinstance(a, NodeChanged)]
+
+
+def accept(c: EngineCore, start: SendStartTask, now: float = 0.0) -> list[Action]:
+    return c.on_response(start.com_uuid, "running", now, task_uuid=start.task_uuid)
+
+
+def test_seq_runs_children_in_order_to_succeeded() -> None:
+    c = core("dji0", "dji1")
+    root, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"), task("b", "/dji1"))), 0.0)
+    assert root == "R"
+    assert changes(actions) == [("R", S.RUNNING), ("a", S.ACTIVE)]
+    (sa,) = starts(actions)
+    assert (sa.unit, sa.name, sa.node_uuid, sa.params["speed"]) == (
+        "dji0",
+        "move-to",
+        "a",
+        "standard",
+    )
+    assert changes(accept(c, sa)) == [("a", S.RUNNING)]
+    actions = c.on_feedback(sa.task_uuid, "finished", 1.0)
+    assert changes(actions) == [("a", S.SUCCEEDED), ("b", S.ACTIVE)]
+    (sb,) = starts(actions)
+    assert sb.unit == "dji1"
+    accept(c, sb)
+    done = c.on_feedback(sb.task_uuid, "finished", 2.0)
+    assert changes(done) == [("b", S.SUCCEEDED), ("R", S.SUCCEEDED)]
+    assert [a.root_flag for a in done if isinstance(a, NodeChanged)] == [False, True]
+    assert c.executing() == []
+
+
+def test_conc_starts_all_and_waits_for_all() -> None:
+    c = core("dji0", "dji1")
+    _, actions = c.start_tree(parse_tree(ctl("conc", "R", task("a"), task("b", "/dji1"))), 0.0)
+    sa, sb = starts(actions)
+    accept(c, sa)
+    accept(c, sb)
+    assert changes(c.on_feedback(sb.task_uuid, "finished", 1.0)) == [("b", S.SUCCEEDED)]
+    assert changes(c.on_feedback(sa.task_uuid, "enough", 2.0)) == [
+        ("a", S.SUCCEEDED),
+        ("R", S.SUCCEEDED),
+    ]
+
+
+def test_same_unit_in_conc_waits_until_free() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("conc", "R", task("a"), task("b"))), 0.0)
+    assert changes(actions) == [("R", S.RUNNING), ("a", S.ACTIVE), ("b", S.WAITING)]
+    (sa,) = starts(actions)
+    accept(c, sa)
+    actions = c.on_feedback(sa.task_uuid, "finished", 5.0)
+    assert changes(actions) == [("a", S.SUCCEEDED), ("b", S.ACTIVE)]
+    (sb,) = starts(actions)
+    assert sb.node_uuid == "b"
+
+
+def test_camera_tasks_do_not_wait_for_the_unit() -> None:
+    c = core("dji0")
+    look = task("l", name="look-at-position")
+    _, actions = c.start_tree(parse_tree(ctl("conc", "R", task("a"), look)), 0.0)
+    assert [s.node_uuid for s in starts(actions)] == ["a", "l"]
+
+
+def test_failed_child_fails_the_seq_and_aborts_the_rest() -> None:
+    c = core("dji0", "dji1")
+    tree = ctl("seq", "R", ctl("conc", "C", task("a"), task("b", "/dji1")), task("z"))
+    _, actions = c.start_tree(parse_tree(tree), 0.0)
+    sa, sb = starts(actions)
+    accept(c, sa)
+    accept(c, sb)
+    actions = c.on_feedback(sa.task_uuid, "failed", 1.0)
+    assert changes(actions) == [("a", S.FAILED)]
+    assert [a for a in actions if isinstance(a, SendSignal)] == [
+        SendSignal("dji1", sb.task_uuid, "$abort")
+    ]
+    actions = c.on_feedback(sb.task_uuid, "aborted", 2.0)
+    assert changes(actions) == [
+        ("b", S.ABORTED),
+        ("C", S.FAILED),
+        ("z", S.REVOKED),
+        ("R", S.FAILED),
+    ]
+    root_change = next(a for a in actions if isinstance(a, NodeChanged) and a.root_flag)
+    assert "children[0]" in root_change.fail_reason and "failed" in root_change.fail_reason
+
+
+def test_refused_task_fails_with_the_units_reason() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    (sa,) = starts(actions)
+    actions = c.on_response(sa.com_uuid, "failed", 0.5, fail_reason="Task is not supported")
+    assert changes(actions) == [("a", S.FAILED), ("R", S.FAILED)]
+    reasons = [a.fail_reason for a in actions if isinstance(a, NodeChanged)]
+    assert "Task is not supported" in reasons[0] and "Task is not supported" in reasons[1]
+
+
+def test_abort_tree_reaches_running_tasks_and_revokes_the_rest() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"), task("b"))), 0.0)
+    (sa,) = starts(actions)
+    accept(c, sa)
+    actions = c.signal_tree("R", "$abort", 1.0)
+    assert len(actions) == 2
+    assert SendSignal("dji0", sa.task_uuid, "$abort") in actions
+    assert ("b", S.REVOKED) in changes(actions)
+    assert changes(c.on_feedback(sa.task_uuid, "aborted", 2.0)) == [
+        ("a", S.ABORTED),
+        ("R", S.ABORTED),
+    ]
+
+
+def test_abort_without_confirmation_times_out() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    (sa,) = starts(actions)
+    accept(c, sa)
+    c.signal_node("a", "$abort", 1.0)
+    assert c.tick(5.0) == []
+    assert changes(c.tick(16.5)) == [("a", S.ABORTED), ("R", S.ABORTED)]
+
+
+def test_pause_holds_the_next_child_and_continue_releases_it() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"), task("b"))), 0.0)
+    (sa,) = starts(actions)
+    accept(c, sa)
+    actions = c.signal_tree("R", "$pause", 1.0)
+    assert ("R", S.PAUSED) in changes(actions)
+    assert SendSignal("dji0", sa.task_uuid, "$pause") in actions
+    assert changes(c.on_feedback(sa.task_uuid, "paused", 1.1)) == [("a", S.PAUSED)]
+    # The running task ends anyway (a unit may ignore $pause); b must not start while paused.
+    actions = c.on_feedback(sa.task_uuid, "finished", 2.0)
+    assert starts(actions) == [] and ("b", S.PAUSED) in changes(actions)
+    actions = c.signal_tree("R", "$continue", 3.0)
+    assert ("R", S.RUNNING) in changes(actions)
+    assert [s.node_uuid for s in starts(actions)] == ["b"]
+
+
+def test_signal_unit_reaches_only_that_units_running_tasks() -> None:
+    c = core("dji0", "dji1")
+    _, actions = c.start_tree(parse_tree(ctl("conc", "R", task("a"), task("b", "/dji1"))), 0.0)
+    sa, sb = starts(actions)
+    accept(c, sa)
+    accept(c, sb)
+    assert c.signal_unit("/dji1", "$pause", 1.0) == [SendSignal("dji1", sb.task_uuid, "$pause")]
+    with pytest.raises(InputError, match="signal"):
+        c.signal_unit("/dji1", "$explode", 1.0)
+    with pytest.raises(InputError, match="no executing node"):
+        c.signal_node("nope", "$abort", 1.0)
+
+
+def test_unanswered_start_task_is_resent_with_the_same_com_uuid_then_fails() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    (first,) = starts(actions)
+    assert c.tick(1.0) == []
+    (again,) = starts(c.tick(2.0))
+    assert again == first  # same com-uuid, same task-uuid
+    (third,) = starts(c.tick(4.0))
+    assert third == first
+    actions = c.tick(6.0)
+    assert changes(actions) == [("a", S.FAILED), ("R", S.FAILED)]
+    assert "did not answer" in next(a for a in actions if isinstance(a, NodeChanged)).fail_reason
+
+
+def test_busy_unit_is_asked_again_with_a_new_task_uuid() -> None:
+    c = core("dji0")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    (first,) = starts(actions)
+    actions = c.on_response(first.com_uuid, "failed", 0.1, fail_reason="A task is already running")
+    assert changes(actions) == [("a", S.WAITING)]
+    # The example agent also sends feedback "failed" for the refused task-uuid: ignored.
+    assert c.on_feedback(first.task_uuid, "failed", 0.2) == []
+    assert c.tick(1.0) == []
+    (second,) = starts(c.tick(2.2))
+    assert second.task_uuid != first.task_uuid and second.com_uuid != first.com_uuid
+    accept(c, second, 2.3)
+    assert changes(c.on_feedback(second.task_uuid, "finished", 9.0)) == [
+        ("a", S.SUCCEEDED),
+        ("R", S.SUCCEEDED),
+    ]
+
+
+def test_unknown_unit_waits_then_fails() -> None:
+    c = core()
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"), task("b"))), 0.0)
+    assert changes(actions) == [("R", S.RUNNING), ("a", S.WAITING)]
+    (sa,) = starts(c.unit_seen("dji0", 3.0))
+    assert sa.node_uuid == "a"
+    c2 = core()
+    c2.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    actions = c2.tick(15.0)
+    assert changes(actions) == [("a", S.FAILED), ("R", S.FAILED)]
+
+
+def test_not_instantiated_trees_are_refused_naming_the_node() -> None:
+    tree = parse_tree(ctl("seq", "R", task("a"), task("b", "*"), task("c", "A")))
+    problems = check_instantiated(tree)
+    assert [p.where for p in problems] == [
+        "root/children[1] (move-to b)",
+        "root/children[2] (move-to c)",
+    ]
+    c = core("dji0")
+    with pytest.raises(InputError, match=r"children\[1\]"):
+        c.start_tree(tree, 0.0)
+    missing = {"name": "move-to", "params": {"waypoint": WP}}
+    with pytest.raises(InputError, match="missing"):
+        c.start_tree(parse_tree(missing), 0.0)
+    assert c.trees == {}
+
+
+def test_node_uuids_of_an_executing_tree_cannot_be_reused() -> None:
+    c = core("dji0")
+    c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
+    with pytest.raises(InputError, match="already executing"):
+        c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 1.0)
+
+
+def test_missing_node_uuids_are_made() -> None:
+    c = core("dji0")
+    tree = {"name": "move-to", "common_params": {"execunit": "/dji0"}, "params": {"waypoint": WP}}
+    root, actions = c.start_tree(parse_tree(tree), 0.0)
+    assert root and changes(actions) == [(root, S.ACTIVE)]
+
+
+def test_enough_on_a_control_node_ends_it_successfully() -> None:
+    c = core("dji0", "dji1")
+    look = task("l", "/dji1", name="look-at-position")
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R", look, task("z"))), 0.0)
+    (sl,) = starts(actions)
+    accept(c, sl)
+    actions = c.signal_tree("R", "$enough", 5.0)
+    assert SendSignal("dji1", sl.task_uuid, "$enough") in actions
+    assert ("z", S.REVOKED) in changes(actions)
+    assert changes(c.on_feedback(sl.task_uuid, "finished", 6.0)) == [
+        ("l", S.SUCCEEDED),
+        ("R", S.SUCCEEDED),
+    ]
