@@ -356,25 +356,9 @@ class ServiceCore:
         return None
 
     def agents(self, now: float) -> list[dict[str, Any]]:
-        """The live units for ``list-agents``."""
-        out = []
-        for u in self.units(now):
-            if not u.alive:
-                continue
-            out.append(
-                {
-                    "name": u.name,
-                    "type": u.agent_type,
-                    "position": u.position.to_wire(),
-                    "tasks-available": sorted(u.tasks),
-                    "last-seen": self.last_seen.get(u.name),
-                    "busy": u.busy,
-                    "state": "busy" if u.busy else "idle",
-                    "battery": u.battery,
-                    "base-topic": self.bases.get(u.name),
-                }
-            )
-        return sorted(out, key=lambda a: a["name"])
+        """The live units for ``list-agents`` (those that can be delegated to)."""
+        names = {u.name for u in self.units(now)}
+        return [row for row in self.fleet.agents(now, alive_only=True) if row["name"] in names]
 
     # ------------------------------------------------------------------ commands
 

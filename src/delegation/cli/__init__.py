@@ -20,6 +20,7 @@ from delegation.errors import DelegationError
 _COMMAND_MODULES: tuple[str, ...] = (
     "validate",
     "bench",
+    "runtime",
 )
 
 

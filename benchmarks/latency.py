@@ -1,0 +1,240 @@
+"""Latency of the delegation service on a private local mosquitto (prints the figures).
+
+Set-up: a private mosquitto (``set_tcp_nodelay``), 10 simulated units (real ``SimUnit``s, in this
+process, publishing heartbeats and positions), the delegation service, and a stand-in engine that
+only answers ``started`` (this measures the service, not tree execution).
+
+Measured:
+1. ``start-tst`` -> instantiated ``start-tst``: from just before the bench publishes a partial
+   20-task tree to the service's ``tst/command`` until the stand-in engine's client receives the
+   instantiated tree on ``op0/tst/command`` (on the wire, both hops through the broker included),
+   with the ``auction`` strategy, over 100 missions run one after another. Also the service's own
+   figure (message taken off its queue -> tree handed to paho) from its timings.
+2. ``ping`` on ``delegation/command`` -> ``pong`` on ``delegation/response``, 200 round trips.
+
+Targets: start-tst p50 < 50 ms and p99 < 150 ms; ping p50 < 5 ms.
+
+    .venv/bin/python benchmarks/latency.py [--missions 100] [--tasks 20] [--units 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import statistics
+import sys
+import threading
+import time
+import uuid
+from typing import Any
+
+from delegation.broker import PrivateMosquitto
+from delegation.fleet import make_unit
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.messages import HeartBeat, TstResponse, encode
+from delegation.mqtt import BrokerSettings, Message, MqttClient, unit_base_topic
+from delegation.service import DelegationService, ServiceConfig
+from delegation.sim import SimFleet
+
+PREFIX = "bench"
+ORIGIN = GeoPoint(latitude=57.7605, longitude=16.6815)
+TASKS = ["move-to", "move-path", "search-area", "search-around-position", "look-at-position"]
+
+
+class StandInEngine:
+    """Publishes op0's heartbeat and answers every start-tst ``started``; records arrivals."""
+
+    def __init__(self, settings: BrokerSettings) -> None:
+        self.base = unit_base_topic("op0", "ground", "simulation", PREFIX)
+        self.arrivals: dict[str, float] = {}  # root node-uuid -> perf_counter at arrival
+        self.cond = threading.Condition()
+        self.client = MqttClient(settings, "bench-engine", sink=self._sink)
+        self.client.subscribe(f"{self.base}/tst/command")
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+
+    def _sink(self, msg: Message) -> None:
+        t = time.perf_counter()
+        data = json.loads(msg.payload)
+        if data.get("command") != "start-tst":
+            return
+        root = data["tst"].get("common_params", {}).get("node-uuid", "")
+        with self.cond:
+            self.arrivals[root] = t
+            self.cond.notify_all()
+        resp = TstResponse(response="started", response_to=data["com-uuid"], root_uuid=root)
+        self.client.publish(f"{self.base}/tst/response", encode(resp), qos=1)
+
+    def _beat(self) -> None:
+        while not self._stop.is_set():
+            hb = HeartBeat(agent_type="ground", agent_uuid="bench-engine",
+                           levels=["tst execution"], name="op0", rate=1.0, stamp=time.time())
+            self.client.publish(f"{self.base}/heartbeat", encode(hb))
+            self._stop.wait(1.0)
+
+    def start(self) -> None:
+        self.client.connect()
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.client.disconnect()
+
+    def wait(self, root: str, timeout: float) -> float | None:
+        with self.cond:
+            if self.cond.wait_for(lambda: root in self.arrivals, timeout):
+                return self.arrivals[root]
+        return None
+
+
+def make_units(n: int, rng: random.Random) -> list[Any]:
+    frame = LocalFrame(ORIGIN.latitude, ORIGIN.longitude)
+    units = []
+    for i in range(n):
+        kind = "air" if i % 3 else "surface"
+        pos = frame.geopoint(rng.uniform(-800, 800), rng.uniform(-800, 800), 30.0)
+        tasks = TASKS if kind == "air" else ["move-to", "move-path", "search-area"]
+        units.append(make_unit(f"u{i}", kind, pos, tasks))
+    return units
+
+
+def make_tree(n: int, rng: random.Random) -> dict[str, Any]:
+    frame = LocalFrame(ORIGIN.latitude, ORIGIN.longitude)
+
+    def pt(x: float, y: float) -> dict[str, Any]:
+        return frame.geopoint(x, y, 30.0).to_wire()
+
+    children = []
+    for i in range(n):
+        x, y = rng.uniform(-1500, 1500), rng.uniform(-1500, 1500)
+        kind = ("move-to", "move-to", "move-path", "search-area")[i % 4]
+        if kind == "move-to":
+            params: dict[str, Any] = {"waypoint": pt(x, y)}
+        elif kind == "move-path":
+            params = {"waypoints": [pt(x, y), pt(x + 100, y + 50), pt(x + 200, y)]}
+        else:
+            params = {"area": [pt(x, y), pt(x + 80, y), pt(x + 80, y + 60), pt(x, y + 60)]}
+        children.append({"name": kind, "common_params": {"execunit": "*"}, "params": params})
+    # Half in a seq (a chain), half concurrent: a realistic mixed tree.
+    half = n // 2
+    tree = {"name": "conc", "common_params": {"node-uuid": str(uuid.uuid4())},
+            "children": [{"name": "seq", "children": children[:half]}, *children[half:]]}
+    return tree
+
+
+def pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    k = min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))
+    return ordered[k]
+
+
+def line(name: str, values_ms: list[float]) -> str:
+    return (f"{name:<44} n={len(values_ms):4d}  p50={pct(values_ms, 50):7.2f} ms  "
+            f"p90={pct(values_ms, 90):7.2f} ms  p99={pct(values_ms, 99):7.2f} ms  "
+            f"max={max(values_ms):7.2f} ms  mean={statistics.fmean(values_ms):7.2f} ms")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--missions", type=int, default=100)
+    parser.add_argument("--tasks", type=int, default=20)
+    parser.add_argument("--units", type=int, default=10)
+    parser.add_argument("--pings", type=int, default=200)
+    parser.add_argument("--strategy", default="auction")
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args(argv)
+    rng = random.Random(args.seed)
+
+    broker = PrivateMosquitto().start()
+    settings = broker.settings()
+    units = make_units(args.units, rng)
+    fleet = SimFleet(settings, units, prefix=PREFIX, rates={u.name: 2.0 for u in units})
+    engine = StandInEngine(settings)
+    service = DelegationService(settings, ServiceConfig(prefix=PREFIX, strategy=args.strategy))
+    responses: dict[str, float] = {}
+    cond = threading.Condition()
+
+    def sink(msg: Message) -> None:
+        t = time.perf_counter()
+        data = json.loads(msg.payload)
+        with cond:
+            responses[data.get("response-to", "")] = t
+            cond.notify_all()
+
+    bench = MqttClient(settings, "bench-client", sink=sink)
+    base = service.config.base_topic
+    bench.subscribe(f"{base}/+/response")
+    try:
+        fleet.start()
+        engine.start()
+        service.start()
+        bench.connect()
+        if not service.wait_ready([u.name for u in units], timeout=20):
+            print("service did not see the fleet and the engine", file=sys.stderr)
+            return 1
+
+        def roundtrip(topic: str, body: dict[str, Any]) -> tuple[float, float]:
+            com = str(uuid.uuid4())
+            payload = json.dumps({**body, "com-uuid": com, "sender": "bench"}).encode()
+            t0 = time.perf_counter()
+            bench.publish(topic, payload, qos=1)
+            with cond:
+                if not cond.wait_for(lambda: com in responses, 30):
+                    raise RuntimeError(f"no answer to {body['command']}")
+            return t0, responses[com]
+
+        # Warm-up (imports, first plan).
+        for _ in range(3):
+            roundtrip(f"{base}/tst/command", {"command": "start-tst",
+                                               "tst": make_tree(args.tasks, rng)})
+
+        wire_ms: list[float] = []
+        failed = 0
+        first_timing = len(service.timings)
+        for _ in range(args.missions):
+            tree = make_tree(args.tasks, rng)
+            root = tree["common_params"]["node-uuid"]
+            com = str(uuid.uuid4())
+            payload = json.dumps({"com-uuid": com, "command": "start-tst", "sender": "bench",
+                                  "receiver": "delegator0", "tst": tree}).encode()
+            t0 = time.perf_counter()
+            bench.publish(f"{base}/tst/command", payload, qos=1)
+            arrived = engine.wait(root, 30)
+            with cond:
+                cond.wait_for(lambda c=com: c in responses, 30)
+            if arrived is None:
+                failed += 1
+                continue
+            wire_ms.append((arrived - t0) * 1000)
+        internal_ms = [(t.sent - t.received) * 1000 for t in service.timings[first_timing:]]
+
+        ping_ms = []
+        for _ in range(args.pings):
+            t0, t1 = roundtrip(f"{base}/delegation/command", {"command": "ping"})
+            ping_ms.append((t1 - t0) * 1000)
+
+        print(f"latency: private mosquitto, {args.units} simulated units, {args.tasks}-task "
+              f"missions, strategy {args.strategy}, {args.missions} missions")
+        if wire_ms:
+            print(line("start-tst -> instantiated start-tst (wire)", wire_ms))
+        if internal_ms:
+            print(line("  of which inside the service", internal_ms))
+        print(line("ping -> pong (delegation/command)", ping_ms))
+        if failed:
+            print(f"missions that never reached the engine: {failed}")
+        ok = bool(wire_ms) and pct(wire_ms, 50) < 50 and pct(wire_ms, 99) < 150
+        ok = ok and pct(ping_ms, 50) < 5 and not failed
+        print("targets (p50 < 50 ms, p99 < 150 ms; ping p50 < 5 ms):", "met" if ok else "NOT met")
+        return 0
+    finally:
+        bench.disconnect()
+        service.stop()
+        engine.stop()
+        fleet.stop()
+        broker.stop()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,457 @@
+"""``delegation demo``, ``serve``, ``submit`` and ``agents``: the service and its users on MQTT.
+
+Thin: parse arguments, start or reach the pieces (broker, simulated fleet, engine, service), call
+the client, render with rich. Broker settings come from ``WARAPS_*`` like the WARA-PS example
+agents, with matching flags.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager, suppress
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from delegation.errors import DelegationError, InputError, Problem
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from delegation.client import ServiceClient
+    from delegation.mqtt import BrokerSettings
+    from delegation.progress import MissionProgress
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SCENARIO = "demo.yaml"
+#: Wall seconds the demo aims to take for the planned mission when ``--speedup`` is not given.
+DEMO_TARGET_WALL_S = 15.0
+
+
+# --------------------------------------------------------------------------- arguments
+
+
+def add_broker_args(parser: argparse.ArgumentParser) -> None:
+    """``--broker/--port/--tls/--username/--password``, defaulting to ``WARAPS_*``."""
+    g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
+    g.add_argument("--broker", default=None, metavar="HOST",
+                   help="MQTT broker host [WARAPS_BROKER]")
+    g.add_argument("--port", default=None, help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
+    g.add_argument("--tls", action="store_true", default=None,
+                   help="connect with TLS [WARAPS_TLS_CONNECTION]")
+    g.add_argument("--username", default=None, help="[WARAPS_USERNAME]")
+    g.add_argument("--password", default=None, help="[WARAPS_PASSWORD]")
+    g.add_argument("--prefix", default="waraps", help="first topic level (default: waraps)")
+
+
+def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
+    """Flags over environment; None when neither names a broker."""
+    from delegation.mqtt import BrokerSettings
+
+    env = BrokerSettings.from_env()
+    host = args.broker or (env.host if env else None)
+    if not host:
+        return None
+    tls = args.tls if args.tls is not None else (env.tls if env else False)
+    port = args.port or os.environ.get("WARAPS_PORT") or None
+    username = args.username if args.username is not None else (env.username if env else "")
+    password = args.password if args.password is not None else (env.password if env else "")
+    return BrokerSettings.from_values(host=host, port=port, tls=bool(tls), username=username,
+                                      password=password)
+
+
+def register(subparsers: Any) -> None:
+    demo = subparsers.add_parser(
+        "demo",
+        help="broker + simulated fleet + engine + service; run a scenario's mission end to end",
+        description="Starts an embedded broker (unless --broker/WARAPS_BROKER names one), a "
+        "simulated fleet and the reference engine from a scenario, and the delegation service; "
+        "submits the scenario's mission, shows live progress, prints a summary and writes a map. "
+        "Exit 0 when the mission succeeded.",
+    )
+    demo.add_argument("--scenario", default=DEFAULT_SCENARIO,
+                      help=f"scenario file or name under scenarios/ (default {DEFAULT_SCENARIO})")
+    demo.add_argument("--strategy", default="auction", help="nearest, auction or optimal")
+    demo.add_argument("--objective", default="makespan", help="makespan or total")
+    demo.add_argument("--time-limit", type=float, default=2.0, help="planner time limit (s)")
+    demo.add_argument("--speedup", type=float, default=None,
+                      help="simulation time factor (default: fit the plan into ~15 s)")
+    demo.add_argument("--out", default="demo-out", help="directory for map.png and plan.json")
+    demo.add_argument("--timeout", type=float, default=50.0,
+                      help="give up after this many wall seconds of execution")
+    add_broker_args(demo)
+    demo.set_defaults(func=_demo)
+
+    serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
+    _service_args(serve)
+    add_broker_args(serve)
+    serve.set_defaults(func=_serve)
+
+    submit = subparsers.add_parser(
+        "submit", help="send a mission to a running service and follow it to the end"
+    )
+    submit.add_argument("mission", help="a TST (JSON/YAML), a scenario file, or a "
+                        "start-tst/delegate command file")
+    submit.add_argument("--service", default="delegator0", help="the service's unit name")
+    submit.add_argument("--strategy", default=None)
+    submit.add_argument("--objective", default=None)
+    submit.add_argument("--time-limit", type=float, default=None)
+    submit.add_argument("--speedup", type=float, default=1.0,
+                        help="the fleet's time factor, to show actual times in mission seconds")
+    submit.add_argument("--timeout", type=float, default=3600.0,
+                        help="stop following after this many seconds (exit 1)")
+    submit.add_argument("--enough", action="store_true",
+                        help="send $enough to open-ended tasks (look-at-*) once all others ended")
+    add_broker_args(submit)
+    submit.set_defaults(func=_submit)
+
+    agents = subparsers.add_parser("agents", help="list the live units a broker shows")
+    agents.add_argument("--wait", type=float, default=3.0,
+                        help="seconds to listen for heartbeats (default 3)")
+    agents.add_argument("--format", choices=("table", "json"), default="table")
+    add_broker_args(agents)
+    agents.set_defaults(func=_agents)
+
+
+def _service_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--name", default="delegator0", help="the service's unit name")
+    p.add_argument("--engine", default="op0", help="the TST engine's unit name")
+    p.add_argument("--strategy", default="auction", help="default strategy for start-tst")
+    p.add_argument("--objective", default="makespan")
+    p.add_argument("--time-limit", type=float, default=2.0)
+    p.add_argument("--agent-type", default="ground", help="agent-type in the heartbeat topic")
+    p.add_argument("--role", default="simulation", help="role level of the topic (real, ...)")
+
+
+# --------------------------------------------------------------------------- scenarios
+
+
+def find_scenario(name: str) -> Path:
+    """A scenario by path, or by name under the project's ``scenarios/`` directory.
+
+    Looked up: the path as given; ``scenarios/<name>`` under the working directory and its
+    parents; the source checkout this package runs from; ``DELEGATION_SCENARIOS``.
+    """
+    given = Path(name)
+    if given.is_file():
+        return given
+    names = [given.name] if given.suffix else [f"{given.name}.yaml", f"{given.name}.json"]
+    dirs: list[Path] = []
+    if os.environ.get("DELEGATION_SCENARIOS"):
+        dirs.append(Path(os.environ["DELEGATION_SCENARIOS"]))
+    cwd = Path.cwd()
+    dirs += [d / "scenarios" for d in (cwd, *cwd.parents)]
+    here = Path(__file__).resolve()
+    dirs += [d / "scenarios" for d in here.parents]
+    dirs.append(here.parents[1] / "scenarios")  # shipped as package data, if ever
+    for d in dirs:
+        for n in names:
+            if (d / n).is_file():
+                return d / n
+    raise InputError(Problem(name, "", "no such scenario file (looked in ./scenarios and the "
+                                      "project's scenarios/ directory)"))
+
+
+# --------------------------------------------------------------------------- following
+
+
+def follow(
+    client: ServiceClient,
+    plan: dict[str, Any],
+    *,
+    speedup: float,
+    console: Console,
+    timeout: float,
+    tracks: dict[str, list[Any]] | None = None,
+    enough: bool = False,
+) -> MissionProgress:
+    """Show a mission's progress live until it ends or ``timeout`` wall seconds pass.
+
+    With ``enough``, open-ended tasks (look-at-*) get ``$enough`` once everything else ended,
+    as an operator would send it, so that the mission can finish.
+    """
+    import queue
+
+    from rich.live import Live
+
+    from delegation.progress import MissionProgress
+
+    progress = MissionProgress(plan, speedup=speedup)
+    root = progress.root_uuid
+    deadline = time.monotonic() + timeout
+    with Live(progress.table(), console=console, refresh_per_second=6,
+              transient=False, auto_refresh=True) as live:
+        while not progress.done and time.monotonic() < deadline:
+            try:
+                ev = client.events.get(timeout=0.25)
+            except queue.Empty:
+                continue
+            if ev.kind == "position":
+                if tracks is not None:
+                    tracks.setdefault(ev.unit, []).append(ev.data)
+                continue
+            data = ev.data
+            if ev.kind == "mission" and data.get("root-uuid") == root:
+                progress.on_mission(str(data.get("status")), str(data.get("fail-reason", "")),
+                                    ev.at)
+            elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
+                progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
+                if enough:
+                    _send_enough(client, progress)
+            live.update(progress.table())
+        live.update(progress.table())
+    return progress
+
+
+def _send_enough(client: ServiceClient, progress: MissionProgress) -> None:
+    for node_uuid in progress.due_for_enough():
+        progress.enough_sent.add(node_uuid)
+        answer = client.request({"command": "signal-tst-node", "node-uuid": node_uuid,
+                                 "signal": "$enough"}, api="tst", timeout=10.0)
+        if answer.get("response") != "ok":
+            log.warning("$enough to %s: %s", node_uuid, answer.get("fail-reason"))
+
+
+def _print_summary(console: Console, progress: MissionProgress, wall: float) -> None:
+    console.print(progress.summary_table())
+    plan = progress.plan
+    status = progress.status
+    style = "green" if progress.succeeded else "red"
+    elapsed = progress.elapsed
+    console.print(
+        f"mission [{style}]{status}[/]"
+        + (f": {progress.fail_reason}" if progress.fail_reason else "")
+        + f"  plan makespan {float(plan.get('makespan') or 0):.0f} s"
+        + (f", actual {elapsed:.0f} s" if elapsed is not None else "")
+        + f" (mission seconds; {wall:.1f} s wall at speedup {progress.speedup:g})"
+    )
+
+
+# --------------------------------------------------------------------------- demo
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from delegation.allocation import plan_mission
+    from delegation.broker import EmbeddedBroker
+    from delegation.client import ServiceClient
+    from delegation.engine import TstEngine
+    from delegation.mapplot import render_map
+    from delegation.scenario import load_scenario
+    from delegation.service import DelegationService, ServiceConfig
+    from delegation.sim import SimFleet
+
+    console = Console()
+    t0 = time.monotonic()
+    scenario = load_scenario(find_scenario(args.scenario))
+    units = scenario.units()
+    speedup = args.speedup
+    if speedup is None:
+        offline = plan_mission(scenario.tree(), units, strategy=args.strategy,
+                               objective=args.objective, time_limit=args.time_limit)
+        speedup = max(1.0, round(float(offline.makespan or 0.0) / DEMO_TARGET_WALL_S, 1))
+    if speedup <= 0:
+        raise InputError(Problem("--speedup", "", "must be greater than 0"))
+    console.print(f"[bold]{scenario.name}[/]: {len(units)} units, speedup {speedup:g}")
+
+    with ExitStack() as stack:
+        settings = broker_settings(args)
+        if settings is None:
+            broker = EmbeddedBroker().start()
+            stack.callback(broker.stop)
+            settings = broker.settings()
+            console.print(f"embedded broker on {settings.describe()}")
+        prefix = args.prefix
+        fleet = SimFleet.from_scenario(settings, scenario, prefix=prefix, speedup=speedup)
+        fleet.start()
+        stack.callback(fleet.stop)
+        engine = TstEngine(settings, prefix=prefix)
+        engine.start()
+        stack.callback(engine.stop)
+        config = ServiceConfig(prefix=prefix, strategy=args.strategy, objective=args.objective,
+                               time_limit=args.time_limit, profiles=scenario.profiles())
+        service = DelegationService(settings, config)
+        service.start()
+        stack.callback(service.stop)
+        if not service.wait_ready([u.name for u in units], timeout=15.0):
+            raise DelegationError("the simulated fleet and the engine did not come up within 15 s")
+        client = ServiceClient(settings, prefix=prefix, service=config.name,
+                               track_positions=True).start()
+        stack.callback(client.stop)
+
+        answer = client.request({"command": "delegate", "tst": scenario.mission,
+                                 "strategy": args.strategy, "objective": args.objective,
+                                 "time-limit": args.time_limit, "start": True}, timeout=60.0)
+        if answer.get("response") != "started":
+            console.print(f"[red]delegate failed[/]: {answer.get('fail-reason')}")
+            return 1
+        plan = answer["plan"]
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "plan.json").write_text(json.dumps(plan, indent=2, sort_keys=True))
+        tracks: dict[str, list[Any]] = {u.name: [u.position] for u in units}
+        started = time.monotonic()
+        progress = follow(client, plan, speedup=speedup, console=console,
+                          timeout=args.timeout, tracks=tracks, enough=True)
+        _print_summary(console, progress, time.monotonic() - started)
+        path = render_map(plan, units, tracks, out / "map.png",
+                          title=f"{scenario.name}: {plan.get('strategy')} plan, "
+                          f"makespan {float(plan.get('makespan') or 0):.0f} s")
+        console.print(f"map: {path}   plan: {out / 'plan.json'}   "
+                      f"({time.monotonic() - t0:.1f} s wall in all)")
+        return 0 if progress.succeeded else 1
+
+
+# --------------------------------------------------------------------------- serve
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from delegation.mqtt import BrokerSettings
+    from delegation.service import DelegationService, ServiceConfig
+
+    settings = broker_settings(args) or BrokerSettings()
+    config = ServiceConfig(name=args.name, prefix=args.prefix, engine=args.engine,
+                           strategy=args.strategy, objective=args.objective,
+                           time_limit=args.time_limit, agent_type=args.agent_type, role=args.role)
+    service = DelegationService(settings, config)
+    service.start()
+    print(f"{config.name} serving on {settings.describe()} at {config.base_topic} "
+          f"(engine {config.engine}); Ctrl-C stops", flush=True)
+    stop = threading.Event()
+    try:
+        stop.wait()
+    finally:
+        service.stop()
+    return 0
+
+
+# --------------------------------------------------------------------------- submit
+
+
+def _read_mission(path: str) -> dict[str, Any]:
+    """A mission file: a TST, a scenario (its ``mission``) or a start-tst/delegate command."""
+    import yaml
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(Problem(path, "", f"cannot read: {exc.strerror}")) from None
+    try:
+        data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
+    except (ValueError, yaml.YAMLError) as exc:
+        raise InputError(Problem(path, "", f"not valid JSON/YAML: {exc}")) from None
+    if not isinstance(data, dict):
+        raise InputError(Problem(path, "", "must hold a JSON/YAML object"))
+    if "mission" in data and "agents" in data:
+        data = data["mission"]
+    elif "tst" in data and "command" in data:
+        data = data["tst"]
+    if not isinstance(data, dict) or "name" not in data:
+        raise InputError(Problem(path, "", "no TST found (expected a tree, a scenario or a "
+                                          "start-tst/delegate command)"))
+    return data
+
+
+@contextmanager
+def _connected_client(args: argparse.Namespace, service: str,
+                      track: bool = False) -> Iterator[ServiceClient]:
+    from delegation.client import ServiceClient
+    from delegation.mqtt import BrokerSettings
+
+    settings = broker_settings(args) or BrokerSettings()
+    client = ServiceClient(settings, prefix=args.prefix, service=service, track_positions=track)
+    client.start()
+    try:
+        yield client
+    finally:
+        client.stop()
+
+
+def _submit(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    tree = _read_mission(args.mission)
+    console = Console()
+    command: dict[str, Any] = {"command": "delegate", "tst": tree, "start": True}
+    for key, value in (("strategy", args.strategy), ("objective", args.objective),
+                       ("time-limit", args.time_limit)):
+        if value is not None:
+            command[key] = value
+    with _connected_client(args, args.service) as client:
+        answer = client.request(command, timeout=120.0)
+        if answer.get("response") != "started":
+            console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
+            return 1
+        plan = answer["plan"]
+        started = time.monotonic()
+        progress = follow(client, plan, speedup=args.speedup, console=console,
+                          timeout=args.timeout, enough=args.enough)
+        _print_summary(console, progress, time.monotonic() - started)
+        if not progress.done:
+            console.print(f"[red]gave up following after {args.timeout:g} s[/]")
+        return 0 if progress.succeeded else 1
+
+
+# --------------------------------------------------------------------------- agents
+
+
+def _agents(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from delegation.fleet import FleetRegistry
+    from delegation.messages import decode
+    from delegation.mqtt import BrokerSettings, MqttClient
+
+    settings = broker_settings(args) or BrokerSettings()
+    registry = FleetRegistry()
+    lock = threading.Lock()
+
+    def sink(msg: Any) -> None:
+        try:
+            message = decode(msg.topic, msg.payload)
+        except DelegationError:
+            return
+        with lock, suppress(DelegationError):
+            registry.observe(msg.topic, message, time.time())
+
+    client = MqttClient(settings, sink=sink)
+    for rest in ("heartbeat", "direct_execution_info", "sensor_info", "sensor/position",
+                 "sensor/battery_state"):
+        client.subscribe(f"{args.prefix}/unit/+/+/+/{rest}")
+    client.connect()
+    try:
+        threading.Event().wait(args.wait)
+    finally:
+        client.disconnect()
+    with lock:
+        rows = registry.agents(time.time(), alive_only=True)
+    if args.format == "json":
+        print(json.dumps(rows, indent=2))
+        return 0
+    table = Table(title=f"live units on {settings.describe()} under {args.prefix}/")
+    for col in ("name", "type", "levels", "state", "position", "tasks", "seen"):
+        table.add_column(col)
+    now = time.time()
+    for r in rows:
+        pos = r["position"]
+        seen = r.get("last-seen")
+        table.add_row(
+            r["name"], str(r.get("type") or "?"), ", ".join(r.get("levels", [])),
+            str(r.get("state", "")),
+            f"{pos['latitude']:.5f}, {pos['longitude']:.5f}" if pos else "-",
+            ", ".join(r.get("tasks-available", [])) or "-",
+            f"{now - seen:.1f} s ago" if isinstance(seen, int | float) else "-",
+        )
+    Console().print(table)
+    if not rows:
+        print(f"no live units seen within {args.wait:g} s")
+    return 0
