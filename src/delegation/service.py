@@ -827,12 +827,15 @@ class DelegationService(MqttUnit):
 
     # ---- readiness (any thread)
 
-    def wait_ready(self, units: Iterable[str] = (), timeout: float = 10.0) -> bool:
-        """Wait until the engine and the named units are live as the service sees them."""
+    def wait_ready(
+        self, units: Iterable[str] = (), timeout: float = 10.0, engine: bool = True
+    ) -> bool:
+        """Wait until the named units (and the engine, with ``engine``) are live as the service
+        sees them."""
         wanted = set(units)
         with self._ready:
             return self._ready.wait_for(
-                lambda: self._engine_live and wanted <= self._agents_seen, timeout
+                lambda: (self._engine_live or not engine) and wanted <= self._agents_seen, timeout
             )
 
     @property
