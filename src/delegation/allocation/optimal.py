@@ -1,0 +1,501 @@
+"""The ``optimal`` strategy: OR-Tools, warm-started from the auction, under a time limit.
+
+Which solver (DESIGN 4):
+- the **routing solver** for larger trees where every task is activated at mission start (a
+  ``conc`` of tasks: an mTSP with per-unit speeds, capabilities, aliases, homes and battery);
+  guided local search from the auction's routes; it proves no bound;
+- **CP-SAT** where the tree orders tasks across units (``seq``), and for small flat trees (it proves
+  optimality there, so the plan carries a ``bound``): per-unit circuits over optional arcs,
+  activation times from the tree, makespan and battery as linear constraints.
+
+Solver costs are integers (ticks); durations are rounded down so that CP-SAT's bound stays a proven
+lower bound. Whatever the solver returns is re-evaluated with the schedule simulator, and the
+auction's schedule is kept (and said so in a note and a log line) when the solver found nothing
+better: ``optimal`` is never worse than ``auction``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from delegation.allocation.auction import assign_passive, auction
+from delegation.allocation.problem import Problem
+from delegation.allocation.schedule import Schedule, better, evaluate
+
+log = logging.getLogger(__name__)
+
+#: Flat trees with at most this many vehicle tasks go to CP-SAT (which proves optimality).
+CP_MAX_FLAT_TASKS = 12
+#: CP-SAT is not tried when the circuits would have more arcs than this.
+CP_MAX_ARCS = 60_000
+#: Routing is not tried when its transit matrices would hold more entries than this.
+ROUTING_MAX_ENTRIES = 30_000_000
+#: Ticks per horizon: integer resolution of solver times.
+TICKS = 1_000_000
+#: Weight of the longest route against the total in the routing solver's makespan objective.
+SPAN_WEIGHT = 100
+
+
+@dataclass
+class OptimalResult:
+    """The chosen schedule, a proven lower bound on the objective (s) if any, and what happened."""
+
+    schedule: Schedule
+    bound: float | None = None
+    notes: list[str] = field(default_factory=list)
+    solver: str = ""
+
+
+def optimise(
+    problem: Problem, objective: str = "makespan", time_limit: float = 5.0
+) -> OptimalResult:
+    """Plan with OR-Tools within ``time_limit`` seconds; never worse than the auction."""
+    began = time.perf_counter()
+    base = auction(problem, objective)
+    tasks = [t for t in range(problem.n_tasks) if problem.tasks[t].vehicle and base.assign[t] >= 0]
+    result = OptimalResult(base)
+    if not tasks:
+        result.notes.append("no vehicle task to optimise; the auction's plan is optimal")
+        return result
+    flat = problem.flat
+    arcs = sum(int(problem.allowed[u, tasks].sum()) ** 2 for u in range(problem.n_units))
+    remaining = max(0.05, time_limit - (time.perf_counter() - began))
+    candidate: Schedule | None = None
+    bound: float | None = None
+    if (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
+        result.solver = "cp-sat"
+        candidate, bound, note = _cpsat(problem, objective, base, tasks, remaining)
+    elif flat:
+        result.solver = "routing"
+        candidate, note = _routing(problem, objective, base, tasks, remaining)
+    else:
+        note = (
+            f"CP-SAT not run: the model would have {arcs} arcs (limit {CP_MAX_ARCS}); "
+            "keeping the auction's plan"
+        )
+    result.notes.append(note)
+    if candidate is not None and candidate.valid and better(candidate, base, objective):
+        result.schedule = candidate
+    elif candidate is not None:
+        result.notes.append(
+            f"{result.solver} found nothing better than the auction; keeping the auction's plan"
+        )
+    result.bound = bound
+    for text in result.notes:
+        log.info("optimal: %s", text)
+    return result
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+
+def _finish(problem: Problem, orders: list[list[int]], base: Schedule) -> Schedule:
+    """Evaluate vehicle routes, with non-vehicle tasks re-given to units afterwards."""
+    assign = np.full(problem.n_tasks, -1, dtype=int)
+    for u, order in enumerate(orders):
+        assign[order] = u
+    assign_passive(problem, assign)
+    return evaluate(problem, assign, orders)
+
+
+def _points(
+    problem: Problem, u: int, tasks: list[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start/end points of ``tasks`` for unit ``u``; in-place tasks sit at the unit's position."""
+    start, end, travels = problem.points_for(u, np.asarray(tasks, dtype=int))
+    start[~travels] = problem.unit_xy[u]
+    end[~travels] = problem.unit_xy[u]
+    return start, end, travels
+
+
+def _exact_model(problem: Problem, tasks: list[int]) -> bool:
+    """Arc costs are exact only when every vehicle task ends at a known point."""
+    idx = np.asarray(tasks, dtype=int)
+    home = problem.home_task()[idx]
+    if home.any() and not problem.has_home.all():
+        return False
+    return bool(problem.travels[idx].all())
+
+
+def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    dx = a[:, 0][:, None] - b[:, 0][None, :]
+    dy = a[:, 1][:, None] - b[:, 1][None, :]
+    return np.asarray(np.sqrt(dx * dx + dy * dy))
+
+
+# --------------------------------------------------------------------------- routing
+
+
+def _routing(
+    problem: Problem, objective: str, base: Schedule, tasks: list[int], limit: float
+) -> tuple[Schedule | None, str]:
+    from ortools.constraint_solver import pywrapcp, routing_enums_pb2
+
+    # Data: nodes 0..n-1 are tasks, then one start and one end node per unit.
+    n, n_units = len(tasks), problem.n_units
+    size = n + 2 * n_units
+    idx = np.asarray(tasks, dtype=int)
+    classes: dict[bytes, list[int]] = {}
+    for u in range(n_units):
+        key = b"".join(
+            [
+                problem.speed[u, idx].tobytes(),
+                problem.work_time[u, idx].tobytes(),
+                np.float64(problem.home_speed[u]).tobytes(),
+                problem.home_xy[u].tobytes() if problem.home_task()[idx].any() else b"",
+                problem.unit_xy[u].tobytes() if not problem.travels[idx].all() else b"",
+            ]
+        )
+        classes.setdefault(key, []).append(u)
+    if len(classes) * size * size > ROUTING_MAX_ENTRIES:
+        return None, f"routing not run: {len(classes)} x {size}^2 matrix entries is too many"
+    scale = TICKS / max(base.total_time, 1e-6)
+    starts = list(range(n, n + n_units))
+    ends = list(range(n + n_units, size))
+    has_home = problem.has_home
+
+    manager = pywrapcp.RoutingIndexManager(size, n_units, starts, ends)
+    routing = pywrapcp.RoutingModel(manager)
+    evaluators = [0] * n_units
+    for members in classes.values():
+        u = members[0]
+        matrix = _routing_matrix(problem, u, idx, scale)
+        evaluator = routing.RegisterTransitMatrix(matrix)
+        for v in members:
+            evaluators[v] = evaluator
+
+    # Each unit's route time (travel + work + way home) is bounded by its remaining endurance.
+    capacity = [
+        int(min(problem.endurance[u] * scale, 2**52)) if math.isfinite(problem.endurance[u])
+        else 2**52
+        for u in range(n_units)
+    ]
+    routing.AddDimensionWithVehicleTransitAndCapacity(evaluators, 0, capacity, True, "time")
+    time_dim = routing.GetDimensionOrDie("time")
+    for u in range(n_units):
+        routing.SetArcCostEvaluatorOfVehicle(evaluators[u], u)
+    if objective == "makespan":
+        # The longest route dominates; the total breaks ties.
+        time_dim.SetGlobalSpanCostCoefficient(SPAN_WEIGHT)
+
+    # Each task goes to one unit that may take it; dropping one costs more than any plan.
+    penalty = int((SPAN_WEIGHT + 1) * TICKS * 10)
+    for k, t in enumerate(tasks):
+        index = manager.NodeToIndex(k)
+        allowed = np.nonzero(problem.allowed[:, t])[0].tolist()
+        if len(allowed) < n_units:
+            routing.SetAllowedVehiclesForIndex(allowed, index)
+        routing.AddDisjunction([index], penalty)
+    # Tasks with the same alias go to the same unit.
+    pos = {t: k for k, t in enumerate(tasks)}
+    solver = routing.solver()
+    for group in problem.alias_groups:
+        members = [pos[t] for t in group if t in pos]
+        for a, b in itertools.pairwise(members):
+            solver.Add(
+                routing.VehicleVar(manager.NodeToIndex(a))
+                == routing.VehicleVar(manager.NodeToIndex(b))
+            )
+    del has_home
+
+    # Solve from the auction's routes with guided local search.
+    params = pywrapcp.DefaultRoutingSearchParameters()
+    params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
+    params.local_search_metaheuristic = (
+        routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
+    )
+    params.time_limit.FromMilliseconds(max(50, int(limit * 1000)))
+    routing.CloseModelWithParameters(params)
+    initial_routes = [[pos[t] for t in order if t in pos] for order in base.orders]
+    initial = routing.ReadAssignmentFromRoutes(initial_routes, True)
+    if initial is None:
+        solution = routing.SolveWithParameters(params)
+        note = "routing solver (auction's routes rejected as a start; searched from scratch)"
+    else:
+        solution = routing.SolveFromAssignmentWithParameters(initial, params)
+        note = "routing solver, guided local search from the auction's routes"
+    if solution is None:
+        return None, "routing solver found no solution"
+    orders: list[list[int]] = []
+    for u in range(n_units):
+        order: list[int] = []
+        index = routing.Start(u)
+        while True:
+            index = solution.Value(routing.NextVar(index))
+            if routing.IsEnd(index):
+                break
+            order.append(tasks[manager.IndexToNode(index)])
+        orders.append(order)
+    return _finish(problem, orders, base), note
+
+
+def _routing_matrix(problem: Problem, u: int, idx: np.ndarray, scale: float) -> list[list[int]]:
+    """Ticks from node i to node j for unit u: travel to j's start + j's work (+ way home)."""
+    n, n_units = idx.size, problem.n_units
+    size = n + 2 * n_units
+    start, end, travels = _points(problem, u, idx.tolist())
+    origin = np.vstack([end, problem.unit_xy, np.zeros((n_units, 2))])  # where a node leaves from
+    speed = problem.speed[u, idx]
+    into = _dist(origin, start) / speed[None, :]
+    into[:, ~travels] = 0.0
+    into += problem.work_time[u, idx][None, :]
+    matrix = np.zeros((size, size))
+    matrix[:, :n] = into
+    has_home = problem.has_home
+    home = np.where(has_home[:, None], problem.home_xy, 0.0)
+    back = _dist(origin, home) / np.where(has_home, problem.home_speed, 1.0)[None, :]
+    matrix[:, n + n_units :] = np.where(has_home[None, :], back, 0.0)
+    np.fill_diagonal(matrix, 0.0)
+    ticks = np.rint(matrix * scale).astype(np.int64)
+    return ticks.tolist()
+
+
+# --------------------------------------------------------------------------- CP-SAT
+
+
+def _cpsat(
+    problem: Problem, objective: str, base: Schedule, tasks: list[int], limit: float
+) -> tuple[Schedule | None, float | None, str]:
+    from ortools.sat.python import cp_model
+
+    began = time.perf_counter()
+    n_units = problem.n_units
+    s = problem.structure
+    vehicle_set = set(tasks)
+    passive = [
+        t for t in range(problem.n_tasks)
+        if not problem.tasks[t].vehicle and problem.allowed[:, t].any()
+    ]
+    exact = _exact_model(problem, tasks)
+    before = problem.before
+
+    # Data: durations (s) per unit and arc, then one horizon and one tick size for all.
+    dur: dict[int, tuple[list[int], np.ndarray, np.ndarray, np.ndarray]] = {}
+    worst = 0.0
+    for u in range(n_units):
+        mine = [t for t in tasks if problem.allowed[u, t]]
+        if not mine:
+            continue
+        start, end, travels = _points(problem, u, mine)
+        speed = problem.speed[u, mine]
+        work = problem.work_time[u, mine]
+        first = np.hypot(*(start - problem.unit_xy[u]).T) / speed
+        between = _dist(end, start) / speed[None, :]
+        first[~travels] = 0.0
+        between[:, ~travels] = 0.0
+        first += work
+        between += work[None, :]
+        if problem.has_home[u]:
+            home = np.hypot(*(end - problem.home_xy[u]).T) / problem.home_speed[u]
+        else:
+            home = np.zeros(len(mine))
+        dur[u] = (mine, first, between, home)
+        worst = max(worst, float(max(first.max(), between.max(initial=0.0))) + float(home.max()))
+    passive_dur = {
+        t: float(problem.work_time[problem.allowed[:, t], t].max()) for t in passive
+    }
+    if objective == "makespan":
+        horizon_s = base.makespan * (1 + 1e-6) + 1e-6
+    else:
+        horizon_s = worst * (len(tasks) + 1) + sum(passive_dur.values()) + 1.0
+    scale = TICKS / max(horizon_s, 1e-9)
+    horizon = math.ceil(horizon_s * scale) + len(tasks) + 2
+
+    def down(x: float | np.floating) -> int:
+        return math.floor(float(x) * scale)
+
+    def up(x: float | np.floating) -> int:
+        return math.ceil(float(x) * scale)
+
+    model = cp_model.CpModel()
+    n_tasks = problem.n_tasks
+    begin = [model.new_int_var(0, horizon, f"S{t}") for t in range(n_tasks)]
+    finish = [model.new_int_var(0, horizon, f"E{t}") for t in range(n_tasks)]
+    makespan = model.new_int_var(0, horizon, "makespan")
+    for t in range(n_tasks):
+        model.add(finish[t] >= begin[t])
+        model.add(makespan >= finish[t])
+
+    # Each task goes to exactly one unit that may take it.
+    x: dict[tuple[int, int], cp_model.IntVar] = {}
+    for t in [*tasks, *passive]:
+        lits = []
+        for u in np.nonzero(problem.allowed[:, t])[0].tolist():
+            if t in vehicle_set and u not in dur:
+                continue
+            x[t, u] = model.new_bool_var(f"x{t}_{u}")
+            lits.append(x[t, u])
+        model.add_exactly_one(lits)
+    # Tasks with the same alias go to the same unit.
+    for group in problem.alias_groups:
+        members = [t for t in group if any((t, u) in x for u in range(n_units))]
+        for a, b in itertools.pairwise(members):
+            for u in range(n_units):
+                la, lb = x.get((a, u)), x.get((b, u))
+                if la is not None and lb is not None:
+                    model.add(la == lb)
+                elif la is not None:
+                    model.add(la == 0)
+                elif lb is not None:
+                    model.add(lb == 0)
+    # Non-vehicle tasks take their work time where the tree activates them.
+    for t in passive:
+        model.add(finish[t] >= begin[t] + up(passive_dur[t]))
+
+    # The tree activates tasks: seq children one after another, conc children together.
+    act = [model.new_int_var(0, horizon, f"A{n}") for n in range(s.size)]
+    done = [
+        finish[s.task_of_node[n]] if s.task_of_node[n] >= 0
+        else model.new_int_var(0, horizon, f"F{n}")
+        for n in range(s.size)
+    ]
+    model.add(act[0] == 0)
+    for n in range(s.size):
+        kids = s.children[n]
+        t = s.task_of_node[n]
+        if t >= 0:
+            model.add(begin[t] >= act[n])
+            continue
+        model.add(done[n] >= act[n])
+        if s.kinds[n] == "seq":
+            previous = act[n]
+            for c in kids:
+                model.add(act[c] >= previous)
+                previous = done[c]
+            model.add(done[n] >= previous)
+        else:
+            for c in kids:
+                model.add(act[c] >= act[n])
+                model.add(done[n] >= done[c])
+
+    # Each unit runs its vehicle tasks one after another: a circuit through its depot.
+    total_terms: list[tuple[cp_model.IntVar, int]] = []
+    arc_lits: dict[tuple[int, int, int], cp_model.IntVar] = {}
+    for u, (mine, first, between, home) in dur.items():
+        arcs: list[tuple[int, int, Any]] = []
+        use_terms: list[tuple[cp_model.IntVar, int]] = []
+        used = model.new_bool_var(f"used{u}")
+        arcs.append((0, 0, used.Not()))
+        for j, t in enumerate(mine, start=1):
+            arcs.append((j, j, x[t, u].Not()))
+            lit = model.new_bool_var(f"a{u}_0_{t}")
+            arcs.append((0, j, lit))
+            arc_lits[u, -1, t] = lit
+            model.add(finish[t] >= begin[t] + down(first[j - 1])).only_enforce_if(lit)
+            total_terms.append((lit, down(first[j - 1])))
+            use_terms.append((lit, up(first[j - 1])))
+            back = model.new_bool_var(f"a{u}_{t}_0")
+            arcs.append((j, 0, back))
+            arc_lits[u, t, -1] = back
+            if problem.has_home[u]:
+                model.add(makespan >= finish[t] + down(home[j - 1])).only_enforce_if(back)
+                total_terms.append((back, down(home[j - 1])))
+                use_terms.append((back, up(home[j - 1])))
+            for i, r in enumerate(mine, start=1):
+                if i == j or before[t, r]:  # r -> t would break the tree's order
+                    continue
+                lit = model.new_bool_var(f"a{u}_{r}_{t}")
+                arcs.append((i, j, lit))
+                arc_lits[u, r, t] = lit
+                model.add(begin[t] >= finish[r]).only_enforce_if(lit)
+                model.add(finish[t] >= begin[t] + down(between[i - 1, j - 1])).only_enforce_if(lit)
+                total_terms.append((lit, down(between[i - 1, j - 1])))
+                use_terms.append((lit, up(between[i - 1, j - 1])))
+        model.add_circuit(arcs)
+        for t in mine:
+            model.add_implication(x[t, u], used)
+        # A unit's travel + work (+ way home) fits in its remaining endurance.
+        if math.isfinite(problem.endurance[u]):
+            model.add(
+                sum(lit * c for lit, c in use_terms)
+                <= math.floor(problem.endurance[u] * scale)
+            )
+    total = sum(lit * c for lit, c in total_terms)
+
+    # Warm start: the auction's assignment and routes.
+    for (t, u), lit in x.items():
+        model.add_hint(lit, int(base.assign[t] == u))
+    hinted = set()
+    for u, order in enumerate(base.orders):
+        chain = [-1, *[t for t in order if t in vehicle_set], -1]
+        if len(chain) > 2:
+            for a, b in itertools.pairwise(chain):
+                if (u, a, b) in arc_lits:
+                    model.add_hint(arc_lits[u, a, b], 1)
+                    hinted.add((u, a, b))
+    for key, lit in arc_lits.items():
+        if key not in hinted:
+            model.add_hint(lit, 0)
+
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = 2
+    solver.parameters.random_seed = 1
+    bound: float | None = None
+
+    def remaining() -> float:
+        return max(0.05, limit - (time.perf_counter() - began))
+
+    if objective == "makespan":
+        model.minimize(makespan)
+        solver.parameters.max_time_in_seconds = remaining() * 0.7
+        status = solver.solve(model)
+        if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            return None, None, f"CP-SAT found no solution ({solver.status_name(status)})"
+        best = int(solver.objective_value)
+        if exact:
+            bound = solver.best_objective_bound / scale
+        phase1 = solver.status_name(status)
+        _hint_from(model, solver, [*x.values(), *arc_lits.values()])
+        # Second phase: the best makespan found, with the smallest total time.
+        model.add(makespan <= best)
+        model.minimize(total)
+        solver.parameters.max_time_in_seconds = remaining()
+        status = solver.solve(model)
+        if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            return None, bound, f"CP-SAT phase 2 found no solution ({solver.status_name(status)})"
+        note = (
+            f"CP-SAT: makespan {phase1.lower()}, then total time "
+            f"{solver.status_name(status).lower()} at that makespan"
+        )
+    else:
+        model.minimize(total)
+        solver.parameters.max_time_in_seconds = remaining()
+        status = solver.solve(model)
+        if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            return None, None, f"CP-SAT found no solution ({solver.status_name(status)})"
+        if exact:
+            # Non-vehicle tasks add their work wherever they go: at least the smallest.
+            constant = sum(
+                float(problem.work_time[problem.allowed[:, t], t].min()) for t in passive
+            )
+            bound = solver.best_objective_bound / scale + constant
+        note = f"CP-SAT: total time {solver.status_name(status).lower()}"
+    if not exact:
+        note += " (in-place vehicle tasks modelled approximately: no bound)"
+
+    # Read the routes: follow each unit's arcs from its depot.
+    orders: list[list[int]] = []
+    for u in range(n_units):
+        route: list[int] = []
+        if u in dur:
+            succ = {a: b for (v, a, b), lit in arc_lits.items() if v == u and solver.value(lit)}
+            at = succ.get(-1, -1)
+            while at != -1 and len(route) <= len(dur[u][0]):
+                route.append(at)
+                at = succ.get(at, -1)
+        orders.append(route)
+    return _finish(problem, orders, base), bound, note
+
+
+def _hint_from(model: object, solver: object, lits: list[object]) -> None:
+    """Replace the hints by the solver's last solution (the second phase starts from it)."""
+    model.clear_hints()  # type: ignore[attr-defined]
+    for lit in lits:
+        model.add_hint(lit, solver.value(lit))  # type: ignore[attr-defined]

@@ -1,0 +1,158 @@
+"""``plan_mission``: from (tree, fleet snapshot, options) to a Plan, with the chosen strategy."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from delegation.allocation.auction import auction, unassigned_reason
+from delegation.allocation.instantiate import Placement, instantiate
+from delegation.allocation.nearest import nearest
+from delegation.allocation.plan import Assignment, Plan, Unassigned
+from delegation.allocation.problem import Problem, build_problem
+from delegation.allocation.schedule import Schedule
+from delegation.errors import InputError
+from delegation.errors import Problem as InputProblem
+from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
+
+if TYPE_CHECKING:
+    from delegation.fleet import UnitState
+
+log = logging.getLogger(__name__)
+
+STRATEGIES: tuple[str, ...] = ("nearest", "auction", "optimal")
+OBJECTIVES: tuple[str, ...] = ("makespan", "total")
+
+
+def check_options(strategy: str, objective: str, time_limit: float) -> None:
+    """Raise ``InputError`` naming the bad option."""
+    problems = []
+    if strategy not in STRATEGIES:
+        problems.append(
+            InputProblem("options", "strategy", f"unknown strategy {strategy!r}; choose one of "
+                         + ", ".join(STRATEGIES))
+        )
+    if objective not in OBJECTIVES:
+        problems.append(
+            InputProblem("options", "objective", f"unknown objective {objective!r}; choose one of "
+                         + ", ".join(OBJECTIVES))
+        )
+    if not (isinstance(time_limit, int | float) and time_limit > 0 and np.isfinite(time_limit)):
+        problems.append(
+            InputProblem("options", "time-limit", f"must be a positive number of seconds, not "
+                         f"{time_limit!r}")
+        )
+    if problems:
+        raise InputError(problems)
+
+
+def plan_mission(
+    tree: TstNode,
+    units: Sequence[UnitState],
+    *,
+    strategy: str = "auction",
+    objective: str = "makespan",
+    time_limit: float = 5.0,
+    engine_unit: str = "op0",
+    new_uuid: Callable[[], str] | None = None,
+) -> Plan:
+    """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
+
+    Never raises for infeasibility (those tasks go to ``unassigned``); raises ``InputError`` for an
+    unknown strategy or objective or a tree that is not valid.
+    """
+    check_options(strategy, objective, time_limit)
+    problems = tree_problems(tree)
+    if problems:
+        raise InputError(problems)
+    began = time.perf_counter()
+    prepared = with_defaults(with_uuids(tree, new_uuid))
+    problem = build_problem(prepared, units)
+    bound: float | None = None
+    notes: list[str] = []
+    if strategy == "nearest":
+        schedule = nearest(problem, objective)
+    elif strategy == "auction":
+        schedule = auction(problem, objective)
+    else:
+        from delegation.allocation.optimal import optimise
+
+        result = optimise(problem, objective, time_limit)
+        schedule, bound, notes = result.schedule, result.bound, result.notes
+    solve_time = time.perf_counter() - began
+    return make_plan(
+        problem, schedule, prepared, strategy=strategy, objective=objective,
+        solve_time=solve_time, bound=bound, engine_unit=engine_unit, new_uuid=new_uuid,
+        notes=notes,
+    )
+
+
+def make_plan(
+    problem: Problem,
+    schedule: Schedule,
+    prepared: TstNode,
+    *,
+    strategy: str,
+    objective: str,
+    solve_time: float,
+    bound: float | None = None,
+    engine_unit: str = "op0",
+    new_uuid: Callable[[], str] | None = None,
+    notes: list[str] | None = None,
+) -> Plan:
+    """Turn a schedule into a Plan (assignments sorted by start, then unit)."""
+    assignments: list[Assignment] = []
+    unassigned: list[Unassigned] = []
+    placements: dict[str, Placement] = {}
+    for t, task in enumerate(problem.tasks):
+        u = int(schedule.assign[t])
+        if u < 0:
+            unassigned.append(Unassigned(task.uuid, task.name, unassigned_reason(problem, t)))
+            continue
+        unit = problem.unit_names[u]
+        assignments.append(
+            Assignment(
+                node_uuid=task.uuid,
+                name=task.name,
+                execunit="/" + unit,
+                start=float(schedule.start[t]),
+                end=float(schedule.end[t]),
+                travel_time=float(schedule.travel_time[t]),
+                work_time=float(schedule.work_time[t]),
+                distance=float(schedule.distance[t]),
+            )
+        )
+        placements[task.uuid] = Placement(unit, float(schedule.start[t]), task.vehicle)
+    order = {a.node_uuid: i for i, a in enumerate(assignments)}
+    assignments.sort(key=lambda a: (a.start, a.execunit, order[a.node_uuid]))
+    by_uuid = {a.node_uuid: a for a in assignments}
+    routes: dict[str, list[Assignment]] = {}
+    for u, route in enumerate(schedule.orders):
+        if route:
+            routes[problem.unit_names[u]] = [by_uuid[problem.tasks[t].uuid] for t in route]
+    tst = instantiate(prepared, placements, engine_unit, new_uuid)
+    primary = schedule.total_time if objective == "total" else schedule.makespan
+    gap = None
+    if bound is not None:
+        bound = min(bound, primary)
+        gap = (primary - bound) / primary if primary > 0 else 0.0
+    return Plan(
+        strategy=strategy,
+        objective=objective,
+        feasible=not unassigned and schedule.valid,
+        makespan=schedule.makespan,
+        total_time=schedule.total_time,
+        total_distance=schedule.total_distance,
+        solve_time=solve_time,
+        bound=bound,
+        gap=gap,
+        assignments=assignments,
+        unassigned=unassigned,
+        tst=tst,
+        routes=routes,
+        notes=list(notes or []),
+    )

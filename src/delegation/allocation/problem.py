@@ -1,0 +1,342 @@
+"""The allocation problem: which tasks, which units may take them, what it costs, what must wait.
+
+Built once from (tree, fleet snapshot, cost tables) and shared by every strategy and by the schedule
+evaluator, so that all of them mean the same thing (DESIGN 3.6). Tasks are the tree's leaves in tree
+order; ``allowed[u, t]`` already folds in capability, fixed units (``/dji0``) and aliases (every
+unit of an alias group must be able to take every task of the group).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from delegation.tst import ExecUnitKind, TstNode, classify_execunit, is_vehicle_task, walk, where
+
+if TYPE_CHECKING:
+    from delegation.fleet import UnitState
+
+
+class TablesLike(Protocol):
+    """What the problem needs from ``delegation.costs.CostTables`` (see CONTRACTS.md)."""
+
+    unit_xy: np.ndarray
+    home_xy: np.ndarray
+    start_xy: np.ndarray
+    end_xy: np.ndarray
+    speed: np.ndarray
+    work_time: np.ndarray
+    work_distance: np.ndarray
+    travels: np.ndarray
+    capable: np.ndarray
+    endurance: np.ndarray
+
+    def reason(self, u: int, t: int) -> str | None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class TaskRef:
+    """One task (leaf) of the tree, as the planner sees it."""
+
+    index: int
+    path: str
+    node: TstNode
+    vehicle: bool
+    kind: ExecUnitKind
+    ref: str  # the fixed unit's name or the alias; "" when free
+
+    @property
+    def name(self) -> str:
+        return self.node.name
+
+    @property
+    def uuid(self) -> str:
+        return self.node.node_uuid or ""
+
+    @property
+    def label(self) -> str:
+        return where(self.path, self.node)
+
+
+@dataclass(frozen=True, slots=True)
+class Structure:
+    """The tree's control structure, flattened: what activates what (seq/conc)."""
+
+    kinds: tuple[str, ...]  # per tree node: "seq", "conc" or "task"
+    children: tuple[tuple[int, ...], ...]
+    task_of_node: tuple[int, ...]  # task index, or -1 for control nodes
+    node_of_task: tuple[int, ...]
+
+    @property
+    def size(self) -> int:
+        return len(self.kinds)
+
+
+def flatten_tree(root: TstNode) -> tuple[Structure, list[tuple[str, TstNode]]]:
+    """The structure of ``root`` (node 0) and its leaves (path, node) in tree order."""
+    kinds: list[str] = []
+    children: list[list[int]] = []
+    task_of_node: list[int] = []
+    node_of_task: list[int] = []
+    leaves: list[tuple[str, TstNode]] = []
+    index_of: dict[str, int] = {}
+    for path, node in walk(root):
+        i = len(kinds)
+        index_of[path] = i
+        parent = path.rsplit("/", 1)[0] if "/" in path else None
+        if parent is not None:
+            children[index_of[parent]].append(i)
+        children.append([])
+        if node.is_control:
+            kinds.append(node.name)
+            task_of_node.append(-1)
+        else:
+            kinds.append("task")
+            task_of_node.append(len(node_of_task))
+            node_of_task.append(i)
+            leaves.append((path, node))
+    structure = Structure(
+        tuple(kinds), tuple(tuple(c) for c in children), tuple(task_of_node), tuple(node_of_task)
+    )
+    return structure, leaves
+
+
+def precedence(structure: Structure, n_tasks: int) -> np.ndarray:
+    """``before[a, b]``: task a must end before task b is activated (a in an earlier seq child)."""
+    before = np.zeros((n_tasks, n_tasks), dtype=bool)
+    tasks_under: list[list[int]] = [[] for _ in range(structure.size)]
+    for n in range(structure.size - 1, -1, -1):  # children have higher indices (pre-order)
+        t = structure.task_of_node[n]
+        if t >= 0:
+            tasks_under[n] = [t]
+        else:
+            tasks_under[n] = [x for c in structure.children[n] for x in tasks_under[c]]
+    for n in range(structure.size):
+        if structure.kinds[n] != "seq":
+            continue
+        seen: list[int] = []
+        for c in structure.children[n]:
+            if seen and tasks_under[c]:
+                before[np.ix_(seen, tasks_under[c])] = True
+            seen = seen + tasks_under[c]
+    return before
+
+
+@dataclass
+class Problem:
+    """Everything a strategy needs: tasks, units, costs (s, m), who may take what, the tree."""
+
+    tasks: list[TaskRef]
+    unit_names: list[str]
+    unit_xy: np.ndarray  # (U,2)
+    home_xy: np.ndarray  # (U,2), NaN rows: no home
+    start_xy: np.ndarray  # (T,2), NaN rows for tasks done in place
+    end_xy: np.ndarray  # (T,2)
+    speed: np.ndarray  # (U,T) m/s
+    work_time: np.ndarray  # (U,T) s
+    work_distance: np.ndarray  # (U,T) m
+    travels: np.ndarray  # (T,) bool (go-home: True; see ``points_for``)
+    home_speed: np.ndarray  # (U,) m/s for the way home
+    endurance: np.ndarray  # (U,) s, inf where unknown
+    allowed: np.ndarray  # (U,T) bool
+    reasons: list[str | None]  # per task: why no unit may take it
+    alias_groups: list[list[int]]
+    structure: Structure
+    to_home: np.ndarray | None = None  # (T,) bool: go-home (start and end are the unit's home)
+    _before: np.ndarray | None = field(default=None, repr=False)
+    cache: dict[str, Any] = field(default_factory=dict, repr=False)  # derived data, per problem
+
+    @property
+    def n_units(self) -> int:
+        return len(self.unit_names)
+
+    @property
+    def n_tasks(self) -> int:
+        return len(self.tasks)
+
+    @property
+    def vehicle(self) -> np.ndarray:
+        return np.array([t.vehicle for t in self.tasks], dtype=bool)
+
+    @property
+    def has_home(self) -> np.ndarray:
+        return ~np.isnan(self.home_xy[:, 0]) if self.n_units else np.zeros(0, dtype=bool)
+
+    @property
+    def before(self) -> np.ndarray:
+        """(T,T) precedence matrix, computed on first use."""
+        if self._before is None:
+            self._before = precedence(self.structure, self.n_tasks)
+        return self._before
+
+    @property
+    def flat(self) -> bool:
+        """True when every task is activated at mission start (no seq between tasks)."""
+        counts = self._task_counts()
+        for n, kind in enumerate(self.structure.kinds):
+            if kind == "seq" and sum(1 for c in self.structure.children[n] if counts[c]) > 1:
+                return False
+        return True
+
+    def _task_counts(self) -> list[int]:
+        s = self.structure
+        counts = [0] * s.size
+        for n in range(s.size - 1, -1, -1):
+            counts[n] = 1 if s.task_of_node[n] >= 0 else sum(counts[c] for c in s.children[n])
+        return counts
+
+    def home_task(self) -> np.ndarray:
+        return self.to_home if self.to_home is not None else np.zeros(self.n_tasks, dtype=bool)
+
+    def points_for(
+        self, u: int, cand: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Start (C,2), end (C,2) and travels (C,) of tasks ``cand`` when unit ``u`` does them.
+
+        ``go-home`` starts and ends at the unit's home (in place when it has none); rows of tasks
+        done in place are 0 (never used: they do not travel).
+        """
+        cand = np.asarray(cand, dtype=int)
+        start = self.start_xy[cand].copy()
+        end = self.end_xy[cand].copy()
+        travels = self.travels[cand].copy()
+        home = self.home_task()[cand]
+        if home.any():
+            if self.has_home[u]:
+                start[home] = self.home_xy[u]
+                end[home] = self.home_xy[u]
+                travels[home] = True
+            else:
+                travels[home] = False
+        start[~travels] = 0.0
+        end[~travels] = 0.0
+        return start, end, travels
+
+    def alias_of(self) -> np.ndarray:
+        """(T,) index of each task's alias group, -1 when none."""
+        out = np.full(self.n_tasks, -1, dtype=int)
+        for g, members in enumerate(self.alias_groups):
+            out[members] = g
+        return out
+
+
+def _summarise(reasons: dict[str, list[str]]) -> str:
+    parts = []
+    for text, names in reasons.items():
+        shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+        parts.append(f"{text} ({shown})")
+    return "; ".join(parts)
+
+
+def build_problem(
+    tree: TstNode, units: Sequence[UnitState], tables: TablesLike | None = None
+) -> Problem:
+    """The problem for ``tree`` (leaves in tree order, uuids as given) and ``units``.
+
+    ``tables`` are built with ``delegation.costs.cost_tables`` unless given.
+    """
+    structure, leaves = flatten_tree(tree)
+    if tables is None:
+        from delegation.costs import cost_tables
+
+        tables = cost_tables(list(units), [node for _, node in leaves])  # type: ignore[assignment]
+    names = [u.name for u in units]
+    home_speed = np.array([float(u.speeds.get("standard", 1.0)) for u in units], dtype=float)
+    return problem_from_arrays(
+        structure,
+        leaves,
+        names,
+        tables=tables,  # type: ignore[arg-type]
+        home_speed=home_speed,
+    )
+
+
+def problem_from_arrays(
+    structure: Structure,
+    leaves: list[tuple[str, TstNode]],
+    unit_names: list[str],
+    *,
+    tables: TablesLike,
+    home_speed: np.ndarray,
+) -> Problem:
+    """Assemble a problem from the flattened tree and cost tables (tests use hand-made tables)."""
+    n_units, n_tasks = len(unit_names), len(leaves)
+    capable = np.asarray(tables.capable, dtype=bool).reshape(n_units, n_tasks)
+    allowed = capable.copy()
+    reasons: list[str | None] = [None] * n_tasks
+    tasks: list[TaskRef] = []
+    groups: dict[str, list[int]] = {}
+    unit_index = {name: i for i, name in enumerate(unit_names)}
+    why: list[dict[str, list[str]]] = [{} for _ in range(n_tasks)]
+    for t, (path, node) in enumerate(leaves):
+        try:
+            kind, ref = classify_execunit(node.execunit)
+        except TypeError:
+            kind, ref = ExecUnitKind.FREE, ""
+        tasks.append(TaskRef(t, path, node, is_vehicle_task(node.name), kind, ref))
+        if kind is ExecUnitKind.FIXED:
+            u = unit_index.get(ref)
+            mask = np.zeros(n_units, dtype=bool)
+            if u is None:
+                reasons[t] = f"fixed unit /{ref} is not known to the fleet"
+            else:
+                mask[u] = True
+            allowed[:, t] &= mask
+        elif kind is ExecUnitKind.ALIAS:
+            groups.setdefault(ref, []).append(t)
+    for t in range(n_tasks):
+        if reasons[t] is None and not allowed[:, t].any():
+            for u in range(n_units):
+                if tasks[t].kind is ExecUnitKind.FIXED and unit_names[u] != tasks[t].ref:
+                    continue
+                text = tables.reason(u, t) or "cannot take it"
+                why[t].setdefault(text, []).append(unit_names[u])
+            reasons[t] = (
+                _summarise(why[t]) if why[t] else "no live unit in the fleet"
+            )
+    alias_groups = list(groups.values())
+    for alias, members in groups.items():
+        joint = np.asarray(allowed[:, members].all(axis=1), dtype=bool)
+        if not joint.any():
+            for t in members:
+                if reasons[t] is None:
+                    reasons[t] = f"no single unit can take every task of alias {alias!r}"
+        allowed[:, members] = joint[:, None]
+    return Problem(
+        tasks=tasks,
+        unit_names=list(unit_names),
+        unit_xy=np.asarray(tables.unit_xy, dtype=float).reshape(n_units, 2),
+        home_xy=np.asarray(tables.home_xy, dtype=float).reshape(n_units, 2),
+        start_xy=np.asarray(tables.start_xy, dtype=float).reshape(n_tasks, 2),
+        end_xy=np.asarray(tables.end_xy, dtype=float).reshape(n_tasks, 2),
+        speed=np.asarray(tables.speed, dtype=float).reshape(n_units, n_tasks),
+        work_time=np.asarray(tables.work_time, dtype=float).reshape(n_units, n_tasks),
+        work_distance=np.asarray(tables.work_distance, dtype=float).reshape(n_units, n_tasks),
+        travels=_travels(tables, n_tasks),
+        home_speed=np.asarray(home_speed, dtype=float).reshape(n_units),
+        endurance=np.asarray(tables.endurance, dtype=float).reshape(n_units),
+        allowed=allowed,
+        reasons=reasons,
+        alias_groups=alias_groups,
+        structure=structure,
+        to_home=_to_home(tables, n_tasks),
+    )
+
+
+def _to_home(tables: Any, n_tasks: int) -> np.ndarray:
+    value = getattr(tables, "to_home", None)
+    if value is None:
+        return np.zeros(n_tasks, dtype=bool)
+    return np.asarray(value, dtype=bool).reshape(n_tasks)
+
+
+def _travels(tables: Any, n_tasks: int) -> np.ndarray:
+    travels = np.asarray(tables.travels, dtype=bool).reshape(n_tasks).copy()
+    start = np.asarray(tables.start_xy, dtype=float).reshape(n_tasks, 2)
+    end = np.asarray(tables.end_xy, dtype=float).reshape(n_tasks, 2)
+    fixed = np.isfinite(start).all(axis=1) & np.isfinite(end).all(axis=1)
+    travels &= fixed | _to_home(tables, n_tasks)
+    return travels

@@ -1,0 +1,98 @@
+"""Vectorised insertion costs into one unit's route (shared by the auction and the optimiser).
+
+A route is the ordered list of a unit's vehicle tasks. Inserting task ``t`` at position ``p`` adds
+the travel from where the unit is before ``p`` to ``t``'s start, ``t``'s work, and the travel from
+``t``'s end to whatever comes next (the next travelling task, the way home, or nothing), minus the
+travel it replaces. Tasks done in place (``travels`` False) leave the unit where it was.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from delegation.allocation.problem import Problem
+
+
+def route_points(
+    problem: Problem, u: int, route: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For positions 0..L: where the unit is before p, where it goes next, and at what speed.
+
+    Returns ``prev_xy`` (L+1,2), ``next_xy`` (L+1,2) and ``next_speed`` (L+1,); ``next_speed`` is
+    inf where nothing follows (open route), so the travel to "next" costs nothing there.
+    """
+    n = len(route)
+    prev_xy = np.empty((n + 1, 2))
+    prev_xy[0] = problem.unit_xy[u]
+    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+    for k in range(n):
+        prev_xy[k + 1] = end[k] if travels[k] else prev_xy[k]
+    next_xy = np.zeros((n + 1, 2))
+    next_speed = np.full(n + 1, np.inf)
+    if problem.has_home[u]:
+        next_xy[n] = problem.home_xy[u]
+        next_speed[n] = problem.home_speed[u]
+    for k in range(n - 1, -1, -1):
+        if travels[k]:
+            next_xy[k] = start[k]
+            next_speed[k] = problem.speed[u, route[k]]
+        else:
+            next_xy[k] = next_xy[k + 1]
+            next_speed[k] = next_speed[k + 1]
+    return prev_xy, next_xy, next_speed
+
+
+def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,M) distances between rows of a (N,2) and b (M,2); NaN rows give NaN."""
+    dx = a[:, 0][:, None] - b[:, 0][None, :]
+    dy = a[:, 1][:, None] - b[:, 1][None, :]
+    return np.sqrt(dx * dx + dy * dy)
+
+
+def insertion_costs(
+    problem: Problem, u: int, route: Sequence[int], cand: np.ndarray
+) -> np.ndarray:
+    """(L+1, C) added travel + work time of inserting each candidate task at each position."""
+    prev_xy, next_xy, next_speed = route_points(problem, u, route)
+    cand = np.asarray(cand, dtype=int)
+    speed = problem.speed[u, cand]
+    work = problem.work_time[u, cand]
+    start, end, travels = problem.points_for(u, cand)
+    has_next = np.isfinite(next_speed)
+    safe_speed = np.where(has_next, next_speed, 1.0)
+    into = _dist(prev_xy, start) / speed[None, :]
+    out = np.where(has_next[:, None], _dist(next_xy, end) / safe_speed[:, None], 0.0)
+    old = np.where(has_next, np.hypot(*(next_xy - prev_xy).T) / safe_speed, 0.0)
+    cost = into + out - old[:, None]
+    cost = np.where(travels[None, :], cost, 0.0) + work[None, :]
+    return np.asarray(cost)
+
+
+def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
+    """Travel + work time of a route, including the way home (a unit's battery use when flat)."""
+    total = 0.0
+    for k, t in enumerate(route):
+        total += float(insertion_costs(problem, u, list(route[:k]), np.array([t]))[k, 0])
+    return total + _home_leg(problem, u)
+
+
+def _home_leg(problem: Problem, u: int) -> float:
+    if not problem.has_home[u]:
+        return 0.0
+    d = float(np.hypot(*(problem.home_xy[u] - problem.unit_xy[u])))
+    return d / float(problem.home_speed[u])
+
+
+def valid_positions(problem: Problem, route: Sequence[int], t: int) -> tuple[int, int]:
+    """The range [lo, hi] of positions where ``t`` may go without breaking the tree's order."""
+    if not route:
+        return 0, 0
+    before = problem.before
+    r = np.asarray(route, dtype=int)
+    must_precede = np.nonzero(before[r, t])[0]
+    must_follow = np.nonzero(before[t, r])[0]
+    lo = int(must_precede.max()) + 1 if must_precede.size else 0
+    hi = int(must_follow.min()) if must_follow.size else len(route)
+    return lo, hi

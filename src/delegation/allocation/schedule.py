@@ -1,0 +1,267 @@
+"""Schedule evaluation: given who does what in which order, when does everything happen.
+
+The one place that turns (assignment, per-unit order) into times, so that every strategy, the
+invariants and the tests agree (DESIGN 3.6): a task is executed when the tree activates it (seq:
+after its predecessor ended; conc: with its siblings) and its unit is free; travel starts then, from
+where the unit is at that time. Non-vehicle tasks (``look-at-*``) do not occupy the unit and do not
+travel. A unit with a ``home`` flies back after its last task; that counts for makespan and totals.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from delegation.allocation.problem import Problem
+
+#: Relative slack when comparing times against endurance (float noise, not a real margin).
+EPS = 1e-9
+
+
+@dataclass
+class Schedule:
+    """Times (s from mission start) and distances (m) of one allocation; NaN for unassigned."""
+
+    assign: np.ndarray  # (T,) unit index or -1
+    orders: list[list[int]]  # per unit, its vehicle tasks in execution order
+    start: np.ndarray  # (T,) travel starts
+    end: np.ndarray
+    travel_time: np.ndarray
+    work_time: np.ndarray
+    distance: np.ndarray  # travel + work distance
+    unit_finish: np.ndarray  # (U,) end of last task, incl. the way home; 0 when idle
+    unit_used: np.ndarray  # (U,) travel + work of vehicle tasks + way home (battery use)
+    home_time: np.ndarray  # (U,)
+    home_distance: np.ndarray  # (U,)
+    makespan: float
+    total_time: float
+    total_distance: float
+    problems: list[str] = field(default_factory=list)  # deadlock, battery: empty when valid
+
+    @property
+    def valid(self) -> bool:
+        return not self.problems
+
+    @property
+    def n_unassigned(self) -> int:
+        return int((self.assign < 0).sum())
+
+    def key(self, objective: str) -> tuple[float, float, float]:
+        """Sort key: fewer unassigned tasks first, then the objective, then the other measure."""
+        if objective == "total":
+            return (float(self.n_unassigned), self.total_time, self.makespan)
+        return (float(self.n_unassigned), self.makespan, self.total_time)
+
+
+@dataclass(frozen=True)
+class _Template:
+    succ: list[list[int]]
+    indeg: list[int]
+
+
+def _template(problem: Problem) -> _Template:
+    """The static part of the activation graph: ids act(n) = 2n, fin(n) = 2n + 1."""
+    s = problem.structure
+    succ: list[list[int]] = [[] for _ in range(2 * s.size)]
+    for n in range(s.size):
+        act, fin = 2 * n, 2 * n + 1
+        succ[act].append(fin)
+        kids = s.children[n]
+        if s.kinds[n] == "seq":
+            if kids:
+                succ[act].append(2 * kids[0])
+                for a, b in itertools.pairwise(kids):
+                    succ[2 * a + 1].append(2 * b)
+                succ[2 * kids[-1] + 1].append(fin)
+        else:
+            for c in kids:
+                succ[act].append(2 * c)
+                succ[2 * c + 1].append(fin)
+    indeg = [0] * (2 * s.size)
+    for out in succ:
+        for v in out:
+            indeg[v] += 1
+    return _Template(succ, indeg)
+
+
+def template_for(problem: Problem) -> _Template:
+    tpl: _Template | None = problem.cache.get("template")
+    if tpl is None:
+        tpl = problem.cache["template"] = _template(problem)
+    return tpl
+
+
+def evaluate(
+    problem: Problem, assign: Sequence[int] | np.ndarray, orders: Sequence[Sequence[int]]
+) -> Schedule:
+    """Simulate the tree with this allocation (earliest start everywhere) and measure it.
+
+    A cycle between the tree's order and the units' orders (unit A waits for B which waits for A)
+    is reported in ``problems`` ("deadlock"), as is a unit that would run out of battery.
+    """
+    n_tasks, n_units = problem.n_tasks, problem.n_units
+    assign_arr = np.asarray(assign, dtype=int).reshape(n_tasks)
+    s = problem.structure
+    tpl = template_for(problem)
+    problems: list[str] = []
+
+    prev = [-1] * n_tasks
+    seen = [False] * n_tasks
+    vehicle = [t.vehicle for t in problem.tasks]
+    for u, order in enumerate(orders):
+        p = -1
+        for t in order:
+            if assign_arr[t] != u or not vehicle[t] or seen[t]:
+                problems.append(f"order of unit {problem.unit_names[u]} lists task {t} wrongly")
+                continue
+            seen[t] = True
+            prev[t] = p
+            p = t
+    for t in range(n_tasks):
+        if assign_arr[t] >= 0 and vehicle[t] and not seen[t]:
+            problems.append(f"task {t} is assigned but in no unit's order")
+
+    succ = tpl.succ
+    indeg = list(tpl.indeg)
+    extra: dict[int, int] = {}
+    node_of = s.node_of_task
+    for t in range(n_tasks):
+        if prev[t] >= 0:
+            src = 2 * node_of[prev[t]] + 1
+            extra[src] = 2 * node_of[t] + 1
+            indeg[2 * node_of[t] + 1] += 1
+
+    ux, uy = problem.unit_xy[:, 0].tolist(), problem.unit_xy[:, 1].tolist()
+    sx, sy = problem.start_xy[:, 0].tolist(), problem.start_xy[:, 1].tolist()
+    ex, ey = problem.end_xy[:, 0].tolist(), problem.end_xy[:, 1].tolist()
+    travels = problem.travels.tolist()
+    to_home = problem.home_task().tolist()
+    has_home = problem.has_home
+    speed, work_t, work_d = problem.speed, problem.work_time, problem.work_distance
+
+    start = np.full(n_tasks, np.nan)
+    end = np.full(n_tasks, np.nan)
+    travel_time = np.full(n_tasks, np.nan)
+    work_time = np.full(n_tasks, np.nan)
+    distance = np.full(n_tasks, np.nan)
+    pos_x = [0.0] * n_tasks
+    pos_y = [0.0] * n_tasks
+
+    value = [0.0] * (2 * s.size)
+    stack = [i for i in range(2 * s.size) if indeg[i] == 0]
+    done = 0
+    while stack:
+        i = stack.pop()
+        done += 1
+        n, is_fin = divmod(i, 2)
+        t = s.task_of_node[n]
+        if is_fin and t >= 0:
+            begin = value[i]
+            u = int(assign_arr[t])
+            if u < 0:
+                end_t = begin
+            elif not vehicle[t]:
+                w = float(work_t[u, t])
+                start[t], travel_time[t], work_time[t] = begin, 0.0, w
+                distance[t] = 0.0
+                end_t = begin + w
+                end[t] = end_t
+            else:
+                p = prev[t]
+                px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
+                if to_home[t] and has_home[u]:
+                    hx, hy = float(problem.home_xy[u, 0]), float(problem.home_xy[u, 1])
+                    d = math.hypot(hx - px, hy - py)
+                    tt = d / float(speed[u, t])
+                    pos_x[t], pos_y[t] = hx, hy
+                elif travels[t] and not to_home[t]:
+                    d = math.hypot(sx[t] - px, sy[t] - py)
+                    tt = d / float(speed[u, t])
+                    pos_x[t], pos_y[t] = ex[t], ey[t]
+                else:
+                    d, tt = 0.0, 0.0
+                    pos_x[t], pos_y[t] = px, py
+                w = float(work_t[u, t])
+                start[t], travel_time[t], work_time[t] = begin, tt, w
+                distance[t] = d + float(work_d[u, t])
+                end_t = begin + tt + w
+                end[t] = end_t
+            value[i] = end_t
+        v = value[i]
+        for j in succ[i]:
+            if v > value[j]:
+                value[j] = v
+            indeg[j] -= 1
+            if indeg[j] == 0:
+                stack.append(j)
+        j = extra.get(i, -1)
+        if j >= 0:
+            if v > value[j]:
+                value[j] = v
+            indeg[j] -= 1
+            if indeg[j] == 0:
+                stack.append(j)
+    if done < 2 * s.size:
+        problems.append("deadlock: the units' orders and the tree's order wait for each other")
+
+    unit_finish = np.zeros(n_units)
+    unit_used = np.zeros(n_units)
+    home_time = np.zeros(n_units)
+    home_distance = np.zeros(n_units)
+    for u, order in enumerate(orders):
+        if not order:
+            continue
+        last = order[-1]
+        if has_home[u]:
+            d = math.hypot(problem.home_xy[u, 0] - pos_x[last], problem.home_xy[u, 1] - pos_y[last])
+            home_distance[u] = d
+            home_time[u] = d / float(problem.home_speed[u])
+        unit_finish[u] = float(end[last]) + home_time[u]
+        idx = list(order)
+        unit_used[u] = float(np.nansum(travel_time[idx]) + np.nansum(work_time[idx])) + home_time[u]
+        if unit_used[u] > problem.endurance[u] * (1 + EPS) + EPS:
+            problems.append(
+                f"unit {problem.unit_names[u]} needs {unit_used[u]:.0f} s but has "
+                f"{problem.endurance[u]:.0f} s of endurance left"
+            )
+    assigned = assign_arr >= 0
+    makespan = 0.0
+    ends = end[assigned]
+    if np.isfinite(ends).any():
+        makespan = float(np.nanmax(ends))
+    if n_units:
+        makespan = max(makespan, float(unit_finish.max()))
+    total_time = float(np.nansum(travel_time) + np.nansum(work_time) + home_time.sum())
+    total_distance = float(np.nansum(distance) + home_distance.sum())
+    return Schedule(
+        assign=assign_arr.copy(),
+        orders=[list(o) for o in orders],
+        start=start,
+        end=end,
+        travel_time=travel_time,
+        work_time=work_time,
+        distance=distance,
+        unit_finish=unit_finish,
+        unit_used=unit_used,
+        home_time=home_time,
+        home_distance=home_distance,
+        makespan=makespan,
+        total_time=total_time,
+        total_distance=total_distance,
+        problems=problems,
+    )
+
+
+def better(a: Schedule, b: Schedule, objective: str, rel: float = 1e-9) -> bool:
+    """True when ``a`` is strictly better than ``b`` (beyond float noise)."""
+    ka, kb = a.key(objective), b.key(objective)
+    for x, y in zip(ka, kb, strict=True):
+        if x < y - rel * max(1.0, abs(y)):
+            return True
+        if x > y + rel * max(1.0, abs(y)):
+            return False
+    return False
