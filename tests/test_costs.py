@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 import pytest
-from shapely.geometry import LineString, Point, Polygon
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from shapely.geometry import LineString, MultiPoint, Point, Polygon
 
 from delegation.costs import (
     LAND_TIME_S,
@@ -372,3 +374,34 @@ def test_large_tables_are_consistent() -> None:
     assert (t.capable[:, 995:] == np.array([i % 2 == 0 for i in range(200)])[:, None]).all()
     d = t.dist_unit_to_start()
     assert d[17, 420] == pytest.approx(float(np.hypot(*(t.unit_xy[17] - t.start_xy[420]))))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    points=st.lists(
+        st.tuples(st.floats(-2000, 2000), st.floats(-2000, 2000)), min_size=3, max_size=12
+    ),
+    width=st.floats(5.0, 400.0),
+)
+def test_coverage_properties_on_random_convex_polygons(
+    points: list[tuple[float, float]], width: float
+) -> None:
+    hull = MultiPoint(points).convex_hull
+    assume(isinstance(hull, Polygon) and hull.area > 1000.0)
+    poly = np.asarray(hull.exterior.coords)[:-1]
+    lanes = sweep_lanes(poly, width)
+    path = coverage_path(poly, width)
+    # as many lanes as strips of at most `width` across the minimum rotated rectangle
+    rect = hull.minimum_rotated_rectangle.exterior.coords
+    sides = sorted(math.dist(rect[i], rect[i + 1]) for i in range(2))
+    assert len(lanes) == max(1, math.ceil(sides[0] / width - 1e-9))
+    # every lane ends on the boundary and the path never leaves the polygon
+    ends = lanes.reshape(-1, 2)
+    assert max(hull.exterior.distance(Point(p)) for p in ends) < 1e-6
+    assert all(hull.buffer(1e-6).contains(Point(p)) for p in path)
+    # lanes are parallel and the length is the path's
+    directions = lanes[:, 1] - lanes[:, 0]
+    long_enough = np.hypot(*directions.T) > 1e-6
+    unit_dirs = directions[long_enough] / np.hypot(*directions[long_enough].T)[:, None]
+    assert np.allclose(np.abs(unit_dirs @ unit_dirs[0]), 1.0)
+    assert coverage_length(poly, width) == pytest.approx(path_length(path))
