@@ -7,6 +7,11 @@ polygon edge; consecutive lanes are joined by straight connectors at alternating
 rectangle that is exactly ``A / w + (n - 1) * w`` for ``A`` the area (DESIGN 4); for other convex
 polygons it stays within a few per cent of that estimate.
 
+Lanes end where their centre line meets the boundary, so the path never leaves the polygon; at
+slanted ends the corners between lanes are left to the camera's along-track footprint. Counting only
+the band ``w/2`` either side of the path, a triangle is 99.9 % covered with 19 lanes, 99 % with 5,
+96 % with 2 (tests check >= 99 % from about 10 lanes on).
+
 The path is real: the simulator flies it and the maps draw it, and ``coverage_length`` is its
 length, not an estimate. Lanes are found with numpy (every lane against every polygon edge at
 once), so widths of a metre over kilometre-sized areas stay fast.
