@@ -32,6 +32,7 @@ class WireModel(BaseModel):
         populate_by_name=True,
         extra="ignore",
         validate_assignment=True,
+        allow_inf_nan=False,
     )
 
     #: Wire keys left out when they hold ``""`` or ``[]`` (the seed omits e.g. ``fail-reason`` on
