@@ -1,0 +1,119 @@
+"""``delegation engine`` and ``delegation sim``: the reference TST engine and a simulated fleet.
+
+Both run until interrupted (or for ``--duration`` seconds) on the broker named by the flags or the
+``WARAPS_*`` environment, like the WARA-PS example agents.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import threading
+from typing import Any
+
+from delegation.cli.runtime import add_broker_args, broker_settings, find_scenario
+from delegation.errors import InputError, Problem
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers: Any) -> None:
+    engine = subparsers.add_parser(
+        "engine",
+        help="run the reference TST engine (op0)",
+        description="Executes fully instantiated TSTs sent to <prefix>/unit/<type>/<role>/<name>"
+        "/tst/command by sending start-task to the units (seed section 14).",
+    )
+    engine.add_argument("--name", default="op0", help="the engine's unit name (default op0)")
+    engine.add_argument("--agent-type", default="ground", help="agent-type in its topics")
+    engine.add_argument("--role", default="simulation", help="role level of its topics")
+    _run_args(engine)
+    add_broker_args(engine)
+    engine.set_defaults(func=_engine)
+
+    sim = subparsers.add_parser(
+        "sim",
+        help="run a simulated fleet: one unit per scenario agent",
+        description="Simulated units speaking the Heartbeat, Sensor and Direct Execution APIs, "
+        "one per agent of the scenario, at the agents' positions, speeds and tasks.",
+    )
+    sim.add_argument("scenario", help="scenario file (YAML/JSON) or name under scenarios/")
+    sim.add_argument(
+        "--speedup", type=float, default=1.0, help="simulated seconds per wall second (default 1)"
+    )
+    sim.add_argument("--role", default="simulation", help="role level of the units' topics")
+    sim.add_argument(
+        "--example-agent",
+        action="store_true",
+        help="behave like the public WARA-PS example agent (message shapes and quirks)",
+    )
+    _run_args(sim)
+    add_broker_args(sim)
+    sim.set_defaults(func=_sim)
+
+
+def _run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--duration", type=float, default=None, help="stop after this many seconds (default: run)"
+    )
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    settings = broker_settings(args)
+    if settings is None:
+        raise InputError(
+            Problem("--broker", "", "no broker: give --broker HOST or set WARAPS_BROKER")
+        )
+    return settings
+
+
+def _wait(duration: float | None) -> None:
+    """Block until ``duration`` passes or Ctrl-C (which ends the command normally)."""
+    done = threading.Event()
+    with contextlib.suppress(KeyboardInterrupt):
+        done.wait(duration)
+
+
+def _engine(args: argparse.Namespace) -> int:
+    from delegation.engine import TstEngine
+
+    settings = _settings(args)
+    engine = TstEngine(
+        settings, args.name, prefix=args.prefix, agent_type=args.agent_type, role=args.role
+    )
+    engine.start()
+    print(f"TST engine {args.name} on {settings.describe()}: {engine.base}/tst/command")
+    try:
+        _wait(args.duration)
+    finally:
+        engine.stop()
+    return 0
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from delegation.scenario import load_scenario
+    from delegation.sim import SimFleet
+
+    if args.speedup <= 0:
+        raise InputError(Problem("--speedup", "", f"must be positive, not {args.speedup}"))
+    settings = _settings(args)
+    scenario = load_scenario(find_scenario(args.scenario))
+    fleet = SimFleet.from_scenario(
+        settings,
+        scenario,
+        prefix=args.prefix,
+        role=args.role,
+        speedup=args.speedup,
+        example_agent=args.example_agent,
+    )
+    fleet.start()
+    print(
+        f"{len(fleet)} simulated units from {scenario.name} on {settings.describe()} "
+        f"(speed-up {args.speedup:g}): {', '.join(u.base for u in fleet)}"
+    )
+    try:
+        _wait(args.duration)
+    finally:
+        fleet.stop()
+    return 0
