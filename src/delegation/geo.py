@@ -6,6 +6,7 @@ East-North-Up frame around a mission origin; within 50 km its error is below 0.1
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -48,11 +49,11 @@ def distance_m(a: GeoPoint, b: GeoPoint) -> float:
 
 def path_length_m(points: Sequence[GeoPoint]) -> float:
     """Geodesic length of a polyline."""
-    return sum(distance_m(p, q) for p, q in zip(points, points[1:], strict=False))
+    return sum(distance_m(p, q) for p, q in itertools.pairwise(points))
 
 
 class LocalFrame:
-    """A mission-local East-North-Up frame (metres) around ``origin``; numpy-vectorised both ways."""
+    """A mission-local East-North-Up frame (metres) around an origin; vectorised both ways."""
 
     def __init__(self, origin_lat: float, origin_lon: float) -> None:
         self.origin_lat = float(origin_lat)
@@ -60,7 +61,7 @@ class LocalFrame:
 
     @classmethod
     def around(cls, points: Iterable[GeoPoint]) -> LocalFrame:
-        """A frame centred on the bounding box of ``points`` (the origin of an empty set is 0, 0)."""
+        """A frame centred on the bounding box of ``points`` (0, 0 for no points)."""
         pts = list(points)
         if not pts:
             return cls(0.0, 0.0)
@@ -69,7 +70,7 @@ class LocalFrame:
         return cls((min(lats) + max(lats)) / 2.0, (min(lons) + max(lons)) / 2.0)
 
     def to_xy(self, lat: Any, lon: Any) -> tuple[np.ndarray, np.ndarray]:
-        """East and north (m) of latitudes/longitudes (scalars or arrays), on the ellipsoid surface."""
+        """East and north (m) of latitudes/longitudes (scalars or arrays) on the ellipsoid."""
         e, n, _ = pymap3d.geodetic2enu(
             np.asarray(lat, dtype=float),
             np.asarray(lon, dtype=float),
@@ -93,15 +94,21 @@ class LocalFrame:
         return np.column_stack([np.atleast_1d(e), np.atleast_1d(n)])
 
     def to_geo(self, east: Any, north: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Latitudes/longitudes of east/north coordinates (on the ellipsoid surface)."""
-        lat, lon, _ = pymap3d.enu2geodetic(
-            np.asarray(east, dtype=float),
-            np.asarray(north, dtype=float),
-            0.0,
-            self.origin_lat,
-            self.origin_lon,
-            0.0,
-        )
+        """Latitudes/longitudes of the surface points whose east/north are given.
+
+        The inverse of ``to_xy``: that drops the (negative) up component of surface points, so
+        the point at up = 0 lies above the surface, and its latitude/longitude would be off by
+        about a metre at 40 km. A few fixed-point steps find the up value that puts the point on
+        the ellipsoid (each step shrinks the height by a factor of ~(d/R)^2).
+        """
+        e = np.asarray(east, dtype=float)
+        n = np.asarray(north, dtype=float)
+        up = -(e**2 + n**2) / (2.0 * EARTH_RADIUS_M)  # the sphere's drop: a good first guess
+        for _ in range(3):
+            lat, lon, height = pymap3d.enu2geodetic(
+                e, n, up, self.origin_lat, self.origin_lon, 0.0
+            )
+            up = up - np.asarray(height, dtype=float)
         return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
 
     def geopoint(self, east: float, north: float, altitude: float = 0.0) -> GeoPoint:
