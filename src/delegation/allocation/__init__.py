@@ -3,7 +3,7 @@
 Pure code: no network, no clock (except measuring solve time), no sleeps.
 """
 
-
+from delegation.allocation.invariants import check_invariants
 from delegation.allocation.plan import Assignment, Plan, Unassigned
 from delegation.allocation.planner import OBJECTIVES, STRATEGIES, make_plan, plan_mission
 from delegation.allocation.problem import Problem, build_problem
@@ -18,6 +18,7 @@ __all__ = [
     "Schedule",
     "Unassigned",
     "build_problem",
+    "check_invariants",
 
     "evaluate",
     "make_plan",

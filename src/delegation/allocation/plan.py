@@ -64,6 +64,8 @@ class Plan:
     tst: TstNode
     routes: dict[str, list[Assignment]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # what the strategy did (also logged)
+    #: The caller's tree with uuids and defaults, before units were filled in (not in JSON).
+    source: TstNode | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Exactly DESIGN 3.5, hyphenated keys; ``bound``/``gap`` null unless proven."""

@@ -155,4 +155,5 @@ def make_plan(
         tst=tst,
         routes=routes,
         notes=list(notes or []),
+        source=prepared,
     )
