@@ -236,7 +236,21 @@ def test_other_sensors_are_plain_json() -> None:
     assert parse_sensor("battery_state", b'{"percentage": 0.8}') == {"percentage": 0.8}
 
 
-@pytest.mark.parametrize("payload", [b"fast", b'{"a": 1, "b": 2}', b"true", b"[1]", b"null"])
+@pytest.mark.parametrize(
+    "payload",
+    [
+        b"fast",
+        b'{"a": 1, "b": 2}',
+        b"true",
+        b"[1]",
+        b"null",
+        b"1e999",
+        b'"inf"',
+        b'"nan"',
+        str(10**400).encode(),
+        b'{"value": %d}' % 10**400,
+    ],
+)
 def test_numeric_sensor_rejects_non_numbers(payload: bytes) -> None:
     with pytest.raises(MessageError) as info:
         parse_sensor("speed", payload)
@@ -442,7 +456,9 @@ def test_invalid_json_is_named() -> None:
     assert "line 1" in problem
 
 
-@pytest.mark.parametrize("payload", [b"\xff\xfe", b"NaN", b'{"rate": Infinity}', b"[" * 100000])
+@pytest.mark.parametrize(
+    "payload", [b"\xff\xfe", b"NaN", b'{"rate": Infinity}', b'{"rate": 1e999}', b"[" * 100000]
+)
 def test_undecodable_bytes_are_message_errors(payload: bytes) -> None:
     assert _problems(f"{BASE}/heartbeat", payload)
 
@@ -482,3 +498,13 @@ def test_unknown_topic() -> None:
 def test_a_non_object_message() -> None:
     (problem,) = _problems(f"{BASE}/heartbeat", b"[1, 2]")
     assert problem == "heartbeat: must be a JSON object, not a list"
+
+
+def test_numbers_beyond_float_range_are_refused_everywhere() -> None:
+    tree = b'{"name": "move-to", "params": {"waypoint": {"latitude": 1e400, "longitude": 0}}}'
+    payload = b'{"com-uuid": "c", "command": "start-tst", "sender": "s", "tst": ' + tree + b"}"
+    (problem,) = _problems("op0/tst/command", payload)
+    assert "out of range" in problem
+    huge_rate = b'{"agent-type": "a", "agent-uuid": "u", "name": "n", "rate": %d, "stamp": 1}'
+    (problem,) = _problems(f"{BASE}/heartbeat", huge_rate % 10**400)
+    assert problem.startswith("heartbeat: rate: Input should be a valid number")

@@ -49,6 +49,7 @@ json_leaf = (
     st.none()
     | st.booleans()
     | st.integers()
+    | st.integers(min_value=-(10**400), max_value=10**400)  # beyond a float's range too
     | st.floats(allow_nan=False, allow_infinity=False)
     | st.text(max_size=10)
 )

@@ -103,7 +103,15 @@ def task_params(draw: st.DrawFn, spec: TaskSpec) -> dict[str, Any]:
     return params
 
 
-json_leaf = st.none() | st.booleans() | st.integers() | finite | st.text(max_size=8)
+json_leaf = (
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.integers(min_value=-(10**400), max_value=10**400)  # beyond a float's range too
+    | st.floats(allow_nan=False)
+    | finite
+    | st.text(max_size=8)
+)
 json_values = st.recursive(
     json_leaf,
     lambda inner: (

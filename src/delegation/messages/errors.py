@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from pydantic import ValidationError
@@ -14,11 +15,19 @@ def _reject_constant(name: str) -> Any:
     raise ValueError(f"{name} is not valid JSON")
 
 
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text[:20]} is out of range")
+    return value
+
+
 def json_value(payload: bytes | str, where: str = "message") -> Any:
-    """Decode JSON text; ``NaN``/``Infinity`` and bad UTF-8 are rejected as invalid JSON."""
+    """Decode JSON text; bad UTF-8, ``NaN``/``Infinity`` and numbers beyond a float's range
+    (``1e999``) are rejected as invalid JSON, so every decoded message can be written back."""
     try:
         text = payload.decode("utf-8") if isinstance(payload, bytes | bytearray) else payload
-        return json.loads(text, parse_constant=_reject_constant)
+        return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
     except UnicodeDecodeError as exc:
         raise MessageError(
             Problem(where, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
