@@ -508,3 +508,37 @@ def test_numbers_beyond_float_range_are_refused_everywhere() -> None:
     huge_rate = b'{"agent-type": "a", "agent-uuid": "u", "name": "n", "rate": %d, "stamp": 1}'
     (problem,) = _problems(f"{BASE}/heartbeat", huge_rate % 10**400)
     assert problem.startswith("heartbeat: rate: Input should be a valid number")
+
+
+def _nested_tree(depth: int) -> dict[str, object]:
+    node: dict[str, object] = {
+        "name": "move-to",
+        "params": {"waypoint": {"latitude": 1.0, "longitude": 2.0}},
+    }
+    for _ in range(depth - 1):
+        node = {"name": "seq", "children": [node]}
+    return node
+
+
+def test_the_deepest_tree_the_parser_admits_travels_in_a_message() -> None:
+    from delegation.tst import MAX_DEPTH, parse_and_validate
+
+    msg = StartTst(com_uuid="c", sender="s", tst=_nested_tree(MAX_DEPTH))
+    again = decode("op0/tst/command", encode(msg))
+    assert isinstance(again, StartTst)
+    assert parse_and_validate(again.tst).name == "seq"
+
+
+@pytest.mark.parametrize("depth", [120, 500, 5000])
+def test_json_nested_too_deeply_is_refused_on_reading(depth: int) -> None:
+    tst = '{"name": "seq", "children": [' * (depth - 1) + '{"name": "move-to"}' + "]}" * (depth - 1)
+    payload = b'{"com-uuid": "c", "command": "start-tst", "tst": %s}' % tst.encode()
+    (problem,) = _problems("op0/tst/command", payload)
+    assert "nested" in problem and "deep" in problem
+
+
+def test_encode_refuses_what_json_cannot_hold() -> None:
+    with pytest.raises(MessageError):
+        encode(StartTst(com_uuid="c", tst={"x": float("nan")}))
+    with pytest.raises(MessageError):
+        encode(StartTst(com_uuid="c", tst=_nested_tree(200)))

@@ -33,6 +33,7 @@ class WireModel(BaseModel):
         extra="ignore",
         validate_assignment=True,
         allow_inf_nan=False,
+        ser_json_inf_nan="constants",  # NaN in a raw field reaches json.dumps, which refuses it
     )
 
     #: Wire keys left out when they hold ``""`` or ``[]`` (the seed omits e.g. ``fail-reason`` on

@@ -210,10 +210,13 @@ def decode(topic: str, payload: bytes | str) -> WireModel:
 
 
 def encode(model: WireModel | GeoPoint) -> bytes:
-    """Canonical JSON bytes: hyphenated keys, keys sorted like the seed, no ``None`` fields."""
-    data = model.to_wire()
+    """Canonical JSON bytes: hyphenated keys, keys sorted like the seed, no ``None`` fields.
+
+    Raises ``MessageError`` for what JSON cannot hold (NaN in a raw field, nesting too deep).
+    """
     try:
+        data = model.to_wire()
         text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, RecursionError) as exc:
         raise MessageError(Problem(type(model).__name__, "", f"cannot be encoded: {exc}")) from None
     return text.encode("utf-8")

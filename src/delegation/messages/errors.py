@@ -10,6 +10,25 @@ from pydantic import ValidationError
 
 from delegation.errors import MessageError, Problem
 
+#: JSON nested deeper than this is refused. A tree at the parser's depth limit (64 levels) nests
+#: about 135 levels of JSON; pydantic refuses to serialise beyond about 250.
+MAX_JSON_DEPTH = 200
+
+
+def json_depth(value: Any) -> int:
+    """How deeply containers nest in decoded JSON (a scalar is 0), without recursion."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            item = list(item.values())
+        if isinstance(item, list):
+            depth += 1
+            deepest = max(deepest, depth)
+            stack.extend((child, depth) for child in item if isinstance(child, dict | list))
+    return deepest
+
 
 def _reject_constant(name: str) -> Any:
     raise ValueError(f"{name} is not valid JSON")
@@ -27,7 +46,7 @@ def json_value(payload: bytes | str, where: str = "message") -> Any:
     (``1e999``) are rejected as invalid JSON, so every decoded message can be written back."""
     try:
         text = payload.decode("utf-8") if isinstance(payload, bytes | bytearray) else payload
-        return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
+        value = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
     except UnicodeDecodeError as exc:
         raise MessageError(
             Problem(where, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
@@ -40,6 +59,9 @@ def json_value(payload: bytes | str, where: str = "message") -> Any:
         raise MessageError(Problem(where, "", "invalid JSON: nested too deeply")) from None
     except ValueError as exc:  # NaN/Infinity, integers too long to convert
         raise MessageError(Problem(where, "", f"invalid JSON: {exc}")) from None
+    if json_depth(value) > MAX_JSON_DEPTH:
+        raise MessageError(Problem(where, "", f"JSON nested deeper than {MAX_JSON_DEPTH} levels"))
+    return value
 
 
 def loc_text(loc: tuple[int | str, ...]) -> str:
