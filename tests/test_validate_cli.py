@@ -230,3 +230,21 @@ def test_console_script(tmp_path: Path) -> None:
         check=False,
     )
     assert (ok.returncode, ok.stdout) == (0, "<stdin>: OK: TST, 3 nodes, 2 tasks\n")
+
+
+@pytest.mark.parametrize("depth", [65, 150])
+def test_too_deep_tree_names_the_node(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], depth: int
+) -> None:
+    text = (
+        '{"name": "seq", "children": [' * (depth - 1) + '{"name": "go-home"}' + "]}" * (depth - 1)
+    )
+    code, lines = run(tmp_path, capsys, text)
+    assert code == 1
+    assert lines == [
+        "root" + "/children[0]" * 64 + ": children: tree is nested deeper than 64 levels"
+    ]
+
+
+def test_json_too_deep_for_python(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(tmp_path, capsys, "[" * 100_000) == (1, ["invalid JSON: nested too deeply"])

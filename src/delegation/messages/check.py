@@ -99,7 +99,8 @@ def check_data(data: Any) -> CheckResult:
 def check_bytes(payload: bytes, source: str = "input") -> CheckResult:
     """Check raw bytes (a file's content): invalid JSON is a problem like any other."""
     try:
-        data = json_value(payload, source)
+        # No nesting limit here: the tree parser names the node where a tree gets too deep.
+        data = json_value(payload, source, max_depth=None)
     except InputError as exc:
         return CheckResult(kind="json", problems=list(exc.problems))
     return check_data(data)

@@ -41,9 +41,15 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def json_value(payload: bytes | str, where: str = "message") -> Any:
-    """Decode JSON text; bad UTF-8, ``NaN``/``Infinity`` and numbers beyond a float's range
-    (``1e999``) are rejected as invalid JSON, so every decoded message can be written back."""
+def json_value(
+    payload: bytes | str, where: str = "message", max_depth: int | None = MAX_JSON_DEPTH
+) -> Any:
+    """Decode JSON text or raise ``MessageError``.
+
+    Bad UTF-8, ``NaN``/``Infinity``, numbers beyond a float's range (``1e999``) and, unless
+    ``max_depth`` is None, nesting deeper than ``max_depth`` are refused, so that every decoded
+    message can be written back.
+    """
     try:
         text = payload.decode("utf-8") if isinstance(payload, bytes | bytearray) else payload
         value = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
@@ -59,8 +65,8 @@ def json_value(payload: bytes | str, where: str = "message") -> Any:
         raise MessageError(Problem(where, "", "invalid JSON: nested too deeply")) from None
     except ValueError as exc:  # NaN/Infinity, integers too long to convert
         raise MessageError(Problem(where, "", f"invalid JSON: {exc}")) from None
-    if json_depth(value) > MAX_JSON_DEPTH:
-        raise MessageError(Problem(where, "", f"JSON nested deeper than {MAX_JSON_DEPTH} levels"))
+    if max_depth is not None and json_depth(value) > max_depth:
+        raise MessageError(Problem(where, "", f"JSON nested deeper than {max_depth} levels"))
     return value
 
 
