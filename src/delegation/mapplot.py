@@ -96,6 +96,20 @@ def _anchor(geom: dict[str, Any], first: bool) -> GeoPoint | None:
     return pts[0] if first else pts[-1]
 
 
+def _route_points(node: TstNode | None, unit: UnitLike) -> list[GeoPoint]:
+    """Where the unit goes for a task: the cost model's own path (sweeps for searches); nothing
+    for tasks done in place (look-at-*)."""
+    if node is None:
+        return []
+    try:
+        from delegation.costs import task_path
+
+        return task_path(node, unit)  # type: ignore[arg-type]
+    except Exception:  # a unit without what the cost model needs: draw the task's anchor
+        g = task_geometry(node)
+        return [p for p in (_anchor(g, True), _anchor(g, False)) if p is not None]
+
+
 def render_map(
     plan: PlanLike | Mapping[str, Any],
     units: Sequence[UnitLike],
@@ -115,10 +129,12 @@ def render_map(
     data = _plan_json(plan)
     tree = parse_tree(data["tst"]) if isinstance(data.get("tst"), dict) else None
     geoms: dict[str, tuple[str, dict[str, Any]]] = {}
+    nodes: dict[str, TstNode] = {}
     if tree is not None:
         for _, node in walk(tree):
             if not node.is_control and node.node_uuid:
                 geoms[node.node_uuid] = (node.name, task_geometry(node))
+                nodes[node.node_uuid] = node
     tracks = tracks or {}
 
     all_pts: list[GeoPoint] = [u.position for u in units]
@@ -174,26 +190,24 @@ def render_map(
             continue
         pts = [xy(unit.position)]
         for a in sorted(assigned, key=lambda a: (a.get("start", 0.0), a.get("end", 0.0))):
-            g = geoms.get(str(a.get("node-uuid")), ("", {"kind": "none", "points": []}))[1]
-            for first in (True, False):
-                p = _anchor(g, first)
-                if p is not None:
-                    pts.append(xy(p))
+            pts += [xy(p) for p in _route_points(nodes.get(str(a.get("node-uuid"))), unit)]
         if unit.home is not None:
             pts.append(xy(unit.home))
         line = np.array(pts)
-        ax.plot(line[:, 0], line[:, 1], ls="--", lw=1.2, color=colour[unit_name], alpha=0.8)
+        ax.plot(line[:, 0], line[:, 1], ls="--", lw=1.2, color=colour[unit_name], alpha=0.9,
+                zorder=3)
 
     # Flown tracks.
     for unit_name, pts in tracks.items():
         if len(pts) >= 2:
             line = np.array([xy(p) for p in pts])
-            ax.plot(line[:, 0], line[:, 1], lw=2.0, color=colour.get(unit_name, "black"))
+            ax.plot(line[:, 0], line[:, 1], lw=2.5, color=colour.get(unit_name, "black"),
+                    alpha=0.45, zorder=2)
 
     # Units (start positions) and homes.
     for u in units:
         ux, uy = xy(u.position)
-        ax.plot([ux], [uy], "o", color=colour[u.name], ms=8, mec="black")
+        ax.plot([ux], [uy], "o", color=colour[u.name], ms=8, mec="black", zorder=4)
         ax.annotate(u.name, (ux, uy), fontsize=8, xytext=(5, 5), textcoords="offset points")
         if u.home is not None:
             hx, hy = xy(u.home)

@@ -139,7 +139,10 @@ class MissionProgress:
     # ----------------------------------------------------------------- summaries
 
     def unit_summary(self) -> list[dict[str, Any]]:
-        """Per unit: tasks, tasks succeeded, planned end and actual end (mission seconds)."""
+        """Per unit: tasks, tasks succeeded, planned end and actual end (mission seconds).
+
+        Open-ended tasks (look-at-*) end when told to, not by plan: they do not count for ends.
+        """
         units: dict[str, dict[str, Any]] = {}
         for row in self.rows.values():
             u = units.setdefault(
@@ -149,6 +152,8 @@ class MissionProgress:
             )
             u["tasks"] += 1
             u["succeeded"] += row.status == "succeeded"
+            if row.node_uuid in self.open_ended:
+                continue
             u["planned-end"] = max(u["planned-end"], row.planned_end)
             if row.ended is not None:
                 u["actual-end"] = max(u["actual-end"] or 0.0, row.ended)
@@ -159,20 +164,22 @@ class MissionProgress:
     def table(self) -> Table:
         """The live view: a line per task with its unit and status."""
         title = f"mission {self.root_uuid[:8]}  [{self.status}]"
-        table = Table(title=title, title_justify="left", expand=False)
-        for col in ("task", "unit", "status", "plan start", "plan end", "actual start",
-                    "actual end"):
-            table.add_column(col, justify="right" if "start" in col or "end" in col else "left")
+        table = Table(title=title, title_justify="left", expand=False,
+                      caption="start-end in mission seconds")
+        table.add_column("task", no_wrap=True)
+        table.add_column("unit", no_wrap=True)
+        table.add_column("status", no_wrap=True, min_width=9)
+        table.add_column("plan (s)", justify="right", no_wrap=True)
+        table.add_column("actual (s)", justify="right", no_wrap=True)
         for row in self.rows.values():
             style = _STYLE.get(row.status, "")
+            actual = "" if row.started is None else f"{_fmt(row.started)}-{_fmt(row.ended)}"
             table.add_row(
                 row.name,
                 row.unit,
                 f"[{style}]{row.status}[/]" if style else row.status,
-                f"{row.planned_start:.0f}",
-                f"{row.planned_end:.0f}",
-                _fmt(row.started),
-                _fmt(row.ended),
+                f"{row.planned_start:.0f}-{row.planned_end:.0f}",
+                actual,
             )
         return table
 
@@ -199,4 +206,4 @@ def _is_open_ended(node: TstNode) -> bool:
 
 
 def _fmt(value: float | None) -> str:
-    return "-" if value is None else f"{value:.0f}"
+    return "" if value is None else f"{value:.0f}"

@@ -219,6 +219,7 @@ def _send_enough(client: ServiceClient, progress: MissionProgress) -> None:
 
 
 def _print_summary(console: Console, progress: MissionProgress, wall: float) -> None:
+    console.print()
     console.print(progress.summary_table())
     plan = progress.plan
     status = progress.status
@@ -280,7 +281,8 @@ def _demo(args: argparse.Namespace) -> int:
         service = DelegationService(settings, config)
         service.start()
         stack.callback(service.stop)
-        if not service.wait_ready([u.name for u in units], timeout=15.0):
+        names = [u.name for u in units]
+        if not (engine.wait_for_units(names, 15.0) and service.wait_ready(names, timeout=15.0)):
             raise DelegationError("the simulated fleet and the engine did not come up within 15 s")
         client = ServiceClient(settings, prefix=prefix, service=config.name,
                                track_positions=True).start()
