@@ -41,6 +41,8 @@ class Schedule:
     total_time: float
     total_distance: float
     problems: list[str] = field(default_factory=list)  # deadlock, battery: empty when valid
+    node_act: np.ndarray | None = None  # (tree nodes,) when each node was activated
+    node_fin: np.ndarray | None = None  # (tree nodes,) when each node finished
 
     @property
     def valid(self) -> bool:
@@ -253,6 +255,8 @@ def evaluate(
         total_time=total_time,
         total_distance=total_distance,
         problems=problems,
+        node_act=np.array(value[0::2]),
+        node_fin=np.array(value[1::2]),
     )
 
 

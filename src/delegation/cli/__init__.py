@@ -19,6 +19,7 @@ from delegation.errors import DelegationError
 #: Sub-command modules under ``delegation.cli``; each defines ``register(subparsers)``.
 _COMMAND_MODULES: tuple[str, ...] = (
     "validate",
+    "plan",
     "bench",
     "runtime",
     "units",
