@@ -55,8 +55,10 @@ class ServiceClient:
         service: str = "delegator0",
         track_positions: bool = False,
         clock: Callable[[], float] = time.time,
+        service_timeout: float = 10.0,
     ) -> None:
         self.prefix = prefix
+        self.service_timeout = service_timeout
         self.service = service
         self.clock = clock
         self.events: queue.Queue[Event] = queue.Queue()
@@ -149,7 +151,7 @@ class ServiceClient:
 
         Re-sent with the same com-uuid every ``resend_every`` s until answered.
         """
-        base = self.wait_service(min(timeout, 10.0))
+        base = self.wait_service(min(timeout, self.service_timeout))
         body = dict(command)
         body.setdefault("com-uuid", new_com_uuid())
         body.setdefault("sender", self.client.client_id)

@@ -99,6 +99,8 @@ def register(subparsers: Any) -> None:
     submit.add_argument("mission", help="a TST (JSON/YAML), a scenario file, or a "
                         "start-tst/delegate command file")
     submit.add_argument("--service", default="delegator0", help="the service's unit name")
+    submit.add_argument("--wait", type=float, default=10.0,
+                        help="seconds to wait for the service's heartbeat (default 10)")
     submit.add_argument("--strategy", default=None)
     submit.add_argument("--objective", default=None)
     submit.add_argument("--time-limit", type=float, default=None)
@@ -363,13 +365,13 @@ def _read_mission(path: str) -> dict[str, Any]:
 
 
 @contextmanager
-def _connected_client(args: argparse.Namespace, service: str,
-                      track: bool = False) -> Iterator[ServiceClient]:
+def _connected_client(args: argparse.Namespace, service: str) -> Iterator[ServiceClient]:
     from delegation.client import ServiceClient
     from delegation.mqtt import BrokerSettings
 
     settings = broker_settings(args) or BrokerSettings()
-    client = ServiceClient(settings, prefix=args.prefix, service=service, track_positions=track)
+    client = ServiceClient(settings, prefix=args.prefix, service=service,
+                           service_timeout=args.wait)
     client.start()
     try:
         yield client

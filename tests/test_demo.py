@@ -1,0 +1,126 @@
+"""The runtime commands: ``delegation demo`` end to end, ``submit`` and ``agents`` on a broker."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from delegation.cli import main
+from delegation.cli.runtime import _read_mission, find_scenario
+from delegation.engine import TstEngine
+from delegation.errors import InputError
+from delegation.mqtt import BrokerSettings
+from delegation.scenario import load_scenario
+from delegation.service import DelegationService, ServiceConfig
+from delegation.sim import SimFleet
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def assert_png(path: Path) -> None:
+    import matplotlib.image
+
+    assert path.read_bytes()[:8] == PNG_MAGIC
+    image = matplotlib.image.imread(path)
+    assert image.ndim == 3 and image.shape[0] > 200 and image.shape[1] > 200
+
+
+@pytest.mark.mqtt
+@pytest.mark.slow
+def test_demo_runs_to_success_and_writes_a_map(tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    for var in ("WARAPS_BROKER", "WARAPS_PORT"):
+        monkeypatch.delenv(var, raising=False)  # the demo must start its own broker
+    out = tmp_path / "out"
+    assert main(["demo", "--speedup", "30", "--out", str(out)]) == 0
+    assert_png(out / "map.png")
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["feasible"] and plan["strategy"] == "auction"
+
+
+def test_scenarios_are_found_by_name_from_anywhere(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    found = find_scenario("demo.yaml")
+    assert found.is_file() and found.name == "demo.yaml"
+    assert find_scenario("demo") == found
+    with pytest.raises(InputError, match="no-such-scenario"):
+        find_scenario("no-such-scenario")
+
+
+def test_mission_files_of_every_kind(tmp_path: Path) -> None:
+    tree = {"name": "move-to", "params": {"waypoint": {"latitude": 57.0, "longitude": 16.0}}}
+    (tmp_path / "tree.json").write_text(json.dumps(tree))
+    (tmp_path / "cmd.json").write_text(json.dumps({"command": "start-tst", "com-uuid": "x",
+                                                   "tst": tree}))
+    assert _read_mission(str(tmp_path / "tree.json")) == tree
+    assert _read_mission(str(tmp_path / "cmd.json")) == tree
+    assert _read_mission(str(find_scenario("demo")))["name"] == "conc"
+    (tmp_path / "bad.json").write_text("[1]")
+    with pytest.raises(InputError, match="object"):
+        _read_mission(str(tmp_path / "bad.json"))
+
+
+@pytest.fixture
+def running(mqtt_settings: BrokerSettings, prefix: str) -> Iterator[list[str]]:
+    """The demo scenario's fleet, engine and service on the test broker; yields CLI flags."""
+    scenario = load_scenario(find_scenario("demo"))
+    fleet = SimFleet.from_scenario(mqtt_settings, scenario, prefix=prefix, speedup=30.0)
+    engine = TstEngine(mqtt_settings, prefix=prefix)
+    service = DelegationService(mqtt_settings, ServiceConfig(prefix=prefix,
+                                                             profiles=scenario.profiles()))
+    started: list[Any] = []
+    try:
+        for unit in (fleet, engine, service):
+            unit.start()
+            started.append(unit)
+        names = [a.name for a in scenario.agents]
+        assert engine.wait_for_units(names, 15) and service.wait_ready(names, timeout=15)
+        yield ["--broker", mqtt_settings.host, "--port", str(mqtt_settings.port),
+               "--prefix", prefix]
+    finally:
+        for unit in reversed(started):
+            unit.stop()
+
+
+@pytest.mark.mqtt
+@pytest.mark.slow
+def test_submit_follows_a_mission_and_agents_lists_units(
+    running: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["agents", "--wait", "1.5", "--format", "json", *running]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert {"dji0", "dji1", "usv0", "op0", "delegator0"} <= {r["name"] for r in rows}
+
+    mission = tmp_path / "mission.json"
+    tree = {"name": "seq", "common_params": {"node-uuid": str(uuid.uuid4())},
+            "children": [{"name": "move-to", "params": {
+                "waypoint": {"latitude": 57.7609, "longitude": 16.6805, "altitude": 30.0}}}]}
+    mission.write_text(json.dumps(tree))
+    assert main(["submit", str(mission), "--speedup", "30", *running]) == 0
+    out = capsys.readouterr().out
+    assert "succeeded" in out and "move-to" in out
+
+    impossible = tmp_path / "impossible.json"
+    impossible.write_text(json.dumps({"name": "image-object-detection", "params": {}}))
+    assert main(["submit", str(impossible), *running]) == 1
+    assert "image-object-detection" in capsys.readouterr().out
+
+
+@pytest.mark.mqtt
+def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, prefix: str,
+                                                tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    mission = tmp_path / "m.json"
+    mission.write_text(json.dumps({"name": "move-to", "params": {
+        "waypoint": {"latitude": 57.0, "longitude": 16.0}}}))
+    code = main(["submit", str(mission), "--broker", mqtt_settings.host, "--port",
+                 str(mqtt_settings.port), "--prefix", prefix, "--service", "nobody",
+                 "--wait", "1"])
+    assert code == 1
+    assert "nobody" in capsys.readouterr().err
