@@ -188,12 +188,12 @@ def render_map(
         unit = by_name.get(unit_name)
         if unit is None:
             continue
-        pts = [xy(unit.position)]
+        route = [xy(unit.position)]
         for a in sorted(assigned, key=lambda a: (a.get("start", 0.0), a.get("end", 0.0))):
-            pts += [xy(p) for p in _route_points(nodes.get(str(a.get("node-uuid"))), unit)]
+            route += [xy(p) for p in _route_points(nodes.get(str(a.get("node-uuid"))), unit)]
         if unit.home is not None:
-            pts.append(xy(unit.home))
-        line = np.array(pts)
+            route.append(xy(unit.home))
+        line = np.array(route)
         ax.plot(line[:, 0], line[:, 1], ls="--", lw=1.2, color=colour[unit_name], alpha=0.9,
                 zorder=3)
 

@@ -446,12 +446,15 @@ class ServiceCore:
             return self._to_engine("signal", key, "tst", model, now)
         if isinstance(cmd, Ping):
             return self._respond("tst", key, TstResponse(response="pong", response_to=key[1]))
-        raise InputError(Problem("tst/command", "command", f"{cmd.command!r} is not supported"))
+        name = getattr(cmd, "command", "?")
+        raise InputError(Problem("tst/command", "command", f"{name!r} is not supported"))
 
     # ---- Delegation API
 
     def _delegation_command(self, cmd: WireModel, key: CmdKey, now: float) -> Effects:
-        ok = {"response": "ok", "response_to": key[1]}
+        def ok(**payload: Any) -> DelegationResponse:
+            return DelegationResponse(response="ok", response_to=key[1], **payload)
+
         if isinstance(cmd, DelegationPing | Ping):
             return self._respond("delegation", key, DelegationResponse(response="pong",
                                                                        response_to=key[1]))
@@ -468,13 +471,13 @@ class ServiceCore:
         if isinstance(cmd, QueryMission):
             mission = self.book.get(cmd.root_uuid)
             return self._respond("delegation", key,
-                                 DelegationResponse(**ok, mission=mission.to_json()))
+                                 ok(mission=mission.to_json()))
         if isinstance(cmd, ListMissions):
             missions = [m.summary() for m in self.book]
-            return self._respond("delegation", key, DelegationResponse(**ok, missions=missions))
+            return self._respond("delegation", key, ok(missions=missions))
         if isinstance(cmd, ListAgents):
             return self._respond("delegation", key,
-                                 DelegationResponse(**ok, agents=self.agents(now)))
+                                 ok(agents=self.agents(now)))
         if isinstance(cmd, CancelMission):
             return self._cancel(cmd, key, now)
         raise InputError(Problem("delegation/command", "command",
