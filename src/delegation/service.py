@@ -140,6 +140,8 @@ class Job:
     start: bool
     source: str
     received: float
+    #: Seconds the planner thread spent on it (set there; for timings).
+    compute_seconds: float = 0.0
 
 
 @dataclass(slots=True)
@@ -170,12 +172,13 @@ class EngineRequest:
 
 @dataclass(frozen=True, slots=True)
 class Timing:
-    """When a mission's command arrived and when its instantiated tree left for the engine."""
+    """When a mission's command arrived and when its instantiated tree left for the engine, and
+    how much of that the planner itself took."""
 
     root_uuid: str
     received: float
-    planned: float
     sent: float
+    planning: float
 
 
 # --------------------------------------------------------------------------- planning jobs
@@ -598,7 +601,7 @@ class ServiceCore:
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
                                        plan=plan_json, caller=job.com_uuid))
-        self.timings.append(Timing(root_uuid, job.received, now, now))
+        self.timings.append(Timing(root_uuid, job.received, now, job.compute_seconds))
         return effects
 
     # ---- the engine
@@ -824,7 +827,9 @@ class DelegationService(MqttUnit):
             job = self._jobs.get()
             if job is None:
                 return
+            began = time.perf_counter()
             result = run_job(job)
+            job.compute_seconds = time.perf_counter() - began
             self._done.put((job, result))
             self.call_soon(Message(_JOB_DONE_TOPIC, b""))
 
