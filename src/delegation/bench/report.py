@@ -98,7 +98,10 @@ def results_table(
     """A ``rich`` table of the records (numbers right-aligned)."""
     table = Table(title=title, header_style="bold")
     for column in COLUMNS:
-        table.add_column(column.header, justify="right" if column.numeric else "left")
+        # Fold rather than cut: a narrow terminal must never hide digits.
+        table.add_column(
+            column.header, justify="right" if column.numeric else "left", overflow="fold"
+        )
     previous: tuple[str, str] | None = None
     for record, row in zip(records, table_rows(records), strict=True):
         key = (record.source, record.objective)

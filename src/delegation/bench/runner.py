@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from delegation.bench.isolate import call_isolated
 from delegation.errors import DelegationError, InputError, Problem
 
 if TYPE_CHECKING:
@@ -66,6 +67,7 @@ class RunRecord:
     source: str
     strategy: str
     objective: str
+    #: 1..N (``--repeat N``)
     repeat: int
     units: int
     tasks: int
@@ -198,8 +200,15 @@ def run_bench(
     time_limit: float = 5.0,
     progress: ProgressFn | None = None,
     keep_plans: bool = True,
+    isolate: bool = False,
+    run_timeout: float | None = None,
 ) -> BenchResult:
-    """Plan every scenario with every strategy x objective, ``repeat`` times; check every plan."""
+    """Plan every scenario with every strategy x objective, ``repeat`` times; check every plan.
+
+    With ``isolate`` each run happens in a child process (``bench.isolate``): a planner that
+    crashes the process, or runs past ``run_timeout`` seconds, becomes a failure naming the file,
+    strategy and objective, and the bench goes on.
+    """
     from delegation.allocation import OBJECTIVES, STRATEGIES
 
     strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
@@ -214,6 +223,7 @@ def run_bench(
     done = 0
     for item in scenarios:
         runs = len(strategies) * len(objectives) * repeat
+        start = done
         try:
             tree = item.scenario.tree()
             units = item.scenario.units()
@@ -229,25 +239,43 @@ def run_bench(
             for rep, objective, strategy in itertools.product(
                 range(repeat), objectives, strategies
             ):
-                record, plan = run_one(
-                    item,
-                    tree,
-                    units,
-                    strategy=strategy,
-                    objective=objective,
-                    time_limit=time_limit,
-                    repeat=rep,
-                )
+                label = f"{item.scenario.name} {strategy}/{objective}"
+                kwargs = {
+                    "item": item,
+                    "tree": tree,
+                    "units": units,
+                    "strategy": strategy,
+                    "objective": objective,
+                    "time_limit": time_limit,
+                    "repeat": rep + 1,
+                }
+                done += 1
+                if not isolate:
+                    record, plan = run_one(**kwargs)  # type: ignore[arg-type]
+                else:
+                    outcome = call_isolated(run_one, kwargs, timeout=run_timeout)
+                    if outcome.input_error is not None:
+                        raise DelegationError(outcome.input_error)
+                    if not outcome.ok:
+                        why = outcome.crashed or f"stopped after {run_timeout:g} s (run timeout)"
+                        result.failures.append(
+                            ScenarioFailure(
+                                item.source, f"{strategy}/{objective} run {rep + 1}: {why}"
+                            )
+                        )
+                        if progress:
+                            progress(done, total, f"{label}: failed")
+                        continue
+                    record, plan = outcome.value
                 records.append(record)
                 if keep_plans and rep == 0:
                     result.plans[(item.source, strategy, objective)] = plan
-                done += 1
                 if progress:
-                    progress(done, total, f"{item.scenario.name} {strategy}/{objective}")
+                    progress(done, total, label)
         except DelegationError as exc:
             # plan_mission never raises for infeasibility; this is input it could not accept.
             result.failures.append(ScenarioFailure(item.source, str(exc)))
-            done = done - len(records) + runs
+            done = start + runs
             for key in [k for k in result.plans if k[0] == item.source]:
                 del result.plans[key]
             if progress:
@@ -266,7 +294,7 @@ def run_one(
     strategy: str,
     objective: str,
     time_limit: float,
-    repeat: int = 0,
+    repeat: int = 1,
 ) -> tuple[RunRecord, Plan]:
     """Plan once, check the plan's invariants, and make its record."""
     from delegation.allocation import check_invariants, plan_mission

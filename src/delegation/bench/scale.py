@@ -17,7 +17,14 @@ from typing import Any
 import numpy as np
 
 from delegation.bench.generate import GeneratorOptions, generate_scenario
-from delegation.bench.runner import ProgressFn, check_choice, run_one, scenarios_from_dicts
+from delegation.bench.isolate import call_isolated
+from delegation.bench.runner import (
+    ProgressFn,
+    RunRecord,
+    check_choice,
+    run_one,
+    scenarios_from_dicts,
+)
 from delegation.errors import DelegationError, InputError, Problem
 
 #: The default grid: runs in a few minutes on 2 cores with the default budget and time limit.
@@ -83,8 +90,13 @@ def run_scale(
     time_limit: float = 5.0,
     generator: GeneratorOptions | None = None,
     progress: ProgressFn | None = None,
+    isolate: bool = True,
 ) -> list[ScaleRecord]:
-    """Run the sweep; one record per strategy x objective x cell, skipped cells included."""
+    """Run the sweep; one record per strategy x objective x cell, skipped cells included.
+
+    With ``isolate`` (the default) each plan runs in a child process that is stopped when the
+    budget is up, so one slow strategy cannot hold the sweep up for longer than its budget.
+    """
     from delegation.allocation import OBJECTIVES, STRATEGIES
 
     strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
@@ -117,33 +129,26 @@ def run_scale(
                 block = stopped.get((strategy, objective))
                 if _blocked(block, n_units, n_tasks):
                     assert block is not None
-                    bu, bt, took = block
-                    record.note = f"skipped: took {took:.1f} s > budget {budget:g} s at {bu}x{bt}"
+                    bu, bt, _took = block
+                    record.note = f"skipped: exceeded the budget ({budget:g} s) at {bu}x{bt}"
                 else:
                     assert item is not None and tree is not None and unit_states is not None
-                    try:
-                        run, _plan = run_one(
-                            item,
-                            tree,
-                            unit_states,
+                    _measure(
+                        record,
+                        dict(
+                            item=item,
+                            tree=tree,
+                            units=unit_states,
                             strategy=strategy,
                             objective=objective,
                             time_limit=time_limit,
-                        )
-                    except DelegationError as exc:
-                        record.status, record.note = FAILED, str(exc)
-                    else:
-                        record.wall_time, record.solve_time = run.wall_time, run.solve_time
-                        record.objective_value, record.unassigned = (
-                            run.objective_value,
-                            run.unassigned,
-                        )
-                        record.problems = run.problems
-                        record.status = OK
-                        if run.wall_time > budget:
-                            record.status = OVER_BUDGET
-                            record.note = f"took {run.wall_time:.1f} s > budget {budget:g} s"
-                            stopped[(strategy, objective)] = (n_units, n_tasks, run.wall_time)
+                        ),
+                        budget=budget,
+                        isolate=isolate,
+                    )
+                    if record.status == OVER_BUDGET:
+                        took = record.wall_time if record.wall_time is not None else budget
+                        stopped[(strategy, objective)] = (n_units, n_tasks, took)
                 cell_records.append(record)
                 done += 1
                 if progress:
@@ -151,6 +156,38 @@ def run_scale(
         _relative(cell_records)
         records.extend(cell_records)
     return records
+
+
+def _record_only(**kwargs: Any) -> RunRecord:
+    """``run_one`` without the plan (what a child process sends back)."""
+    return run_one(**kwargs)[0]
+
+
+def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isolate: bool) -> None:
+    """Run one plan and fill ``record``: ok, over budget (finished late or stopped), failed."""
+    if isolate:
+        outcome = call_isolated(_record_only, kwargs, timeout=budget)
+        if outcome.timed_out:
+            record.status = OVER_BUDGET
+            record.note = f"stopped at the budget ({budget:g} s)"
+            return
+        if not outcome.ok:
+            record.status, record.note = FAILED, str(outcome.input_error or outcome.crashed)
+            return
+        run: RunRecord = outcome.value
+    else:
+        try:
+            run = _record_only(**kwargs)
+        except DelegationError as exc:
+            record.status, record.note = FAILED, str(exc)
+            return
+    record.wall_time, record.solve_time = run.wall_time, run.solve_time
+    record.objective_value, record.unassigned = run.objective_value, run.unassigned
+    record.problems = run.problems
+    record.status = OK
+    if run.wall_time > budget:
+        record.status = OVER_BUDGET
+        record.note = f"took {run.wall_time:.1f} s > budget {budget:g} s"
 
 
 def _blocked(block: tuple[int, int, float] | None, units: int, tasks: int) -> bool:
@@ -204,8 +241,8 @@ def scale_plot(
     records: Sequence[ScaleRecord], path: str | Path, *, budget: float | None = None
 ) -> Path:
     """Two log-x panels over problem size (units x tasks): wall time (log-log), and objective
-    relative to the best strategy on the cell. Over-budget runs are ringed in red; skipped cells
-    are marked with an x on the budget line."""
+    relative to the best strategy on the cell. Over-budget runs are ringed in red (on the budget
+    line when they were stopped there); skipped cells are an x on the budget line."""
     import matplotlib
 
     from delegation.bench.plots import new_figure
@@ -244,6 +281,16 @@ def scale_plot(
                     mfc="none",
                     mec="red",
                 )
+            stopped = [r for r in mine if r.status == OVER_BUDGET and r.wall_time is None]
+            if stopped and budget:
+                ax_time.plot(
+                    [r.size for r in stopped],
+                    [budget] * len(stopped),
+                    "o",
+                    ms=10,
+                    mfc="none",
+                    mec="red",
+                )
             skipped = [r for r in mine if r.status == SKIPPED]
             if skipped and budget:
                 ax_time.plot(
@@ -263,6 +310,9 @@ def scale_plot(
     if budget:
         ax_time.axhline(budget, color="red", lw=0.8, ls="--", label=f"budget {budget:g} s")
     ax_time.set_xscale("log")
+    times = [r.wall_time for r in records if r.wall_time is not None] + ([budget] if budget else [])
+    if times and min(times) > 0:
+        ax_time.set_ylim(min(times) / 2.0, max(times) * 2.0)
     ax_time.set_yscale("log")
     ax_time.set_xlabel("problem size (units x tasks)")
     ax_time.set_ylabel("wall time per plan (s)")

@@ -77,6 +77,18 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--no-plots", action="store_true", help="write no PNGs")
     parser.add_argument(
+        "--in-process",
+        action="store_true",
+        help="plan in this process (default: each run in a child process, so that a planner "
+        "crash or a run past --run-timeout costs one run, not the whole bench)",
+    )
+    parser.add_argument(
+        "--run-timeout",
+        type=float,
+        default=None,
+        help="stop a run after this many seconds and report it as failed (not with --in-process)",
+    )
+    parser.add_argument(
         "--max-map-tasks",
         type=int,
         default=400,
@@ -136,7 +148,9 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     console = Console()
-    err = Console(stderr=True)
+    if not console.is_terminal:
+        console = Console(width=200)  # piped or captured: the whole table, unwrapped
+    err = Console(stderr=True, soft_wrap=True)
     if args.scale:
         return _run_scale(args, console, err)
     return _run_bench(args, console, err)
@@ -219,6 +233,8 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             repeat=args.repeat,
             time_limit=args.time_limit,
             progress=update,
+            isolate=not args.in_process,
+            run_timeout=args.run_timeout,
         )
     for failure in result.failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
@@ -273,6 +289,11 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
 
     budget = args.budget if args.budget is not None else DEFAULT_BUDGET
     out: Path = args.out or Path("bench-out")
+    if args.time_limit >= budget:
+        err.print(
+            f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
+            f"{budget:g} s: optimal will exceed it at the first size"
+        )
     with _progress(err, "scale sweep") as update:
         records = run_scale(
             args.strategies,
@@ -283,6 +304,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             time_limit=args.time_limit,
             generator=_generator_options(args, 1, 1, args.seed),
             progress=update,
+            isolate=not args.in_process,
         )
     rows = summary_rows(records)
     table = Table(

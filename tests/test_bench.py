@@ -1,0 +1,219 @@
+"""The bench runner, its files and table, and its plots, on tiny generated scenarios."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from delegation.bench.generate import generate_scenario, save_scenarios
+from delegation.bench.report import (
+    COLUMNS,
+    markdown_table,
+    read_csv,
+    results_table,
+    table_rows,
+    write_csv,
+    write_json,
+)
+from delegation.bench.runner import (
+    RECORD_FIELDS,
+    BenchResult,
+    load_scenarios,
+    run_bench,
+    scenarios_from_dicts,
+)
+from delegation.errors import InputError
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+TIME_LIMIT = 0.5
+
+
+@pytest.fixture(scope="module")
+def result() -> BenchResult:
+    """Two tiny scenarios, every strategy x objective, two repeats (one shared run per module)."""
+    data = [
+        generate_scenario(seed=1, units=3, tasks=6),
+        generate_scenario(seed=2, units=2, tasks=5, homes=True, structure="seq"),
+    ]
+    return run_bench(scenarios_from_dicts(data), repeat=2, time_limit=TIME_LIMIT)
+
+
+def test_every_combination_is_reported(result: BenchResult) -> None:
+    from delegation.allocation import OBJECTIVES, STRATEGIES
+
+    assert not result.failures
+    assert len(result.records) == 2 * len(STRATEGIES) * len(OBJECTIVES) * 2
+    seen = {(r.scenario, r.strategy, r.objective, r.repeat) for r in result.records}
+    assert len(seen) == len(result.records)
+    for r in result.records:
+        expected = r.makespan if r.objective == "makespan" else r.total_time
+        assert r.objective_value == expected
+        assert r.assigned + r.unassigned == r.tasks
+        assert r.solve_time >= 0 and r.wall_time >= 0
+        if r.strategy == "nearest":
+            assert r.ratio_to_nearest == 1.0
+
+
+def test_every_reported_plan_passes_the_invariant_checks(result: BenchResult) -> None:
+    from delegation.allocation import check_invariants
+
+    assert all(r.problems == [] for r in result.records)
+    assert len(result.plans) == 2 * 3 * 2
+    for (source, _strategy, _objective), plan in result.plans.items():
+        scenario, units = result.scenarios[source]
+        assert check_invariants(plan, scenario.tree(), units) == []
+
+
+def test_ratio_compares_with_nearest_on_the_same_scenario(result: BenchResult) -> None:
+    by_key = {(r.source, r.strategy, r.objective, r.repeat): r for r in result.records}
+    for r in result.records:
+        base = by_key[(r.source, "nearest", r.objective, r.repeat)]
+        if r.unassigned == base.unassigned:
+            assert r.ratio_to_nearest == pytest.approx(r.objective_value / base.objective_value)
+        else:
+            assert r.ratio_to_nearest is None
+
+
+def _number(text: str) -> float:
+    return float(text.replace(",", "").rstrip("%"))
+
+
+def test_csv_json_and_table_carry_the_same_numbers(result: BenchResult, tmp_path: Path) -> None:
+    records = result.records
+    csv_rows = read_csv(write_csv(records, tmp_path / "results.csv"))
+    data = json.loads(write_json(records, tmp_path / "results.json").read_text())
+    assert len(csv_rows) == len(data["records"]) == len(records)
+    for row, obj, record in zip(csv_rows, data["records"], records, strict=True):
+        assert list(obj) == list(RECORD_FIELDS)
+        assert row == obj == record.to_dict()
+
+    # The rich table, rendered from the same records, shows these values.
+    table = results_table(records)
+    cells = [[str(c) for c in column._cells] for column in table.columns]
+    rendered = [list(row) for row in zip(*cells, strict=True)]
+    assert rendered == table_rows(records)
+    for row, csv_row in zip(rendered, csv_rows, strict=True):
+        for column, cell in zip(COLUMNS, row, strict=True):
+            value = csv_row[column.field]
+            if column.field == "problems":
+                assert cell == "ok"
+            elif value is None:
+                assert cell == "-"
+            elif isinstance(value, str):
+                assert cell == value
+            else:
+                shown = _number(cell)
+                if column.field == "gap":
+                    value = 100.0 * value
+                digits = len(cell.rstrip("%").split(".")[1]) if "." in cell else 0
+                assert shown == pytest.approx(value, abs=0.51 * 10.0**-digits)
+    md = markdown_table(records).splitlines()
+    assert len(md) == 2 + len(records)
+    assert md[2] == "| " + " | ".join(rendered[0]) + " |"
+
+
+def test_plots_are_valid_pngs(result: BenchResult, tmp_path: Path) -> None:
+    import matplotlib.image
+    from PIL import Image
+
+    from delegation.bench.plots import write_plots
+
+    paths = write_plots(result, tmp_path)
+    names = {p.name for p in paths}
+    scenarios = {r.scenario for r in result.records}
+    for name in scenarios:
+        assert f"{name}-objective.png" in names
+        for strategy in ("nearest", "auction", "optimal"):
+            assert f"{name}-{strategy}-makespan-map.png" in names
+    for path in paths:
+        assert path.read_bytes()[:8] == PNG_SIGNATURE
+        with Image.open(path) as image:
+            image.verify()
+        pixels = matplotlib.image.imread(path)
+        assert pixels.ndim == 3 and pixels.shape[0] > 100 and pixels.shape[1] > 100
+        assert float(np.std(pixels)) > 0.0  # not a blank image
+
+
+def test_bad_scenario_in_a_folder_is_named_and_the_others_run(tmp_path: Path) -> None:
+    folder = tmp_path / "scenarios"
+    save_scenarios([generate_scenario(seed=4, units=2, tasks=3)], folder)
+    (folder / "broken-yaml.yaml").write_text("name: [unclosed\n", encoding="utf-8")
+    bad = generate_scenario(seed=5, units=2, tasks=3)
+    bad["mission"]["children"][0]["name"] = "teleport"
+    (folder / "unknown-task.json").write_text(json.dumps(bad), encoding="utf-8")
+
+    loaded, failures = load_scenarios([folder, tmp_path / "missing.yaml"])
+    failed = {Path(f.source).name: f.message for f in failures}
+    assert [Path(s.source).name for s in loaded if s.source.endswith("s4.yaml")]
+    assert "broken-yaml.yaml" in failed
+    assert "missing.yaml" in failed and "no such file" in failed["missing.yaml"]
+    # The unknown task is found when the file loads, or at the latest when it is planned.
+    result = run_bench(loaded, strategies=["nearest"], objectives=["makespan"])
+    failed.update({Path(f.source).name: f.message for f in result.failures})
+    assert "teleport" in failed["unknown-task.json"]
+    assert {r.scenario for r in result.records} == {"gen-granso-u2-t3-s4"}
+
+
+def test_unknown_strategy_or_objective_is_an_input_error() -> None:
+    scenarios = scenarios_from_dicts([generate_scenario(seed=0, units=1, tasks=1)])
+    with pytest.raises(InputError, match="greedy"):
+        run_bench(scenarios, strategies=["greedy"])
+    with pytest.raises(InputError, match="cheapest"):
+        run_bench(scenarios, objectives=["cheapest"])
+    with pytest.raises(InputError, match="repeat"):
+        run_bench(scenarios, repeat=0)
+
+
+def _abort() -> None:
+    import faulthandler
+    import os
+
+    faulthandler.disable()  # in this child only: a real native abort, without pytest's dump
+    os.abort()
+
+
+def _wait(seconds: float) -> str:
+    import threading
+
+    threading.Event().wait(seconds)
+    return "late"
+
+
+def _reject() -> None:
+    raise InputError("no such unit")
+
+
+def test_isolated_runs_survive_crashes_and_are_stopped_at_their_deadline() -> None:
+    from delegation.bench.isolate import call_isolated
+
+    assert call_isolated(_wait, {"seconds": 0.0}).value == "late"
+    crashed = call_isolated(_abort, {})
+    assert not crashed.ok and "SIGABRT" in str(crashed.crashed)
+    late = call_isolated(_wait, {"seconds": 30.0}, timeout=0.2)
+    assert late.timed_out and late.value is None
+    rejected = call_isolated(_reject, {})
+    assert rejected.input_error is not None and "no such unit" in rejected.input_error
+
+
+def test_isolated_bench_gives_the_same_plans(result: BenchResult) -> None:
+    data = [generate_scenario(seed=1, units=3, tasks=6)]
+    isolated = run_bench(
+        scenarios_from_dicts(data), strategies=["nearest", "auction"], isolate=True
+    )
+    assert not isolated.failures
+    key = ("strategy", "objective", "makespan", "total_time", "total_distance", "unassigned")
+    mine = [tuple(getattr(r, k) for k in key) for r in isolated.records]
+    theirs = [
+        tuple(getattr(r, k) for k in key)
+        for r in result.records
+        if r.scenario == data[0]["name"] and r.repeat == 1 and r.strategy != "optimal"
+    ]
+    assert mine == theirs
+    assert set(isolated.plans) == {
+        (f"generated:{data[0]['name']}", s, o)
+        for s in ("nearest", "auction")
+        for o in ("makespan", "total")
+    }

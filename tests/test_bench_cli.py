@@ -1,0 +1,147 @@
+"""``delegation bench`` end to end: files written, failures named, exit codes."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from delegation.cli import main
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def test_generate_save_and_bench_the_saved_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    saved = tmp_path / "gen"
+    out = tmp_path / "out"
+    code = main(
+        [
+            "bench",
+            "--generate",
+            "--units",
+            "2,3",
+            "--tasks",
+            "4",
+            "--seed",
+            "9",
+            "--strategies",
+            "nearest,auction",
+            "--objectives",
+            "makespan",
+            "--time-limit",
+            "0.5",
+            "--save",
+            str(saved),
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    files = sorted(p.name for p in saved.iterdir())
+    assert files == ["gen-granso-u2-t4-s9.yaml", "gen-granso-u3-t4-s9.yaml"]
+    with (out / "results.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 2 * 2
+    data = json.loads((out / "results.json").read_text())
+    assert data["meta"]["strategies"] == ["nearest", "auction"]
+    assert [r["makespan"] for r in data["records"]] == [float(r["makespan"]) for r in rows]
+    for png in out.glob("*.png"):
+        assert png.read_bytes()[:8] == PNG_SIGNATURE
+    assert (out / "gen-granso-u2-t4-s9-objective.png").exists()
+    shown = capsys.readouterr().out
+    assert "gen-granso-u2-t4-s9" in shown and "auction" in shown
+
+    # The saved files give the same results when benchmarked from the folder.
+    out2 = tmp_path / "out2"
+    code = main(
+        [
+            "bench",
+            str(saved),
+            "--strategies",
+            "nearest,auction",
+            "--objectives",
+            "makespan",
+            "--time-limit",
+            "0.5",
+            "--out",
+            str(out2),
+            "--no-plots",
+        ]
+    )
+    assert code == 0
+    again = json.loads((out2 / "results.json").read_text())["records"]
+    key = ("scenario", "strategy", "makespan", "total_time", "total_distance", "unassigned")
+    assert [tuple(r[k] for k in key) for r in again] == [
+        tuple(r[k] for k in key) for r in data["records"]
+    ]
+    assert not list(out2.glob("*.png"))
+
+
+def test_bad_file_is_named_and_exit_code_is_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "s"
+    main(
+        [
+            "bench",
+            "--generate",
+            "--units",
+            "2",
+            "--tasks",
+            "3",
+            "--save",
+            str(folder),
+            "--strategies",
+            "nearest",
+            "--objectives",
+            "makespan",
+        ]
+    )
+    (folder / "zz-bad.yaml").write_text("name: bad\nagents: 3\n", encoding="utf-8")
+    capsys.readouterr()
+    code = main(["bench", str(folder), "--strategies", "nearest", "--objectives", "makespan"])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "zz-bad.yaml" in captured.err
+    assert "gen-granso-u2-t3-s0" in captured.out
+
+
+def test_scale_writes_csv_png_and_summary(tmp_path: Path) -> None:
+    code = main(
+        [
+            "bench",
+            "--scale",
+            "--units",
+            "1,2",
+            "--tasks",
+            "2",
+            "--strategies",
+            "nearest",
+            "--budget",
+            "60",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert code == 0
+    with (tmp_path / "scale.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(r["units"], r["tasks"], r["status"]) for r in rows] == [
+        ("1", "2", "ok"),
+        ("2", "2", "ok"),
+    ]
+    assert (tmp_path / "scale.png").read_bytes()[:8] == PNG_SIGNATURE
+    assert "nearest" in (tmp_path / "scale.md").read_text()
+
+
+def test_usage_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench"]) == 1
+    assert main(["bench", "--generate", "--strategies", "greedy"]) == 1
+    assert main(["bench", "--generate", "--site", "atlantis"]) == 1
+    err = capsys.readouterr().err
+    assert "greedy" in err and "atlantis" in err
+    assert "Traceback" not in err
