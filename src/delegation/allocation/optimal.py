@@ -447,7 +447,6 @@ def _cpsat(
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = 2
     solver.parameters.random_seed = 1
-    solver.parameters.repair_hint = True
     # Level 2 (the default) spends ~0.5 s on symmetry search even for tiny models (measured).
     solver.parameters.symmetry_level = 1
     bound: float | None = None
