@@ -67,3 +67,11 @@ def test_free_port_is_bindable() -> None:
     port = free_port()
     with socket.socket() as s:
         s.bind(("127.0.0.1", port))
+
+
+def test_stable_free_port_is_outside_the_ephemeral_range() -> None:
+    lo, hi = (int(x) for x in open("/proc/sys/net/ipv4/ip_local_port_range").read().split())
+    port = free_port(stable=True)
+    assert not lo <= port <= hi
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))

@@ -9,7 +9,7 @@ import uuid
 
 import pytest
 
-from delegation.broker import EmbeddedBroker
+from delegation.broker import EmbeddedBroker, free_port
 from delegation.mqtt import (
     BrokerSettings,
     Message,
@@ -197,8 +197,9 @@ def test_reconnect_resubscribes(mqtt_settings: BrokerSettings, prefix: str) -> N
 @pytest.mark.mqtt
 @pytest.mark.slow
 def test_reconnect_after_broker_restart(prefix: str) -> None:
-    first = EmbeddedBroker().start()
-    port = first.port
+    # A port outside the ephemeral range: no outgoing connection takes it while the broker is down.
+    port = free_port(stable=True)
+    first = EmbeddedBroker(port=port).start()
     client = _round_trip(first.settings(), prefix)
     second: EmbeddedBroker | None = None
     try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
 import shutil
 import socket
 import subprocess
@@ -32,11 +33,35 @@ class BrokerError(DelegationError):
     """A broker we tried to start did not come up (or did not stop)."""
 
 
-def free_port(host: str = LOOPBACK) -> int:
-    """A TCP port that is free on ``host`` right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        lo, hi = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(lo), int(hi)
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
+def free_port(host: str = LOOPBACK, stable: bool = False) -> int:
+    """A TCP port that is free on ``host`` right now.
+
+    With ``stable``, the port is outside the kernel's ephemeral range, so that it stays free for
+    a listener that must come back on the same port (outgoing connections never take it).
+    """
+    if not stable:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind((host, 0))
+            return int(s.getsockname()[1])
+    lo, _ = _ephemeral_range()
+    candidates = list(range(max(1024, lo - 12000), lo))
+    random.shuffle(candidates)
+    for port in candidates[:500]:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                continue
+            return port
+    raise BrokerError("no free port outside the ephemeral range")
 
 
 def wait_for_port(host: str, port: int, deadline: float) -> bool:
@@ -128,17 +153,33 @@ class EmbeddedBroker:
                 loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
             loop.close()
 
+    @staticmethod
+    async def _shutdown(broker: Any, timeout: float) -> None:
+        """Close the listeners first (the port is free at once), then amqtt's own shutdown.
+
+        amqtt 0.12's shutdown can hang while a client is still connected (it waits for the
+        client's reader); after ``timeout`` it is cancelled, which closes the connections.
+        """
+        for server in list(broker._servers.values()):
+            instance = getattr(server, "instance", None)
+            if instance is not None:
+                instance.close()
+        try:
+            await asyncio.wait_for(broker.shutdown(), timeout)
+        except (Exception, asyncio.CancelledError) as exc:
+            log.debug("amqtt shutdown did not complete (%r); cancelling what is left", exc)
+
     def stop(self, timeout: float = 10.0) -> None:
         """Shut the broker down and join its thread (idempotent)."""
         thread, loop, broker = self._thread, self._loop, self._broker
         if thread is None:
             return
         if loop is not None and broker is not None and loop.is_running():
-            fut = asyncio.run_coroutine_threadsafe(broker.shutdown(), loop)
+            fut = asyncio.run_coroutine_threadsafe(self._shutdown(broker, 3.0), loop)
             try:
                 fut.result(timeout)
             except Exception as exc:  # shutting down: log, then stop the loop anyway
-                log.warning("amqtt shutdown: %s", exc)
+                log.warning("amqtt shutdown: %r", exc)
         if loop is not None and loop.is_running():
             loop.call_soon_threadsafe(loop.stop)
         thread.join(timeout)
