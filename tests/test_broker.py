@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+from pathlib import Path
 
 import pytest
 
@@ -70,7 +71,8 @@ def test_free_port_is_bindable() -> None:
 
 
 def test_stable_free_port_is_outside_the_ephemeral_range() -> None:
-    lo, hi = (int(x) for x in open("/proc/sys/net/ipv4/ip_local_port_range").read().split())
+    text = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text()
+    lo, hi = (int(x) for x in text.split())
     port = free_port(stable=True)
     assert not lo <= port <= hi
     with socket.socket() as s:
