@@ -1,0 +1,122 @@
+"""The fully instantiated tree (DESIGN 3.4): units filled in, uuids and unknown fields kept,
+catalogue defaults filled, conc children on one unit wrapped in a seq in planned order."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from allocation_helpers import geo, move_to, unit
+from delegation.allocation import check_invariants, plan_mission
+from delegation.allocation.instantiate import Placement, instantiate
+from delegation.tst import leaves, parse_tree, walk
+
+
+def counter() -> Any:
+    n = iter(range(1000))
+    return lambda: f"new-{next(n)}"
+
+
+def test_units_uuids_unknown_fields_and_defaults() -> None:
+    units = [unit("dji0", 0, 0), unit("dji1", 1000, 0)]
+    raw = {
+        "name": "seq",
+        "meta": {"author": "op"},
+        "common_params": {"node-uuid": "root-1"},
+        "children": [
+            {"name": "move-to", "common_params": {"execunit": "*", "node-uuid": "a-1"},
+             "params": {"waypoint": geo(10, 0), "extra-param": 42}, "meta": "keep me"},
+            {"name": "move-to", "common_params": {"execunit": "/dji0"},
+             "params": {"waypoint": geo(990, 0)}},
+        ],
+    }
+    tree = parse_tree(raw)
+    plan = plan_mission(tree, units, strategy="auction", new_uuid=counter())
+    out = plan.to_json()["tst"]
+    assert out["meta"] == {"author": "op"}
+    assert out["common_params"] == {"node-uuid": "root-1", "execunit": "/op0"}
+    first, second = out["children"]
+    assert first["common_params"] == {"execunit": "/dji0", "node-uuid": "a-1"}
+    assert first["meta"] == "keep me"
+    assert first["params"]["extra-param"] == 42
+    assert first["params"]["speed"] == "standard"  # the catalogue default, filled in
+    assert second["common_params"]["execunit"] == "/dji0"  # fixed: kept
+    assert second["common_params"]["node-uuid"] == "new-0"  # missing: made
+    assert list(first) == ["name", "common_params", "params", "meta"]  # the caller's key order
+    assert check_invariants(plan, tree, units) == []
+
+
+def test_fixed_control_nodes_keep_their_unit_and_engine_unit_is_configurable() -> None:
+    units = [unit("dji0", 0, 0)]
+    tree = parse_tree({"name": "conc", "common_params": {"execunit": "/other-engine"},
+                       "children": [{"name": "seq", "children": [move_to(5, 5)]}]})
+    plan = plan_mission(tree, units, engine_unit="op7")
+    out = plan.tst.to_dict()
+    assert out["common_params"]["execunit"] == "/other-engine"
+    assert out["children"][0]["common_params"]["execunit"] == "/op7"
+
+
+def test_conc_children_on_one_unit_are_wrapped_in_a_seq_in_planned_order() -> None:
+    # One unit, three move-tos under a conc: the plan visits the nearest first.
+    units = [unit("dji0", 0, 0)]
+    tree = parse_tree({"name": "conc", "common_params": {"node-uuid": "c"}, "children": [
+        {**move_to(300, 0), "common_params": {"node-uuid": "far"}},
+        {**move_to(100, 0), "common_params": {"node-uuid": "near"}},
+        {**move_to(200, 0), "common_params": {"node-uuid": "mid"}},
+    ]})
+    plan = plan_mission(tree, units, strategy="auction", new_uuid=counter())
+    root = plan.tst
+    assert root.name == "conc" and len(root.children) == 1
+    wrapper = root.children[0]
+    assert wrapper.name == "seq"
+    assert wrapper.common_params == {"execunit": "/op0", "node-uuid": "new-0"}
+    assert [c.node_uuid for c in wrapper.children] == ["near", "mid", "far"]
+    assert check_invariants(plan, tree, units) == []
+
+
+def test_wrapping_keeps_other_children_in_place() -> None:
+    tree = parse_tree({"name": "conc", "children": [
+        {**move_to(0, 0), "common_params": {"node-uuid": "x1"}},
+        {**move_to(0, 0), "common_params": {"node-uuid": "y"}},
+        {**move_to(0, 0), "common_params": {"node-uuid": "x2"}},
+        {"name": "look-at-position", "common_params": {"node-uuid": "look"},
+         "params": {"geopoint": geo(0, 0)}},
+    ]})
+    placements = {
+        "x1": Placement("a", 50.0, True),
+        "y": Placement("b", 0.0, True),
+        "x2": Placement("a", 10.0, True),
+        "look": Placement("a", 0.0, False),  # not a vehicle task: may run alongside
+    }
+    out = instantiate(tree, placements, "op0", counter())
+    kids = out.children
+    assert [k.name for k in kids] == ["seq", "move-to", "look-at-position"]
+    assert [c.node_uuid for c in kids[0].children] == ["x2", "x1"]
+    assert kids[1].node_uuid == "y"
+    assert kids[2].execunit == "/a"
+
+
+def test_subtrees_sharing_a_unit_are_serialised() -> None:
+    # conc(seq(a1, b1), a2): a1 and a2 both on unit a -> the two children go into one seq.
+    tree = parse_tree({"name": "conc", "children": [
+        {"name": "seq", "common_params": {"node-uuid": "s"}, "children": [
+            {**move_to(0, 0), "common_params": {"node-uuid": "a1"}},
+            {**move_to(0, 0), "common_params": {"node-uuid": "b1"}}]},
+        {**move_to(0, 0), "common_params": {"node-uuid": "a2"}},
+    ]})
+    placements = {"a1": Placement("a", 0.0, True), "b1": Placement("b", 5.0, True),
+                  "a2": Placement("a", 3.0, True)}
+    out = instantiate(tree, placements, "op0", counter())
+    assert [c.node_uuid for c in out.children[0].children] == ["s", "a2"]
+
+
+def test_unassigned_leaves_keep_their_execunit() -> None:
+    units = [unit("dji0", 0, 0, tasks=("move-to",))]
+    tree = parse_tree({"name": "seq", "children": [
+        move_to(10, 0),
+        {"name": "look-at-position", "common_params": {"execunit": "A"},
+         "params": {"geopoint": geo(0, 0)}}]})
+    plan = plan_mission(tree, units)
+    assert not plan.feasible
+    look = next(n for n in leaves(plan.tst) if n.name == "look-at-position")
+    assert look.execunit == "A"
+    assert all(n.node_uuid for _, n in walk(plan.tst))

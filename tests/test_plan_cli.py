@@ -1,0 +1,59 @@
+"""``delegation plan SCENARIO``: JSON is exactly DESIGN 3.5; table renders; errors are one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from delegation.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = str(ROOT / "scenarios" / "demo.yaml")
+
+PLAN_KEYS = {"strategy", "objective", "feasible", "makespan", "total-time", "total-distance",
+             "solve-time", "bound", "gap", "assignments", "unassigned", "tst"}
+ASSIGNMENT_KEYS = {"node-uuid", "name", "execunit", "start", "end", "travel-time", "work-time",
+                   "distance"}
+
+
+@pytest.mark.parametrize("strategy", ["nearest", "auction", "optimal"])
+def test_json_is_exactly_the_plan(strategy: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["plan", DEMO, "--strategy", strategy, "--objective", "total",
+                 "--time-limit", "1", "--format", "json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    plan = json.loads(out)  # nothing else on stdout
+    assert set(plan) == PLAN_KEYS
+    assert plan["strategy"] == strategy and plan["objective"] == "total"
+    assert plan["assignments"] and all(set(a) == ASSIGNMENT_KEYS for a in plan["assignments"])
+    assert all(set(u) == {"node-uuid", "name", "reason"} for u in plan["unassigned"])
+    assert plan["tst"]["common_params"]["execunit"] == "/op0"
+
+
+def test_unassigned_tasks_are_listed_with_reasons(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["plan", str(ROOT / "scenarios" / "granso-impossible.yaml"), "--format", "json"])
+    plan = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert plan["feasible"] is False
+    assert plan["unassigned"] and all(u["reason"] for u in plan["unassigned"])
+
+
+def test_table_format(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["plan", DEMO, "--strategy", "auction"]) == 0
+    out = capsys.readouterr().out
+    assert "assignments" in out and "makespan" in out and "/dji0" in out
+
+
+def test_unknown_strategy_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["plan", DEMO, "--strategy", "cheapest"])
+    assert info.value.code == 2
+    assert "invalid choice: 'cheapest'" in capsys.readouterr().err
+
+
+def test_missing_file_is_one_clear_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["plan", str(tmp_path / "none.yaml")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "none.yaml" in err and "Traceback" not in err
