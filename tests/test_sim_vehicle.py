@@ -178,3 +178,54 @@ def test_battery_drains_and_fails_the_task() -> None:
     events = run_until(v, 11.0)
     assert events == [TaskEvent("t", "failed", BATTERY_EMPTY)]
     assert v.start_task("move-to", {"waypoint": at(0, 0).to_wire()}, "u") == BATTERY_EMPTY
+
+
+ALL = [
+    ("move-to", {"waypoint": at(100, 0).to_wire()}, False),
+    ("move-path", {"waypoints": [at(0, 50).to_wire(), at(50, 50).to_wire()]}, False),
+    (
+        "search-area",
+        {"area": [at(0, 0, 0).to_wire(), at(80, 0, 0).to_wire(), at(0, 80, 0).to_wire()]},
+        False,
+    ),
+    (
+        "search-areas",
+        {
+            "areas": [
+                [at(0, 0, 0).to_wire(), at(60, 0, 0).to_wire(), at(0, 60, 0).to_wire()],
+                [at(200, 0, 0).to_wire(), at(260, 0, 0).to_wire(), at(200, 60, 0).to_wire()],
+            ]
+        },
+        False,
+    ),
+    ("search-around-position", {"geopoint": at(100, 100).to_wire(), "radius": 40.0}, False),
+    ("observe-position", {"geopoint": at(30, 0).to_wire(), "duration": 5}, False),
+    ("observe-position", {"geopoint": at(30, 0).to_wire(), "duration": -1}, True),
+    ("look-at-position", {"geopoint": at(30, 0).to_wire()}, True),
+    ("look-at-positions", {"geopoints": [at(30, 0).to_wire()]}, True),
+    ("look-at-bearing", {"bearing": 90.0}, True),
+    ("take-off", {"height-above-takeoff": 20.0}, False),
+    ("land", {"land-at-current-position-flag": True}, False),
+    ("go-home", {}, False),
+]
+
+
+@pytest.mark.parametrize(
+    ("name", "params", "open_ended"), ALL, ids=[f"{a[0]}-{i}" for i, a in enumerate(ALL)]
+)
+def test_every_task_runs_to_its_end(name: str, params: dict, open_ended: bool) -> None:
+    unit = make_unit("u", "air", START, [name], speeds={"standard": 10.0})
+    v = SimVehicle(unit)
+    assert v.start_task(name, params, "t") is None
+    events = run_until(v, 600.0, dt=0.5)
+    if open_ended:
+        assert events == [] and v.status_of("t") == "running"
+        assert v.signal("t", "$enough") == (None, TaskEvent("t", "finished"))
+    else:
+        assert events == [TaskEvent("t", "finished")]
+    if name == "take-off":
+        assert v.altitude == pytest.approx(START.altitude + 20.0)
+    if name == "land":
+        assert v.altitude == 0.0
+    if name.startswith("search"):
+        assert v.odometer > 150.0  # it flew a sweep, not a straight line

@@ -173,10 +173,24 @@ class SimVehicle:
         geometry = task_geometry(node)
         speed = unit_speed(self.unit, params.get("speed"))
         points = [self.home] if name == "go-home" else task_path(node, self.unit, self.frame)
+        # Altitude is cosmetic (the cost model ignores it): searches fly at least at the sweep
+        # altitude, take-off climbs and land descends where the unit is (or at ``p``).
+        floor = self.unit.effective_sweep_altitude if geometry.kind == "areas" else -math.inf
         legs = []
         for p in points:
             east, north = self.frame.point_xy(p)
-            legs.append((east, north, p.altitude))
+            legs.append((east, north, max(p.altitude, floor)))
+        here = legs[-1] if legs else (self.east, self.north, self.altitude)
+        if name == "take-off":
+            climb = params.get("height-above-takeoff")
+            target = (
+                self.altitude + float(climb)
+                if isinstance(climb, int | float) and not isinstance(climb, bool)
+                else max(self.altitude, self.unit.effective_sweep_altitude)
+            )
+            legs.append((here[0], here[1], target))
+        elif name == "land":
+            legs.append((here[0], here[1], points[-1].altitude if points else 0.0))
         hold = math.inf if geometry.open_ended else float(geometry.fixed_time)
         return SimTask(task_uuid, name, vehicle, legs, speed, hold)
 
