@@ -11,6 +11,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
+import pwd
 import random
 import shutil
 import socket
@@ -202,7 +204,7 @@ class EmbeddedBroker:
 
 MOSQUITTO_CONF = """\
 listener {port} {host}
-allow_anonymous true
+{listener_extra}allow_anonymous {anonymous}
 persistence false
 set_tcp_nodelay true
 max_queued_messages 0
@@ -228,13 +230,28 @@ class PrivateMosquitto:
 
     kind = "mosquitto"
 
-    def __init__(self, binary: str | None = None, host: str = LOOPBACK) -> None:
+    def __init__(
+        self,
+        binary: str | None = None,
+        host: str = LOOPBACK,
+        *,
+        certfile: str | None = None,
+        keyfile: str | None = None,
+        password_file: str | None = None,
+    ) -> None:
+        """``certfile``/``keyfile`` make the listener TLS; ``password_file`` (made with
+        ``mosquitto_passwd``) turns anonymous access off."""
         found = binary or mosquitto_binary()
         if found is None:
             raise BrokerError("mosquitto is not installed")
+        if (certfile is None) != (keyfile is None):
+            raise BrokerError("a TLS listener needs both certfile and keyfile")
         self.binary = found
         self.host = host
         self.port = 0
+        self.tls = certfile is not None
+        self._files = {"certfile": certfile, "keyfile": keyfile, "password_file": password_file}
+        self._anonymous = "false" if password_file else "true"
         self._proc: subprocess.Popen[bytes] | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
@@ -242,12 +259,21 @@ class PrivateMosquitto:
         if self._proc is not None:
             return self
         self._dir = tempfile.TemporaryDirectory(prefix="delegation-mosquitto-")
+        extra = self._stage_files(Path(self._dir.name))
         last = ""
         for _ in range(attempts):
             self.port = free_port(self.host)
             conf = Path(self._dir.name) / "mosquitto.conf"
             logfile = Path(self._dir.name) / "mosquitto.log"
-            conf.write_text(MOSQUITTO_CONF.format(port=self.port, host=self.host, log=logfile))
+            conf.write_text(
+                MOSQUITTO_CONF.format(
+                    port=self.port,
+                    host=self.host,
+                    log=logfile,
+                    listener_extra=extra,
+                    anonymous=self._anonymous,
+                )
+            )
             self._proc = subprocess.Popen(
                 [self.binary, "-c", str(conf)],
                 stdin=subprocess.DEVNULL,
@@ -264,6 +290,29 @@ class PrivateMosquitto:
             self._kill()
         self._cleanup_dir()
         raise BrokerError(f"mosquitto did not start: {last}")
+
+    def _stage_files(self, workdir: Path) -> str:
+        """Copy cert, key and password file next to the config; the config lines for them.
+
+        Started as root, mosquitto drops to the ``mosquitto`` user, which must be able to read
+        them and write its log: the working directory and the copies are handed to that user.
+        """
+        lines = ""
+        for option, source in self._files.items():
+            if source is None:
+                continue
+            target = workdir / option
+            shutil.copyfile(source, target)
+            target.chmod(0o600)
+            lines += f"{option} {target}\n"
+        if os.geteuid() == 0:
+            try:
+                pw = pwd.getpwnam("mosquitto")
+            except KeyError:
+                return lines
+            for path in (workdir, *workdir.iterdir()):
+                os.chown(path, pw.pw_uid, pw.pw_gid)
+        return lines
 
     def _collect_failure(self, logfile: Path) -> str:
         text = ""
@@ -302,7 +351,8 @@ class PrivateMosquitto:
         return self._proc is not None and self._proc.poll() is None
 
     def settings(self) -> BrokerSettings:
-        return BrokerSettings(host=self.host, port=self.port, protocol="5")
+        """Client settings (anonymous, and without TLS trust: add those for such a broker)."""
+        return BrokerSettings(host=self.host, port=self.port, protocol="5", tls=self.tls)
 
     def __enter__(self) -> PrivateMosquitto:
         return self.start()

@@ -236,6 +236,8 @@ class BrokerSettings(BaseModel):
     password: str = Field(default="", repr=False)
     protocol: Protocol = "auto"
     keepalive: int = Field(default=30, ge=5)
+    #: CA bundle to verify the broker's certificate with; None: the system's trusted CAs.
+    ca_certs: str | None = None
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> BrokerSettings | None:
@@ -364,7 +366,7 @@ class MqttClient:
         if self.settings.username:
             client.username_pw_set(self.settings.username, self.settings.password or None)
         if self.settings.tls:
-            client.tls_set(cert_reqs=ssl.CERT_REQUIRED)
+            client.tls_set(ca_certs=self.settings.ca_certs, cert_reqs=ssl.CERT_REQUIRED)
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
         client.on_message = self._on_message
