@@ -32,10 +32,11 @@ def test_progress_follows_feedback_in_mission_seconds() -> None:
     for uid in progress.rows:
         progress.on_node(uid, "running", 100.0)
     closed = [uid for uid in progress.rows if uid not in open_ended]
-    assert progress.due_for_enough() == []  # others still running
+    assert progress.due_for_enough(110.0) == []  # others still running
     for i, uid in enumerate(closed):
         progress.on_node(uid, "succeeded", 101.0 + i)
-    assert sorted(progress.due_for_enough()) == sorted(open_ended)
+    assert progress.due_for_enough(100.5) == []  # running for less than the dwell
+    assert sorted(progress.due_for_enough(110.0)) == sorted(open_ended)
     last = closed[-1]
     assert progress.rows[last].ended == (101.0 + len(closed) - 1 - 100.0) * 10.0
     for uid in open_ended:

@@ -70,6 +70,7 @@ class MissionProgress:
             if n.node_uuid in self.rows and _is_open_ended(n)
         )
         self.enough_sent: set[str] = set()
+        self._running_since: dict[str, float] = {}
         self.status = "planned"
         self.fail_reason = ""
         self.started_at: float | None = None  # wall clock
@@ -93,6 +94,8 @@ class MissionProgress:
         if row is None or row.status in _FINAL_NODE or row.status == status:
             return node_uuid == self.root_uuid
         row.status = status
+        if status == "running":
+            self._running_since.setdefault(node_uuid, now)
         t = self._mission_time(now)
         if status == "running" and row.started is None:
             row.started = t
@@ -111,14 +114,18 @@ class MissionProgress:
         if status in _FINAL_MISSION:
             self.ended_at = now
 
-    def due_for_enough(self) -> list[str]:
-        """Open-ended tasks (look-at-*, ...) still running once every other task has ended: an
-        operator ends them with ``$enough`` so that the mission can finish."""
-        closed = [r for u, r in self.rows.items() if u not in self.open_ended]
-        if any(r.status not in _FINAL_NODE for r in closed):
+    def due_for_enough(self, now: float, dwell: float = 1.0) -> list[str]:
+        """Open-ended tasks (look-at-*, ...) that hold the mission up: running for at least
+        ``dwell`` wall seconds while no other task is running. An operator ends them with
+        ``$enough`` so that the mission can go on (a seq after them) and finish."""
+        if any(r.status in ("running", "paused") for u, r in self.rows.items()
+               if u not in self.open_ended):
             return []
-        return [u for u in self.open_ended
-                if u not in self.enough_sent and self.rows[u].status not in _FINAL_NODE]
+        return [
+            u for u in self.open_ended
+            if u not in self.enough_sent and self.rows[u].status == "running"
+            and self._running_since.get(u, now) <= now - dwell
+        ]
 
     @property
     def done(self) -> bool:

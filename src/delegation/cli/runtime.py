@@ -175,8 +175,8 @@ def follow(
 ) -> MissionProgress:
     """Show a mission's progress live until it ends or ``timeout`` wall seconds pass.
 
-    With ``enough``, open-ended tasks (look-at-*) get ``$enough`` once everything else ended,
-    as an operator would send it, so that the mission can finish.
+    With ``enough``, open-ended tasks (look-at-*) that hold the mission up (nothing else
+    running) get ``$enough``, as an operator would send it, so that the mission can finish.
     """
     import queue
 
@@ -190,6 +190,8 @@ def follow(
     with Live(progress.table(), console=console, refresh_per_second=6,
               transient=False, auto_refresh=True) as live:
         while not progress.done and time.monotonic() < deadline:
+            if enough:
+                _send_enough(client, progress, time.time())
             try:
                 ev = client.events.get(timeout=0.25)
             except queue.Empty:
@@ -204,15 +206,13 @@ def follow(
                                     ev.at)
             elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
                 progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
-                if enough:
-                    _send_enough(client, progress)
             live.update(progress.table())
         live.update(progress.table())
     return progress
 
 
-def _send_enough(client: ServiceClient, progress: MissionProgress) -> None:
-    for node_uuid in progress.due_for_enough():
+def _send_enough(client: ServiceClient, progress: MissionProgress, now: float) -> None:
+    for node_uuid in progress.due_for_enough(now):
         progress.enough_sent.add(node_uuid)
         answer = client.request({"command": "signal-tst-node", "node-uuid": node_uuid,
                                  "signal": "$enough"}, api="tst", timeout=10.0)
@@ -231,7 +231,7 @@ def _print_summary(console: Console, progress: MissionProgress, wall: float) -> 
         f"mission [{style}]{status}[/]"
         + (f": {progress.fail_reason}" if progress.fail_reason else "")
         + f"  plan makespan {float(plan.get('makespan') or 0):.0f} s"
-        + (f", actual {elapsed:.0f} s" if elapsed is not None else "")
+        + (f", actual {elapsed:.0f} s" if elapsed is not None and progress.done else "")
         + f" (mission seconds; {wall:.1f} s wall at speedup {progress.speedup:g})"
     )
 
