@@ -225,6 +225,8 @@ class SimUnit(MqttUnit):
             stamp=stamp,
         ).to_wire()
         heartbeat["levels"] = levels  # the model normalises spelling; publish ours as chosen
+        if self.example_agent:
+            heartbeat["agent-description"] = "L2_agent_example"
         self._json(f"{self.base}/heartbeat", heartbeat)
         sensors = ["position", "speed", "course", "heading"]
         if not self.example_agent:
