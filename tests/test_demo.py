@@ -124,3 +124,35 @@ def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, p
                  "--wait", "1"])
     assert code == 1
     assert "nobody" in capsys.readouterr().err
+
+
+@pytest.mark.mqtt
+def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerSettings,
+                                                          prefix: str) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from delegation.client import ServiceClient
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "delegation", "serve", "--broker", mqtt_settings.host,
+         "--port", str(mqtt_settings.port), "--prefix", prefix, "--name", "svc7"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        with ServiceClient(mqtt_settings, prefix=prefix, service="svc7",
+                           service_timeout=20) as client:
+            base = client.wait_service(20)
+            assert base.endswith("/svc7")
+            assert client.request({"command": "ping"}, timeout=10)["response"] == "pong"
+            agents = client.request({"command": "list-agents"}, timeout=10)
+            assert agents["response"] == "ok" and agents["agents"] == []
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+        assert proc.returncode == 0, err
+        assert "svc7 stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()

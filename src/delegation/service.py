@@ -74,7 +74,7 @@ from delegation.mqtt import (
     parse_unit_topic,
     unit_base_topic,
 )
-from delegation.tst.node import TstNode, leaves, with_uuids
+from delegation.tst.node import TstNode, leaves, walk, where, with_uuids
 from delegation.tst.validate import parse_and_validate, with_defaults
 
 log = logging.getLogger(__name__)
@@ -239,9 +239,12 @@ def compute_bids(tree: TstNode, units: Sequence[UnitState]) -> list[dict[str, An
     return bids
 
 
-def _infeasible_reason(plan: Any) -> str:
-    """A fail-reason naming every node the plan could not give a unit, and why."""
-    parts = [f"{u.name} {u.node_uuid}: {u.reason}" for u in plan.unassigned]
+def _infeasible_reason(plan: Any, tree: TstNode) -> str:
+    """A fail-reason naming every node the plan could not give a unit (path, name, uuid) and
+    why."""
+    paths = {node.node_uuid: where(path, node) for path, node in walk(tree) if node.node_uuid}
+    parts = [f"{paths.get(u.node_uuid, f'{u.name} {u.node_uuid}')}: {u.reason}"
+             for u in plan.unassigned]
     return "cannot instantiate the tree: " + ("; ".join(parts) or "no feasible plan")
 
 
@@ -570,7 +573,7 @@ class ServiceCore:
         plan = result
         plan_json = plan.to_json()
         if not plan.feasible:
-            reason = _infeasible_reason(plan)
+            reason = _infeasible_reason(plan, job.tree)
             if job.face == "tst":
                 return self._fail("tst", job.key, job.com_uuid, reason)
             return self._respond("delegation", job.key, DelegationResponse(

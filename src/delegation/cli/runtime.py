@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import os
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -329,10 +330,13 @@ def _serve(args: argparse.Namespace) -> int:
     print(f"{config.name} serving on {settings.describe()} at {config.base_topic} "
           f"(engine {config.engine}); Ctrl-C stops", flush=True)
     stop = threading.Event()
+    with suppress(ValueError):  # not the main thread (tests): Ctrl-C still works there
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         stop.wait()
     finally:
         service.stop()
+        print(f"{config.name} stopped", flush=True)
     return 0
 
 
