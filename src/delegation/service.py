@@ -11,7 +11,27 @@ Two layers:
 
 Faces (DESIGN 3.2): the TST face on ``tst/command`` (a drop-in delegator: ``start-tst`` with a
 partial tree, signals forwarded to the engine) and the Delegation API on ``delegation/command``.
-Every command is answered once per com-uuid; a re-send gets the stored answer again.
+Every command is answered once per com-uuid; a re-send gets the stored answer again (while the
+first is still being planned, the one answer sent when ready serves both).
+
+Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``response``,
+``fail-reason``):
+
+* ``delegate``: ``plan`` (DESIGN 3.5); ``response`` ``ok`` (planned only) or ``started`` (with
+  ``start``, once the engine accepted the tree); an infeasible tree is ``failed`` with the plan.
+* ``get-bids``: ``bids``, one per task node x unit: ``node-uuid``, ``name``, ``unit`` and either
+  ``travel-time``/``work-time`` (s), ``distance`` (m), ``open-ended``, or ``reason``.
+* ``query-mission``: ``mission``: ``root-uuid``, ``name``, ``source``, ``status``,
+  ``fail-reason``, ``created``/``started``/``ended`` (epoch s), ``nodes`` (``node-uuid``, ``name``,
+  ``execunit``, ``path``, ``status``, ``started``/``ended`` in s since the mission started),
+  ``assignments``, ``unassigned``, ``makespan``, ``strategy``.
+* ``list-missions``: ``missions``: the summary fields above.
+* ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
+  ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
+* ``cancel-mission``: ``ok`` once the engine confirmed the ``$abort`` of the tree.
+
+Planning runs on one planner thread, in arrival order: a long ``optimal`` plan delays the next
+plan, never a ``ping``, a signal or feedback.
 """
 
 from __future__ import annotations
@@ -852,7 +872,11 @@ class DelegationService(MqttUnit):
     @property
     def timings(self) -> list[Timing]:
         """Arrival -> sent-to-engine timestamps per mission (read from another thread: a copy)."""
-        return list(self.core.timings)
+        while True:
+            try:
+                return list(self.core.timings)
+            except RuntimeError:  # appended to while copying: copy again
+                continue
 
 
 def serve(settings: BrokerSettings, config: ServiceConfig, stop: threading.Event) -> None:
