@@ -290,3 +290,20 @@ def test_enough_on_a_control_node_ends_it_successfully() -> None:
         ("l", S.SUCCEEDED),
         ("R", S.SUCCEEDED),
     ]
+
+
+def test_finished_trees_are_forgotten_beyond_keep_done() -> None:
+    counter = itertools.count()
+    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", keep_done=2)
+    c.unit_seen("dji0", 0.0)
+    for i in range(5):
+        _, actions = c.start_tree(parse_tree(ctl("seq", f"R{i}", task(f"a{i}"))), float(i))
+        (s,) = starts(actions)
+        accept(c, s)
+        c.on_feedback(s.task_uuid, "finished", float(i))
+    c.start_tree(parse_tree(ctl("seq", "R5", task("a5"))), 6.0)
+    assert list(c.trees) == ["R3", "R4", "R5"]
+    assert c.status("a0") is None and c.status("a4") is S.SUCCEEDED
+    # A finished tree's uuids may be used again (a4 then waits: dji0 is busy with a5).
+    _, actions = c.start_tree(parse_tree(ctl("seq", "R4", task("a4"))), 7.0)
+    assert changes(actions) == [("R4", S.RUNNING), ("a4", S.WAITING)]

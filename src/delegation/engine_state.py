@@ -130,6 +130,7 @@ class ExecNode:
     waiting_since: float = 0.0
     retry_at: float | None = None
     known_uuids: set[str] = field(default_factory=set)
+    known_coms: set[str] = field(default_factory=set)
     refused: set[str] = field(default_factory=set)  # task-uuids a busy unit refused
     abort_sent_at: float | None = None
     pending_signal: str | None = None  # a signal that arrived before the unit answered
@@ -208,6 +209,7 @@ class EngineCore:
         busy_retry: float = 2.0,
         busy_timeout: float = 120.0,
         abort_timeout: float = 15.0,
+        keep_done: int = 200,
     ) -> None:
         self.new_uuid = new_uuid or (lambda: str(uuid_module.uuid4()))
         self.resend_after = resend_after
@@ -216,6 +218,7 @@ class EngineCore:
         self.busy_retry = busy_retry
         self.busy_timeout = busy_timeout
         self.abort_timeout = abort_timeout
+        self.keep_done = keep_done
         self.trees: dict[str, Tree] = {}
         self._node_tree: dict[str, str] = {}  # node uuid -> root uuid
         self._task_node: dict[str, str] = {}  # every task-uuid sent -> node uuid
@@ -246,6 +249,7 @@ class EngineCore:
         if problems:
             raise InputError(problems)
         tree = self._build(root, now)
+        self._prune()
         self.trees[tree.root_uuid] = tree
         for uid in tree.nodes:
             self._node_tree[uid] = tree.root_uuid
@@ -339,6 +343,7 @@ class EngineCore:
         node.known_uuids.add(node.task_uuid)
         self._task_node[node.task_uuid] = node.uuid
         self._com_node[node.com_uuid] = node.uuid
+        node.known_coms.add(node.com_uuid)
         node.attempts = 1
         node.answered = False
         node.sent_at = now
@@ -747,6 +752,12 @@ class EngineCore:
         tree = self.trees.get(root or "")
         return tree.nodes[node_uuid].status if tree else None
 
+    def _prune(self) -> None:
+        """Forget the oldest finished trees beyond ``keep_done`` (they stay queryable till then)."""
+        done = [r for r, t in self.trees.items() if t.done]  # insertion order: oldest first
+        for root_uuid in done[: max(0, len(done) - self.keep_done)]:
+            self.forget(root_uuid)
+
     def forget(self, root_uuid: str) -> None:
         """Drop a finished tree (its node uuids may be used again)."""
         tree = self.trees.get(root_uuid)
@@ -757,4 +768,5 @@ class EngineCore:
             self._node_tree.pop(uid, None)
             for t in node.known_uuids:
                 self._task_node.pop(t, None)
-            self._com_node.pop(node.com_uuid, None)
+            for c in node.known_coms:
+                self._com_node.pop(c, None)
