@@ -446,18 +446,20 @@ def _agents(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     table = Table(title=f"live units on {settings.describe()} under {args.prefix}/")
-    for col in ("name", "type", "levels", "state", "position", "tasks", "seen"):
-        table.add_column(col)
+    for col in ("name", "type", "state", "position", "seen"):
+        table.add_column(col, no_wrap=True)
+    table.add_column("tasks-available")
     now = time.time()
     for r in rows:
         pos = r["position"]
         seen = r.get("last-seen")
+        levels = r.get("levels", [])
+        state = str(r.get("state", "")) if "direct execution" in levels else ", ".join(levels)
         table.add_row(
-            r["name"], str(r.get("type") or "?"), ", ".join(r.get("levels", [])),
-            str(r.get("state", "")),
+            r["name"], str(r.get("type") or "?"), state,
             f"{pos['latitude']:.5f}, {pos['longitude']:.5f}" if pos else "-",
-            ", ".join(r.get("tasks-available", [])) or "-",
             f"{now - seen:.1f} s ago" if isinstance(seen, int | float) else "-",
+            ", ".join(r.get("tasks-available", [])) or "-",
         )
     Console().print(table)
     if not rows:
