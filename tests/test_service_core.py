@@ -228,6 +228,7 @@ def test_delegation_api_answers(core: ServiceCore) -> None:
         ({"command": "cancel-mission", "root-uuid": "nope"}, "unknown mission 'nope'"),
         ({"command": "delegate", "tst": {"name": "seq"}, "strategy": "magic"}, "magic"),
         ({"command": "delegate", "tst": {"name": "seq"}, "objective": "fun"}, "fun"),
+        ({"command": "delegate", "tst": {"name": "seq"}, "time-limit": 3600}, "maximum of 60 s"),
         ({"command": "delegate", "tst": {"name": "move-to", "params": {}}}, "waypoint"),
         ({"command": "delegate"}, "tst"),
         ({"command": "launch"}, "launch"),

@@ -119,6 +119,8 @@ class ServiceConfig:
     strategy: str = "auction"
     objective: str = "makespan"
     time_limit: float = 2.0
+    #: The longest ``time-limit`` a ``delegate`` may ask for (plans run one at a time).
+    max_time_limit: float = 60.0
     #: Seconds to wait for the engine's answer before a command is answered ``failed``.
     engine_timeout: float = 15.0
     #: The engine counts as live while its last heartbeat (or message) is younger than this (s).
@@ -555,6 +557,10 @@ class ServiceCore:
             raise InputError(Problem("command", "objective",
                                      f"unknown objective {objective!r}; expected one of "
                                      f"{', '.join(OBJECTIVES)}"))
+        if time_limit is not None and time_limit > self.config.max_time_limit:
+            raise InputError(Problem("command", "time-limit",
+                                     f"{time_limit:g} s is above this service's maximum of "
+                                     f"{self.config.max_time_limit:g} s"))
         tree = with_uuids(parse_and_validate(raw_tree))
         if kind == "plan":
             conflicts = self.book.conflicts(tree)
