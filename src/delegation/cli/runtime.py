@@ -273,7 +273,9 @@ def _demo(args: argparse.Namespace) -> int:
             settings = broker.settings()
             console.print(f"embedded broker on {settings.describe()}")
         prefix = args.prefix
-        fleet = SimFleet.from_scenario(settings, scenario, prefix=prefix, speedup=speedup)
+        # Positions often enough for a smooth flown track at this speedup (<= 10 Hz per unit).
+        rates = {a.name: min(10.0, max(a.rate or 1.0, speedup / 2.0)) for a in scenario.agents}
+        fleet = SimFleet(settings, units, prefix=prefix, speedup=speedup, rates=rates)
         fleet.start()
         stack.callback(fleet.stop)
         engine = TstEngine(settings, prefix=prefix)
