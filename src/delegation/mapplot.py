@@ -104,7 +104,10 @@ def _route_points(node: TstNode | None, unit: UnitLike) -> list[GeoPoint]:
     try:
         from delegation.costs import task_path
 
-        return task_path(node, unit)  # type: ignore[arg-type]
+        # The frame the simulator uses (around the unit's start), so that near-symmetric areas
+        # are swept along the same axis on the map as in flight.
+        frame = LocalFrame(unit.position.latitude, unit.position.longitude)
+        return task_path(node, unit, frame)  # type: ignore[arg-type]
     except Exception:  # a unit without what the cost model needs: draw the task's anchor
         g = task_geometry(node)
         return [p for p in (_anchor(g, True), _anchor(g, False)) if p is not None]
