@@ -303,3 +303,24 @@ def test_status_messages(core: ServiceCore) -> None:
     assert topics["heartbeat"]["name"] == "delegator0"
     assert topics["tst_execution_info"]["type"] == "TstExecutionInfo"
     assert "auction" in topics["delegation_info"]["strategies"]
+
+
+def test_engine_refusal_and_infeasible_delegate(core: ServiceCore) -> None:
+    planned = run_jobs(core, core.on_message(f"{BASE}/tst/command", start_tst(partial_tree()),
+                                             101.0), 101.0)
+    refused = engine_answers(core, planned, "failed", 101.1, fail_reason="unit /dji0 unknown")
+    answer = on(refused, f"{BASE}/tst/response")[0]
+    assert answer["response"] == "failed"
+    assert answer["fail-reason"] == "engine op0 refused the tree: unit /dji0 unknown"
+    assert [f["status"] for f in on(refused, "delegation/feedback")] == ["failed"]
+
+    tree = partial_tree()
+    tree["common_params"]["node-uuid"] = "root-2"
+    tree["children"][0]["common_params"]["node-uuid"] = "m1"
+    tree["children"][1]["common_params"]["node-uuid"] = "m2"
+    tree["children"].append({"name": "look-at-bearing", "common_params": {"node-uuid": "lab"},
+                             "params": {"bearing": 90.0}})
+    answer = on(delegation(core, {"command": "delegate", "tst": tree}), "delegation/response")[0]
+    assert answer["response"] == "failed" and answer["plan"]["feasible"] is False
+    assert "root/children[2] (look-at-bearing lab)" in answer["fail-reason"]
+    assert [u["node-uuid"] for u in answer["plan"]["unassigned"]] == ["lab"]
