@@ -123,8 +123,6 @@ class ServiceConfig:
     max_time_limit: float = 60.0
     #: Seconds to wait for the engine's answer before a command is answered ``failed``.
     engine_timeout: float = 15.0
-    #: The engine counts as live while its last heartbeat (or message) is younger than this (s).
-    engine_liveness: float = 10.0
     #: Heartbeat / info rate (Hz).
     rate: float = 1.0
     #: Fleet profiles for what heartbeats do not carry (speeds, endurance, ...); see ``fleet``.
@@ -297,8 +295,6 @@ class ServiceCore:
         self.book = MissionBook()
         self.commands = CommandLog()
         self.agent_uuid = agent_uuid or str(uuid.uuid4())
-        self.bases: dict[str, str] = {}  # unit name -> base topic (from heartbeats)
-        self.last_seen: dict[str, float] = {}
         self.pending: dict[str, EngineRequest] = {}  # engine com-uuid -> request
         self.timings: deque[Timing] = deque(maxlen=10_000)
         self._received: dict[CmdKey, float] = {}
@@ -339,20 +335,17 @@ class ServiceCore:
             return Effects()
         if parsed.name == self.config.engine and parsed.rest in ("tst/response", "tst/feedback"):
             return self._from_engine(topic, payload, parsed.rest, now)
-        self._observe_fleet(topic, payload, parsed.name, parsed.rest, now)
+        self._observe_fleet(topic, payload, now)
         return Effects()
 
-    def _observe_fleet(self, topic: str, payload: bytes, name: str, rest: str, now: float) -> None:
+    def _observe_fleet(self, topic: str, payload: bytes, now: float) -> None:
+        """Units, and the engine: the registry knows every heartbeat's base topic and age, and
+        plans only for units on the direct execution level."""
         try:
             message = decode(topic, payload)
         except MessageError as exc:
             log.debug("ignoring %s: %s", topic, exc)
             return
-        if rest == "heartbeat":
-            self.bases[name] = topic[: -len("/heartbeat")]
-        self.last_seen[name] = now
-        if name == self.config.engine:
-            return  # the engine is not a unit to plan for
         try:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
@@ -361,19 +354,14 @@ class ServiceCore:
     # ------------------------------------------------------------------ fleet views
 
     def units(self, now: float) -> tuple[UnitState, ...]:
-        """The units to plan for: every known unit except this service and the engine."""
-        skip = {self.config.name, self.config.engine}
-        return tuple(u for u in self.fleet.snapshot(now) if u.name not in skip)
+        """The units to plan for (the registry leaves out engines and delegators)."""
+        return tuple(self.fleet.snapshot(now))
 
     def engine_base(self, now: float) -> str | None:
-        """The engine's base topic while its heartbeat is fresh, else None."""
-        base = self.bases.get(self.config.engine)
-        seen = self.last_seen.get(self.config.engine)
-        if base is None or seen is None:
+        """The engine's base topic (from its heartbeat) while the heartbeat is fresh, else None."""
+        if not self.fleet.is_alive(self.config.engine, now):
             return None
-        if now - seen > self.config.engine_liveness:
-            return None
-        return base
+        return self.fleet.base_topic(self.config.engine)
 
     def _engine_problem(self, now: float) -> str | None:
         if self.engine_base(now) is None:
@@ -667,7 +655,6 @@ class ServiceCore:
         except MessageError as exc:
             log.warning("unreadable message from the engine on %s: %s", topic, exc)
             return Effects()
-        self.last_seen[self.config.engine] = max(self.last_seen.get(self.config.engine, now), now)
         if isinstance(message, TstFeedback):
             return self._engine_feedback(message, now)
         if isinstance(message, TstResponse):
