@@ -7,25 +7,18 @@ demo`` after a run and reusable by the benchmark for any plan. Rendering only: i
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from contextlib import suppress
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from delegation.costs import TaskGeometry, task_geometry, task_path
+from delegation.fleet import UnitState
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.tst.node import TstNode, parse_tree, walk
 from delegation.tst.validate import read_geopoint
-
-
-class UnitLike(Protocol):
-    """What the map needs of a unit (``fleet.UnitState`` has it)."""
-
-    @property
-    def name(self) -> str: ...
-    @property
-    def position(self) -> GeoPoint: ...
-    @property
-    def home(self) -> GeoPoint | None: ...
 
 
 class PlanLike(Protocol):
@@ -38,84 +31,50 @@ def _plan_json(plan: PlanLike | Mapping[str, Any]) -> dict[str, Any]:
     return plan.to_json()
 
 
-def _points(value: Any) -> list[GeoPoint]:
-    try:
-        return [read_geopoint(v) for v in value]
-    except Exception:  # a param we cannot draw is left out of the map, not fatal
-        return []
+@dataclass(frozen=True, slots=True)
+class _Shape:
+    """What the map draws for a task: the cost model's geometry, plus the target of a task done
+    in place (the position a look-at-position camera points at)."""
+
+    name: str
+    geometry: TaskGeometry
+    target: GeoPoint | None
+
+    @property
+    def points(self) -> list[GeoPoint]:
+        pts = list(self.geometry.points) + [p for area in self.geometry.areas for p in area]
+        return pts + ([self.target] if self.target is not None else [])
+
+    @property
+    def label_at(self) -> GeoPoint | None:
+        pts = self.points
+        if not pts:
+            return None
+        if self.geometry.kind == "areas" and self.geometry.circle is None:
+            return GeoPoint(latitude=float(np.mean([q.latitude for q in pts])),
+                            longitude=float(np.mean([q.longitude for q in pts])))
+        return pts[0]
 
 
-def _point(value: Any) -> GeoPoint | None:
-    try:
-        return read_geopoint(value)
-    except Exception:
-        return None
+def _shape(node: TstNode) -> _Shape:
+    target = None
+    if node.params.get("geopoint") is not None:
+        with suppress(ValueError, TypeError):
+            target = read_geopoint(node.params["geopoint"])
+    return _Shape(node.name, task_geometry(node), target)
 
 
-def task_geometry(node: TstNode) -> dict[str, Any]:
-    """Where a task node is on the map: ``kind`` plus points (and ``radius`` for circles)."""
-    p = node.params
-    if node.name == "move-to":
-        pt = _point(p.get("waypoint"))
-        return {"kind": "point", "points": [pt] if pt else []}
-    if node.name == "move-path":
-        return {"kind": "path", "points": _points(p.get("waypoints") or [])}
-    if node.name == "search-area":
-        return {"kind": "area", "points": _points(p.get("area") or [])}
-    if node.name == "search-areas":
-        areas = p.get("areas") or []
-        return {"kind": "areas", "areas": [_points(a) for a in areas if isinstance(a, list)]}
-    if node.name == "search-around-position":
-        pt = _point(p.get("geopoint"))
-        radius = p.get("radius")
-        return {
-            "kind": "circle",
-            "points": [pt] if pt else [],
-            "radius": float(radius) if isinstance(radius, int | float) else 0.0,
-        }
-    for key in ("geopoint", "waypoint", "position"):
-        if key in p:
-            pt = _point(p.get(key))
-            return {"kind": "point", "points": [pt] if pt else []}
-    return {"kind": "none", "points": []}
-
-
-def _anchor(geom: dict[str, Any], first: bool) -> GeoPoint | None:
-    """The point a route goes to (first) or leaves from (last) for a task."""
-    if geom["kind"] == "areas":
-        pts = [p for a in geom["areas"] for p in a]
-    else:
-        pts = geom.get("points", [])
-    if not pts:
-        return None
-    if geom["kind"] in ("area", "areas"):
-        return GeoPoint(
-            latitude=float(np.mean([q.latitude for q in pts])),
-            longitude=float(np.mean([q.longitude for q in pts])),
-        )
-    return pts[0] if first else pts[-1]
-
-
-def _route_points(node: TstNode | None, unit: UnitLike) -> list[GeoPoint]:
-    """Where the unit goes for a task: the cost model's own path (sweeps for searches); nothing
-    for tasks done in place (look-at-*)."""
-    if node is None:
-        return []
-    try:
-        from delegation.costs import task_path
-
-        # The frame the simulator uses (around the unit's start), so that near-symmetric areas
-        # are swept along the same axis on the map as in flight.
-        frame = LocalFrame(unit.position.latitude, unit.position.longitude)
-        return task_path(node, unit, frame)  # type: ignore[arg-type]
-    except Exception:  # a unit without what the cost model needs: draw the task's anchor
-        g = task_geometry(node)
-        return [p for p in (_anchor(g, True), _anchor(g, False)) if p is not None]
+def _route_points(node: TstNode, unit: UnitState) -> list[GeoPoint]:
+    """Where the unit goes for a task: the cost model's own path (sweeps for searches), in the
+    frame the simulator uses (around the unit's start) so that near-symmetric areas are swept
+    along the same axis on the map as in flight; nothing for tasks done in place (look-at-*)."""
+    frame = LocalFrame(unit.position.latitude, unit.position.longitude)
+    return task_path(node, unit, frame)
 
 
 def render_map(
     plan: PlanLike | Mapping[str, Any],
-    units: Sequence[UnitLike],
+    units: Sequence[UnitState],
     tracks: Mapping[str, Sequence[GeoPoint]] | None = None,
     path: str | Path = "map.png",
     title: str | None = None,
@@ -131,19 +90,16 @@ def render_map(
 
     data = _plan_json(plan)
     tree = parse_tree(data["tst"]) if isinstance(data.get("tst"), dict) else None
-    geoms: dict[str, tuple[str, dict[str, Any]]] = {}
     nodes: dict[str, TstNode] = {}
     if tree is not None:
-        for _, node in walk(tree):
-            if not node.is_control and node.node_uuid:
-                geoms[node.node_uuid] = (node.name, task_geometry(node))
-                nodes[node.node_uuid] = node
+        nodes = {n.node_uuid: n for _, n in walk(tree) if not n.is_control and n.node_uuid}
+    shapes = [_shape(n) for n in nodes.values()]
     tracks = tracks or {}
 
     all_pts: list[GeoPoint] = [u.position for u in units]
     all_pts += [u.home for u in units if u.home is not None]
-    for _, g in geoms.values():
-        all_pts += [p for a in g.get("areas", []) for p in a] + list(g.get("points", []))
+    for shape in shapes:
+        all_pts += shape.points
     for pts in tracks.values():
         all_pts += list(pts)
     frame = LocalFrame.around(all_pts)
@@ -158,28 +114,26 @@ def render_map(
     cmap = matplotlib.colormaps["tab10"]
     colour = {u.name: cmap(i % 10) for i, u in enumerate(units)}
 
-    # Tasks.
-    for name, g in geoms.values():
-        kind = g["kind"]
-        if kind in ("area", "areas"):
-            for area in g.get("areas", [g.get("points", [])]):
-                if len(area) >= 3:
-                    poly = np.array([xy(p) for p in area])
-                    ax.add_patch(Polygon(poly, closed=True, alpha=0.15, color="grey"))
-                    ax.plot(*np.vstack([poly, poly[:1]]).T, color="grey", lw=0.8)
-        elif kind == "circle" and g["points"]:
-            cx, cy = xy(g["points"][0])
-            ax.add_patch(Circle((cx, cy), g.get("radius", 0.0), alpha=0.15, color="grey"))
+    # Tasks: areas and circles shaded, paths dotted, points and look-at targets crossed.
+    for shape in shapes:
+        g = shape.geometry
+        if g.circle is not None:
+            cx, cy = xy(g.circle[0])
+            ax.add_patch(Circle((cx, cy), g.circle[1], alpha=0.15, color="grey"))
             ax.plot([cx], [cy], "+", color="grey")
-        elif kind == "path" and g["points"]:
-            line = np.array([xy(p) for p in g["points"]])
+        elif g.kind == "areas":
+            for area in g.areas:
+                poly = np.array([xy(p) for p in area])
+                ax.add_patch(Polygon(poly, closed=True, alpha=0.15, color="grey"))
+                ax.plot(*np.vstack([poly, poly[:1]]).T, color="grey", lw=0.8)
+        elif g.kind == "path" and g.points:
+            line = np.array([xy(p) for p in g.points])
             ax.plot(line[:, 0], line[:, 1], color="grey", lw=1.2, ls=":")
-        elif g.get("points"):
-            px, py = xy(g["points"][0])
+        elif shape.points:
+            px, py = xy(shape.points[0])
             ax.plot([px], [py], "x", color="black", ms=7)
-        anchor = _anchor(g, first=True)
-        if anchor is not None:
-            ax.annotate(name, xy(anchor), fontsize=7, color="dimgrey",
+        if shape.label_at is not None:
+            ax.annotate(shape.name, xy(shape.label_at), fontsize=7, color="dimgrey",
                         xytext=(4, -10), textcoords="offset points")
 
     # Planned routes: unit position -> each assigned task in order -> home.
@@ -193,7 +147,9 @@ def render_map(
             continue
         route = [xy(unit.position)]
         for a in sorted(assigned, key=lambda a: (a.get("start", 0.0), a.get("end", 0.0))):
-            route += [xy(p) for p in _route_points(nodes.get(str(a.get("node-uuid"))), unit)]
+            node = nodes.get(str(a.get("node-uuid")))
+            if node is not None:
+                route += [xy(p) for p in _route_points(node, unit)]
         if unit.home is not None:
             route.append(xy(unit.home))
         line = np.array(route)
