@@ -186,8 +186,9 @@ def test_bad_tst_commands_fail_with_a_reason(core: ServiceCore, payload: bytes,
     assert on(effects, "op0/tst/command") == []
 
 
-def delegation(core: ServiceCore, command: dict[str, Any], now: float = 101.0) -> Effects:
-    command = {"com-uuid": f"d-{command['command']}", "sender": "test", **command}
+def delegation(core: ServiceCore, command: dict[str, Any], now: float = 101.0,
+               com: str | None = None) -> Effects:
+    command = {"com-uuid": com or f"d-{command['command']}", "sender": "test", **command}
     return run_jobs(core, core.on_message(f"{BASE}/delegation/command",
                                           json.dumps(command).encode(), now), now)
 
@@ -203,6 +204,14 @@ def test_delegation_api_answers(core: ServiceCore) -> None:
     bids = on(delegation(core, {"command": "get-bids", "tst": partial_tree()}),
               "delegation/response")[0]["bids"]
     assert len(bids) == 4 and all("travel-time" in b and b["distance"] > 0 for b in bids)
+    area = [_wp(57.7610, 16.6800), _wp(57.7610, 16.6810), _wp(57.7615, 16.6810)]
+    search = {"name": "search-area", "common_params": {"node-uuid": "s1"},
+              "params": {"area": area}}
+    bids = on(delegation(core, {"command": "get-bids", "tst": search}, 101.5, com="bids-2"),
+              "delegation/response")[0]["bids"]
+    by_unit = {b["unit"]: b for b in bids}
+    assert by_unit["/dji1"]["reason"] == "dji1 does not offer search-area"
+    assert by_unit["/dji0"]["work-time"] > 0 and by_unit["/dji0"]["node-uuid"] == "s1"
 
     plan = on(delegation(core, {"command": "delegate", "tst": partial_tree(),
                                 "strategy": "nearest"}), "delegation/response")[0]

@@ -239,23 +239,17 @@ def compute_bids(tree: TstNode, units: Sequence[UnitState]) -> list[dict[str, An
     for t, task in enumerate(tables.tasks):
         for u, unit in enumerate(tables.units):
             base = {"node-uuid": task.node_uuid, "name": task.name, "unit": f"/{unit.name}"}
-            reason = tables.reason(u, t) if not bool(tables.capable[u, t]) else None
-            if reason is not None or not bool(tables.capable[u, t]):
-                bids.append({**base, "reason": reason or "cannot take this task"})
+            if not tables.capable[u, t]:
+                bids.append({**base, "reason": tables.reason(u, t) or "cannot take this task"})
                 continue
-            travel_d = float(to_start[u, t]) if bool(tables.travels[t]) else 0.0
-            speed = float(tables.speed[u, t])
-            travel_t = travel_d / speed if speed > 0 else float("inf")
-            work_t = float(tables.work_time[u, t])
-            bids.append(
-                {
-                    **base,
-                    "travel-time": round(travel_t, 3),
-                    "work-time": round(work_t, 3) if work_t == work_t else None,
-                    "distance": round(travel_d + float(tables.work_distance[u, t]), 3),
-                    "open-ended": bool(tables.open_ended[t]),
-                }
-            )
+            travel = float(to_start[u, t])  # 0 for tasks done in place
+            bids.append({
+                **base,
+                "travel-time": round(travel / float(tables.speed[u, t]), 3),
+                "work-time": round(float(tables.work_time[u, t]), 3),
+                "distance": round(travel + float(tables.work_distance[u, t]), 3),
+                "open-ended": bool(tables.open_ended[t]),
+            })
     return bids
 
 
