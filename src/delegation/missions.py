@@ -330,6 +330,10 @@ class CommandLog:
             entry.resends += 1
         return entry
 
+    def get(self, key: tuple[str, str]) -> CommandEntry | None:
+        """The entry of a command, without counting a re-send."""
+        return self._entries.get(key)
+
     def begin(self, key: tuple[str, str], now: float) -> CommandEntry:
         """Record a new command as pending."""
         entry = CommandEntry(key, now)

@@ -291,7 +291,6 @@ class ServiceCore:
         self.agent_uuid = agent_uuid or str(uuid.uuid4())
         self.pending: dict[str, EngineRequest] = {}  # engine com-uuid -> request
         self.timings: deque[Timing] = deque(maxlen=10_000)
-        self._received: dict[CmdKey, float] = {}
         self._job_ids = 0
         base = self.config.base_topic
         self.tst_command_topic = f"{base}/tst/command"
@@ -384,7 +383,6 @@ class ServiceCore:
             if entry is not None:
                 return self._resend(entry)
             self.commands.begin(key, now)
-            self._received[key] = now
         if cmd is None:
             log.info("bad command on %s: %s", topic, error)
             return self._fail(face, key, com_uuid or "", error.fail_reason)
@@ -409,7 +407,6 @@ class ServiceCore:
         """Publish the answer to a command once; remember it for re-sends."""
         if key is None:
             return Effects(publish=[out])
-        self._received.pop(key, None)
         if not self.commands.finish(key, [(out.topic, out.payload)]):
             return Effects()
         return Effects(publish=[out])
@@ -567,7 +564,7 @@ class ServiceCore:
             engine=self.config.engine,
             start=start,
             source=source,
-            received=self._received.get(key, now),
+            received=entry.received if (entry := self.commands.get(key)) else now,
         )
         return Effects(jobs=[job])
 
