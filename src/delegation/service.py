@@ -46,6 +46,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from delegation.allocation import OBJECTIVES, STRATEGIES, plan_mission
+from delegation.costs import cost_tables
 from delegation.errors import InputError, MessageError, Problem
 from delegation.fleet import FleetRegistry, UnitState
 from delegation.messages import (
@@ -209,8 +211,6 @@ def run_job(job: Job) -> Any:
     try:
         if job.kind == "bids":
             return compute_bids(job.tree, job.units)
-        from delegation.allocation import plan_mission
-
         return plan_mission(
             job.tree,
             job.units,
@@ -228,8 +228,6 @@ def run_job(job: Job) -> Any:
 
 def compute_bids(tree: TstNode, units: Sequence[UnitState]) -> list[dict[str, Any]]:
     """Every task node x unit: estimated travel, work and distance, or why the unit cannot bid."""
-    from delegation.costs import cost_tables
-
     tasks = leaves(with_defaults(tree))
     if not tasks or not units:
         return []
@@ -524,8 +522,6 @@ class ServiceCore:
         source: str,
         kind: Literal["plan", "bids"] = "plan",
     ) -> Effects:
-        from delegation.allocation import OBJECTIVES, STRATEGIES
-
         strategy = strategy or self.config.strategy
         objective = objective or self.config.objective
         if strategy not in STRATEGIES:
@@ -717,8 +713,6 @@ class ServiceCore:
 
     def status_messages(self, now: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
-        from delegation.allocation import OBJECTIVES, STRATEGIES
-
         c = self.config
         base = c.base_topic
         active = [m.root_uuid for m in self.book if not m.status.is_final
