@@ -14,8 +14,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager, suppress
+from contextlib import ExitStack, suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -221,6 +220,31 @@ def _send_enough(client: ServiceClient, progress: MissionProgress, now: float) -
             log.warning("$enough to %s: %s", node_uuid, answer.get("fail-reason"))
 
 
+def run_mission(
+    client: ServiceClient,
+    command: dict[str, Any],
+    console: Console,
+    *,
+    speedup: float,
+    timeout: float,
+    tracks: dict[str, list[Any]] | None = None,
+    enough: bool = False,
+) -> MissionProgress | None:
+    """Send a ``delegate`` with ``start``, follow the mission live and print the summary; None
+    (after saying why) when it was not started."""
+    answer = client.request({**command, "command": "delegate", "start": True}, timeout=120.0)
+    if answer.get("response") != "started":
+        console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
+        return None
+    started = time.monotonic()
+    progress = follow(client, answer["plan"], speedup=speedup, console=console,
+                      timeout=timeout, tracks=tracks, enough=enough)
+    _print_summary(console, progress, time.monotonic() - started)
+    if not progress.done:
+        console.print(f"[red]gave up following after {timeout:g} s[/]")
+    return progress
+
+
 def _print_summary(console: Console, progress: MissionProgress, wall: float) -> None:
     console.print()
     console.print(progress.summary_table())
@@ -293,21 +317,17 @@ def _demo(args: argparse.Namespace) -> int:
                                track_positions=True).start()
         stack.callback(client.stop)
 
-        answer = client.request({"command": "delegate", "tst": scenario.mission,
-                                 "strategy": args.strategy, "objective": args.objective,
-                                 "time-limit": args.time_limit, "start": True}, timeout=60.0)
-        if answer.get("response") != "started":
-            console.print(f"[red]delegate failed[/]: {answer.get('fail-reason')}")
+        tracks: dict[str, list[Any]] = {u.name: [u.position] for u in units}
+        command = {"tst": scenario.mission, "strategy": args.strategy,
+                   "objective": args.objective, "time-limit": args.time_limit}
+        progress = run_mission(client, command, console, speedup=speedup,
+                               timeout=args.timeout, tracks=tracks, enough=True)
+        if progress is None:
             return 1
-        plan = answer["plan"]
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
+        plan = progress.plan
         (out / "plan.json").write_text(json.dumps(plan, indent=2, sort_keys=True))
-        tracks: dict[str, list[Any]] = {u.name: [u.position] for u in units}
-        started = time.monotonic()
-        progress = follow(client, plan, speedup=speedup, console=console,
-                          timeout=args.timeout, tracks=tracks, enough=True)
-        _print_summary(console, progress, time.monotonic() - started)
         path = render_map(plan, units, tracks, out / "map.png",
                           title=f"{scenario.name}: {plan.get('strategy')} plan, "
                           f"makespan {float(plan.get('makespan') or 0):.0f} s")
@@ -370,44 +390,23 @@ def _read_mission(path: str) -> dict[str, Any]:
     return data
 
 
-@contextmanager
-def _connected_client(args: argparse.Namespace, service: str) -> Iterator[ServiceClient]:
-    from delegation.client import ServiceClient
-    from delegation.mqtt import BrokerSettings
-
-    settings = broker_settings(args) or BrokerSettings()
-    client = ServiceClient(settings, prefix=args.prefix, service=service,
-                           service_timeout=args.wait)
-    client.start()
-    try:
-        yield client
-    finally:
-        client.stop()
-
-
 def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    tree = _read_mission(args.mission)
-    console = Console()
-    command: dict[str, Any] = {"command": "delegate", "tst": tree, "start": True}
+    from delegation.client import ServiceClient
+    from delegation.mqtt import BrokerSettings
+
+    command: dict[str, Any] = {"tst": _read_mission(args.mission)}
     for key, value in (("strategy", args.strategy), ("objective", args.objective),
                        ("time-limit", args.time_limit)):
         if value is not None:
             command[key] = value
-    with _connected_client(args, args.service) as client:
-        answer = client.request(command, timeout=120.0)
-        if answer.get("response") != "started":
-            console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
-            return 1
-        plan = answer["plan"]
-        started = time.monotonic()
-        progress = follow(client, plan, speedup=args.speedup, console=console,
-                          timeout=args.timeout, enough=args.enough)
-        _print_summary(console, progress, time.monotonic() - started)
-        if not progress.done:
-            console.print(f"[red]gave up following after {args.timeout:g} s[/]")
-        return 0 if progress.succeeded else 1
+    settings = broker_settings(args) or BrokerSettings()
+    with ServiceClient(settings, prefix=args.prefix, service=args.service,
+                       service_timeout=args.wait) as client:
+        progress = run_mission(client, command, Console(), speedup=args.speedup,
+                               timeout=args.timeout, enough=args.enough)
+    return 0 if progress is not None and progress.succeeded else 1
 
 
 # --------------------------------------------------------------------------- agents
