@@ -156,3 +156,18 @@ def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerS
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+
+
+def test_serve_profiles_from_a_scenario_or_a_plain_file(tmp_path: Path) -> None:
+    from delegation.cli.runtime import _read_profiles
+
+    profiles = _read_profiles(str(find_scenario("demo")))
+    assert set(profiles) == {"dji0", "dji1", "usv0"}
+    assert profiles["dji0"]["speeds"]["standard"] == 8.0
+    plain = tmp_path / "p.yaml"
+    plain.write_text("air: {speeds: {standard: 5.0}}\ndji7: {endurance: 900}\n")
+    assert _read_profiles(str(plain)) == {"air": {"speeds": {"standard": 5.0}},
+                                          "dji7": {"endurance": 900}}
+    plain.write_text("air: fast\n")
+    with pytest.raises(InputError, match="air"):
+        _read_profiles(str(plain))

@@ -129,6 +129,10 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-limit", type=float, default=2.0)
     p.add_argument("--agent-type", default="ground", help="agent-type in the heartbeat topic")
     p.add_argument("--role", default="simulation", help="role level of the topic (real, ...)")
+    p.add_argument("--profiles", default=None, metavar="FILE",
+                   help="what heartbeats do not tell (speeds, endurance, home, camera): a "
+                   "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
+                   "agent type")
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -347,7 +351,8 @@ def _serve(args: argparse.Namespace) -> int:
     settings = broker_settings(args) or BrokerSettings()
     config = ServiceConfig(name=args.name, prefix=args.prefix, engine=args.engine,
                            strategy=args.strategy, objective=args.objective,
-                           time_limit=args.time_limit, agent_type=args.agent_type, role=args.role)
+                           time_limit=args.time_limit, agent_type=args.agent_type, role=args.role,
+                           profiles=_read_profiles(args.profiles) if args.profiles else None)
     service = DelegationService(settings, config)
     service.start()
     print(f"{config.name} serving on {settings.describe()} at {config.base_topic} "
@@ -363,11 +368,25 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_profiles(path: str) -> dict[str, dict[str, Any]]:
+    """Fleet profiles from a scenario file (its agents) or a plain object of profiles."""
+    from delegation.scenario import load_scenario
+
+    data = _read_object(path)
+    if "agents" in data:
+        return load_scenario(path).profiles()
+    bad = [k for k, v in data.items() if not isinstance(v, dict)]
+    if bad:
+        raise InputError(Problem(path, bad[0], "a profile must be an object (speeds, endurance, "
+                                               "home, ...)"))
+    return data
+
+
 # --------------------------------------------------------------------------- submit
 
 
-def _read_mission(path: str) -> dict[str, Any]:
-    """A mission file: a TST, a scenario (its ``mission``) or a start-tst/delegate command."""
+def _read_object(path: str) -> dict[str, Any]:
+    """A JSON or YAML file holding an object."""
     import yaml
 
     p = Path(path)
@@ -381,6 +400,12 @@ def _read_mission(path: str) -> dict[str, Any]:
         raise InputError(Problem(path, "", f"not valid JSON/YAML: {exc}")) from None
     if not isinstance(data, dict):
         raise InputError(Problem(path, "", "must hold a JSON/YAML object"))
+    return data
+
+
+def _read_mission(path: str) -> dict[str, Any]:
+    """A mission file: a TST, a scenario (its ``mission``) or a start-tst/delegate command."""
+    data: Any = _read_object(path)
     if "mission" in data and "agents" in data:
         data = data["mission"]
     elif "tst" in data and "command" in data:
