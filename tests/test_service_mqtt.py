@@ -7,6 +7,7 @@ does not block the receive path. Execution end to end is in ``test_e2e_service.p
 from __future__ import annotations
 
 import json
+import threading
 import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -16,7 +17,7 @@ import pytest
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.mqtt import BrokerSettings
-from delegation.service import DelegationService, ServiceConfig
+from delegation.service import DelegationService, Job, ServiceConfig, run_job
 from delegation.sim import SimFleet
 
 pytestmark = pytest.mark.mqtt
@@ -125,20 +126,36 @@ def test_start_tst_without_engine_fails_naming_it(send: Send) -> None:
     assert answer["response"] == "failed" and "'op0'" in answer["fail-reason"]
 
 
-def test_planning_does_not_block_the_receive_path(send: Send, stack: DelegationService) -> None:
-    base = stack.config.base_topic
-    c = send.collector  # type: ignore[attr-defined]
-    slow = str(uuid.uuid4())
-    # A 20-task flat tree with `optimal` runs guided local search for its whole time limit.
-    big = {"name": "conc", "children": [
-        {"name": "move-to", "params": {"waypoint": pt(37.0 * (i % 5) * 10, 53.0 * (i // 5) * 10)}}
-        for i in range(20)]}
-    c.publish(f"{base}/delegation/command",
-              json.dumps({"com-uuid": slow, "command": "delegate", "sender": "t", "tst": big,
-                          "strategy": "optimal", "time-limit": 2.0}).encode())
-    assert send({"command": "ping"})["response"] == "pong"
-    assert not any(d.get("response-to") == slow for d in c.json_on(f"{base}/delegation/response")
-                   ), "the ping was answered only after planning"
-    plan = c.wait_json(f"{base}/delegation/response", lambda d: d.get("response-to") == slow,
-                       timeout=30)
-    assert plan["response"] == "ok" and plan["plan"]["strategy"] == "optimal"
+def test_planning_does_not_block_the_receive_path(
+    mqtt_settings: BrokerSettings, prefix: str, collector: Callable[..., Any]
+) -> None:
+    release = threading.Event()
+    planning = threading.Event()
+
+    def held_planner(job: Job) -> Any:
+        planning.set()
+        release.wait(30)
+        return run_job(job)
+
+    service = DelegationService(mqtt_settings, ServiceConfig(prefix=prefix), planner=held_planner)
+    base = service.config.base_topic
+    c = collector(f"{base}/delegation/response")
+    service.start()
+    try:
+        slow = str(uuid.uuid4())
+        c.publish(f"{base}/delegation/command",
+                  json.dumps({"com-uuid": slow, "command": "get-bids", "sender": "t",
+                              "tst": tree(2)}).encode())
+        assert planning.wait(10)
+        ping = str(uuid.uuid4())
+        c.publish(f"{base}/delegation/command",
+                  json.dumps({"com-uuid": ping, "command": "ping", "sender": "t"}).encode())
+        pong = c.wait_json(f"{base}/delegation/response", lambda d: d.get("response-to") == ping)
+        assert pong["response"] == "pong"
+        assert not any(d.get("response-to") == slow for d in c.json_on(f"{base}/+/response"))
+        release.set()
+        bids = c.wait_json(f"{base}/delegation/response", lambda d: d.get("response-to") == slow)
+        assert bids["response"] == "ok" and bids["bids"] == []  # no units on this broker prefix
+    finally:
+        release.set()
+        service.stop()

@@ -42,7 +42,7 @@ import threading
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -748,10 +748,19 @@ class ServiceCore:
 
 
 class DelegationService(MqttUnit):
-    """The service on a broker: the core on the unit's thread, planning on a planner thread."""
+    """The service on a broker: the core on the unit's thread, planning on a planner thread.
 
-    def __init__(self, settings: BrokerSettings, config: ServiceConfig | None = None) -> None:
+    ``planner`` runs a job on the planner thread (``run_job``; tests pass one they can hold).
+    """
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        config: ServiceConfig | None = None,
+        planner: Callable[[Job], Any] = run_job,
+    ) -> None:
         self.config = config or ServiceConfig()
+        self._run_job = planner
         super().__init__(settings, self.config.name, tick_interval=0.2, clock=time.time)
         self.core = ServiceCore(self.config)
         self._jobs: queue.Queue[Job | None] = queue.Queue()
@@ -829,7 +838,7 @@ class DelegationService(MqttUnit):
             if job is None:
                 return
             began = time.perf_counter()
-            result = run_job(job)
+            result = self._run_job(job)
             job.compute_seconds = time.perf_counter() - began
             self._done.put((job, result))
             self.call_soon(Message(_JOB_DONE_TOPIC, b""))
