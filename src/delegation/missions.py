@@ -14,31 +14,12 @@ from enum import StrEnum
 from typing import Any
 
 from delegation.errors import InputError, Problem
+from delegation.messages import TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.tst.node import TstNode, walk
 
+#: Mission statuses after which a mission never changes again.
+FINAL_STATUSES = frozenset({MissionStatus.SUCCEEDED, MissionStatus.FAILED, MissionStatus.ABORTED})
 
-class MissionStatus(StrEnum):
-    """Where a mission is in its life; published on ``delegation/feedback``."""
-
-    PLANNED = "planned"
-    """A plan exists; nothing has been sent to the engine."""
-    STARTED = "started"
-    """The engine accepted the instantiated tree."""
-    RUNNING = "running"
-    """The engine reported the root node running."""
-    SUCCEEDED = "succeeded"
-    """The root node succeeded."""
-    FAILED = "failed"
-    """The root node failed, or the engine refused the tree."""
-    ABORTED = "aborted"
-    """The mission was aborted (cancel-mission, ``$abort``) before it ended."""
-
-    @property
-    def is_final(self) -> bool:
-        return self in _FINAL
-
-
-_FINAL = frozenset({MissionStatus.SUCCEEDED, MissionStatus.FAILED, MissionStatus.ABORTED})
 #: Statuses only move forward: a late "started" answer cannot undo "running".
 _RANK = {MissionStatus.PLANNED: 0, MissionStatus.STARTED: 1, MissionStatus.RUNNING: 2}
 
@@ -51,7 +32,7 @@ _ROOT_FINAL: dict[str, MissionStatus] = {
 }
 
 #: Node statuses (seed 14.5) after which a node no longer changes.
-NODE_FINAL: frozenset[str] = frozenset({"succeeded", "failed", "aborted", "revoked"})
+NODE_FINAL: frozenset[str] = TERMINAL_NODE_STATUSES
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +72,11 @@ class Mission:
     node_status: dict[str, str] = field(default_factory=dict)
     node_started: dict[str, float] = field(default_factory=dict)  # first "running"
     node_ended: dict[str, float] = field(default_factory=dict)  # first final status
+
+    @property
+    def ended(self) -> bool:
+        """True once the mission succeeded, failed or was aborted."""
+        return self.status in FINAL_STATUSES
 
     @property
     def name(self) -> str:
@@ -176,7 +162,7 @@ class MissionBook:
         for path, node in walk(tree):
             uid = node.node_uuid
             root = self._node_root.get(uid) if uid else None
-            if root is not None and not self._missions[root].status.is_final:
+            if root is not None and not self._missions[root].ended:
                 problems.append(
                     Problem(
                         path,
@@ -221,15 +207,15 @@ class MissionBook:
         A mission that has ended stays ended: a late feedback cannot revive it.
         """
         mission = self._missions.get(root_uuid)
-        if mission is None or mission.status.is_final or mission.status is status:
+        if mission is None or mission.ended or mission.status is status:
             return None
-        if not status.is_final and _RANK[status] <= _RANK[mission.status]:
+        if status not in FINAL_STATUSES and _RANK[status] <= _RANK[mission.status]:
             return None
         if status is MissionStatus.STARTED and mission.started_at is None:
             mission.started_at = now
         if status is MissionStatus.RUNNING and mission.started_at is None:
             mission.started_at = now
-        if status.is_final:
+        if status in FINAL_STATUSES:
             mission.ended_at = now
         mission.status = status
         mission.fail_reason = fail_reason

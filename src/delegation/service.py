@@ -490,7 +490,7 @@ class ServiceCore:
 
     def _cancel(self, cmd: CancelMission, key: CmdKey, now: float) -> Effects:
         mission = self.book.get(cmd.root_uuid)
-        if mission.status.is_final:
+        if mission.ended:
             raise InputError(Problem("cancel-mission", "root-uuid",
                                      f"mission {cmd.root_uuid} already ended "
                                      f"({mission.status.value})"))
@@ -715,7 +715,7 @@ class ServiceCore:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
         c = self.config
         base = c.base_topic
-        active = [m.root_uuid for m in self.book if not m.status.is_final
+        active = [m.root_uuid for m in self.book if not m.ended
                   and m.status is not MissionStatus.PLANNED]
         heartbeat = HeartBeat(agent_type=c.agent_type, agent_uuid=self.agent_uuid,
                               levels=["tst execution", "delegation"], name=c.name, rate=c.rate,
