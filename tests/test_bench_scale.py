@@ -84,3 +84,14 @@ def test_a_strategy_over_budget_skips_larger_sizes_and_says_so(
     assert row["skipped"] == len(cells) - 1
     png = scale_plot(records, tmp_path / "scale.png", budget=1e-9)
     assert png.read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_only_cells_at_least_as_large_in_both_dimensions_are_skipped() -> None:
+    from delegation.bench.scale import _blocker
+
+    blocks = [(5, 200)]
+    assert _blocker(blocks, 5, 1000) == (5, 200)
+    assert _blocker(blocks, 200, 200) == (5, 200)
+    assert _blocker(blocks, 200, 50) is None  # more units but fewer tasks: still runs
+    assert _blocker(blocks, 1, 1000) is None
+    assert _blocker([(5, 200), (50, 10)], 200, 50) == (50, 10)

@@ -93,7 +93,7 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
 
 
 def write_plots(
-    result: BenchResult, directory: str | Path, *, max_map_tasks: int = 400
+    result: BenchResult, directory: str | Path, *, maps: bool = True, max_map_tasks: int = 400
 ) -> list[Path]:
     """Per scenario: ``<name>-objective.png`` and ``<name>-<strategy>-<objective>-map.png``.
 
@@ -112,7 +112,7 @@ def write_plots(
             name = f"{name}-{len(names)}"
         names[source] = name
         written.append(bar_chart(records, out / f"{name}-objective.png"))
-        if records[0].tasks > max_map_tasks or source not in result.scenarios:
+        if not maps or records[0].tasks > max_map_tasks or source not in result.scenarios:
             continue
         _, units = result.scenarios[source]
         for (src, strategy, objective), plan in result.plans.items():

@@ -113,6 +113,16 @@ def results_table(
     return table
 
 
+def markdown_columns(records: Sequence[RunRecord]) -> tuple[Column, ...]:
+    """The table's columns without those that say nothing here (one run; every check ok)."""
+    drop = set()
+    if all(r.repeat == 1 for r in records):
+        drop.add("repeat")
+    if not any(r.problems for r in records):
+        drop.add("problems")
+    return tuple(c for c in COLUMNS if c.field not in drop)
+
+
 def markdown_table(records: Sequence[RunRecord], columns: Sequence[Column] = COLUMNS) -> str:
     """The same cells as a GitHub markdown table (for ``docs/results.md``)."""
     head = "| " + " | ".join(c.header for c in columns) + " |"

@@ -1,9 +1,11 @@
 """Scale sweep: every strategy on a grid of generated scenarios (units x tasks).
 
 Shows where each strategy stops being usable. Cells run from small to large; once a strategy's
-run takes longer than the budget (wall time, seconds), every later cell at least as large (units x
-tasks) is *skipped* for that strategy and kept as a ``skipped`` record naming the cell that
-exceeded, so nothing is silently dropped. ``optimal`` runs with the time limit it is given.
+run takes longer than the budget (wall time, seconds), every cell with at least as many units
+and at least as many tasks is *skipped* for that strategy and kept as a ``skipped`` record naming
+the cell that exceeded, so nothing is silently dropped. ``optimal`` runs with the time limit it
+is given. Each plan runs in a child process stopped at the budget, so a sweep takes at most
+(cells that run) x budget.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from delegation.errors import DelegationError, InputError, Problem
 
 #: The default grid: runs in a few minutes on 2 cores with the default budget and time limit.
 DEFAULT_UNITS: tuple[int, ...] = (5, 20, 50, 200)
-DEFAULT_TASKS: tuple[int, ...] = (10, 50, 200, 1000)
+DEFAULT_TASKS: tuple[int, ...] = (10, 30, 100, 300, 1000)
 DEFAULT_BUDGET = 20.0
 
 OK, OVER_BUDGET, SKIPPED, FAILED = "ok", "over-budget", "skipped", "failed"
@@ -49,7 +51,8 @@ class ScaleRecord:
     solve_time: float | None = None
     objective_value: float | None = None
     unassigned: int | None = None
-    #: objective / the best strategy's on this cell (among plans with the fewest unassigned).
+    #: objective / the best strategy's on this cell, among plans with the fewest unassigned
+    #: (None when fewer than two strategies produced such a plan).
     relative_to_best: float | None = None
     note: str = ""
     problems: list[str] = field(default_factory=list)
@@ -107,8 +110,8 @@ def run_scale(
     cells = grid(units, tasks)
     total = len(cells) * len(strategies) * len(objectives)
     done = 0
-    #: (strategy, objective) -> the cell where it exceeded the budget, and its time.
-    stopped: dict[tuple[str, str], tuple[int, int, float]] = {}
+    #: (strategy, objective) -> the cells (units, tasks) where it exceeded the budget.
+    stopped: dict[tuple[str, str], list[tuple[int, int]]] = {}
     records: list[ScaleRecord] = []
     for n_units, n_tasks in cells:
         options = GeneratorOptions(**{**base.__dict__, "units": n_units, "tasks": n_tasks})
@@ -117,7 +120,7 @@ def run_scale(
             (s, o)
             for o in objectives
             for s in strategies
-            if not _blocked(stopped.get((s, o)), n_units, n_tasks)
+            if _blocker(stopped.get((s, o), []), n_units, n_tasks) is None
         ]
         item = tree = unit_states = None
         if needed:
@@ -126,10 +129,9 @@ def run_scale(
         for objective in objectives:
             for strategy in strategies:
                 record = ScaleRecord(strategy, objective, n_units, n_tasks, options.seed, SKIPPED)
-                block = stopped.get((strategy, objective))
-                if _blocked(block, n_units, n_tasks):
-                    assert block is not None
-                    bu, bt, _took = block
+                block = _blocker(stopped.get((strategy, objective), []), n_units, n_tasks)
+                if block is not None:
+                    bu, bt = block
                     record.note = f"skipped: exceeded the budget ({budget:g} s) at {bu}x{bt}"
                 else:
                     assert item is not None and tree is not None and unit_states is not None
@@ -147,8 +149,7 @@ def run_scale(
                         isolate=isolate,
                     )
                     if record.status == OVER_BUDGET:
-                        took = record.wall_time if record.wall_time is not None else budget
-                        stopped[(strategy, objective)] = (n_units, n_tasks, took)
+                        stopped.setdefault((strategy, objective), []).append((n_units, n_tasks))
                 cell_records.append(record)
                 done += 1
                 if progress:
@@ -190,8 +191,9 @@ def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isol
         record.note = f"took {run.wall_time:.1f} s > budget {budget:g} s"
 
 
-def _blocked(block: tuple[int, int, float] | None, units: int, tasks: int) -> bool:
-    return block is not None and units * tasks >= block[0] * block[1]
+def _blocker(blocks: list[tuple[int, int]], units: int, tasks: int) -> tuple[int, int] | None:
+    """The first cell that exceeded the budget and is no larger than this one, if any."""
+    return next((b for b in blocks if units >= b[0] and tasks >= b[1]), None)
 
 
 def _relative(records: Sequence[ScaleRecord]) -> None:
@@ -208,6 +210,8 @@ def _relative(records: Sequence[ScaleRecord]) -> None:
             continue
         fewest = min(r.unassigned for r in ran if r.unassigned is not None)
         comparable = [r for r in ran if r.unassigned == fewest]
+        if len(comparable) < 2:
+            continue  # nothing to compare with: not "best" by default
         best = min(r.objective_value for r in comparable if r.objective_value is not None)
         for r in comparable:
             assert r.objective_value is not None
@@ -321,7 +325,7 @@ def scale_plot(
     ax_time.legend(fontsize=8)
     ax_rel.set_xscale("log")
     values = [r.relative_to_best for r in records if r.relative_to_best is not None]
-    if values and max(values) / max(min(values), 1e-9) > 4:
+    if values and max(values) / max(min(values), 1e-9) > 10:
         ax_rel.set_yscale("log")
     ax_rel.axhline(1.0, color="black", lw=0.8)
     ax_rel.set_xlabel("problem size (units x tasks)")

@@ -9,7 +9,6 @@ renders.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -77,6 +76,9 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--no-plots", action="store_true", help="write no PNGs")
     parser.add_argument(
+        "--no-maps", action="store_true", help="bar charts only, no route map per strategy"
+    )
+    parser.add_argument(
         "--in-process",
         action="store_true",
         help="plan in this process (default: each run in a child process, so that a planner "
@@ -114,7 +116,7 @@ def register(subparsers: Any) -> None:
         "--tasks",
         type=_ints,
         default=None,
-        help="tasks per scenario, comma-separated (default 20; --scale: 10,50,200,1000)",
+        help="tasks per scenario, comma-separated (default 20; --scale: 10,30,100,300,1000)",
     )
     gen.add_argument(
         "--site", default="granso", help="granso, motala or linkoping (default granso)"
@@ -210,18 +212,24 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     from delegation.bench.generate import save_scenarios
-    from delegation.bench.report import markdown_table, results_table, write_csv, write_json
+    from delegation.bench.report import (
+        markdown_columns,
+        markdown_table,
+        results_table,
+        write_csv,
+        write_json,
+    )
     from delegation.bench.runner import load_scenarios, run_bench, scenarios_from_dicts
 
     if not args.scenarios and not args.generate:
         raise InputError(Problem("bench", "", "give scenario files/folders, --generate or --scale"))
     loaded, failures = load_scenarios(args.scenarios)
-    if args.generate:
-        data = _generated(args)
+    generated = _generated(args) if args.generate else []
+    if generated:
         if args.save:
-            for path in save_scenarios(data, args.save):
+            for path in save_scenarios(generated, args.save):
                 err.print(f"wrote {path}")
-        loaded += scenarios_from_dicts(data)
+        loaded += scenarios_from_dicts(generated)
     for failure in failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
 
@@ -251,25 +259,29 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
         )
     if args.out:
         meta = {
-            "strategies": args.strategies,
-            "objectives": args.objectives,
+            "scenarios": [str(p) for p in args.scenarios],
+            "generated": [d["name"] for d in generated],
+            "strategies": list(dict.fromkeys(r.strategy for r in result.records)),
+            "objectives": list(dict.fromkeys(r.objective for r in result.records)),
             "repeat": args.repeat,
             "time_limit": args.time_limit,
-            "command": " ".join(["delegation", *sys.argv[2:]]),
         }
         written = [
             write_csv(result.records, args.out / "results.csv"),
             write_json(result.records, args.out / "results.json", failures=failures, meta=meta),
         ]
         md = args.out / "results.md"
-        md.write_text(markdown_table(result.records) + "\n", encoding="utf-8")
+        table_md = markdown_table(result.records, markdown_columns(result.records))
+        md.write_text(table_md + "\n", encoding="utf-8")
         written.append(md)
         if not args.no_plots and result.records:
             from delegation.bench.plots import write_plots
 
             with _progress(err, "plotting") as update:
                 update(0, 1, "")
-                written += write_plots(result, args.out, max_map_tasks=args.max_map_tasks)
+                written += write_plots(
+                    result, args.out, maps=not args.no_maps, max_map_tasks=args.max_map_tasks
+                )
         err.print(f"wrote {len(written)} files to {args.out}")
     return 1 if failures or result.violations else 0
 
