@@ -26,6 +26,7 @@ from delegation.bench.runner import (
     check_choice,
     run_one,
     scenarios_from_dicts,
+    warm_up,
 )
 from delegation.errors import DelegationError, InputError, Problem
 
@@ -108,6 +109,7 @@ def run_scale(
         raise InputError(Problem("budget", "", f"must be > 0 seconds, not {budget}"))
     base = generator or GeneratorOptions()
     cells = grid(units, tasks)
+    warm_up(strategies, objectives)
     total = len(cells) * len(strategies) * len(objectives)
     done = 0
     #: (strategy, objective) -> the cells (units, tasks) where it exceeded the budget.
