@@ -216,10 +216,49 @@ def save_scenarios(scenarios: Sequence[Mapping[str, Any]], directory: str | Path
     paths: list[Path] = []
     for scenario in scenarios:
         path = out / f"{scenario['name']}.yaml"
-        text = yaml.safe_dump(dict(scenario), sort_keys=False, allow_unicode=True, width=100)
+        text = yaml.dump(
+            _flowed(dict(scenario)),
+            Dumper=_ScenarioDumper,
+            sort_keys=False,
+            allow_unicode=True,
+            width=100,
+        )
         path.write_text(text, encoding="utf-8")
         paths.append(path)
     return paths
+
+
+class _Flow(dict[str, Any]):
+    """A mapping written on one line (GeoPoints, speeds), as in the hand-written scenarios."""
+
+
+class _FlowList(list[Any]):
+    """A list of names written on one line (tasks-available)."""
+
+
+class _ScenarioDumper(yaml.SafeDumper):
+    pass
+
+
+_ScenarioDumper.add_representer(
+    _Flow, lambda d, v: d.represent_mapping("tag:yaml.org,2002:map", v, flow_style=True)
+)
+_ScenarioDumper.add_representer(
+    _FlowList, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True)
+)
+
+
+def _flowed(value: Any) -> Any:
+    """The same data with GeoPoints, speeds and name lists marked for one-line output."""
+    if isinstance(value, dict):
+        inner = {k: _flowed(v) for k, v in value.items()}
+        if "latitude" in value or set(value) <= {"slow", "standard", "fast", "execunit"}:
+            return _Flow(inner)
+        return inner
+    if isinstance(value, list):
+        items = [_flowed(v) for v in value]
+        return _FlowList(items) if all(isinstance(v, str) for v in value) else items
+    return value
 
 
 # --------------------------------------------------------------------------- pieces
