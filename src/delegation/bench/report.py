@@ -165,7 +165,7 @@ def read_csv(path: str | Path) -> list[dict[str, Any]]:
             row: dict[str, Any] = {}
             for name, text in raw.items():
                 kind = str(types[name])
-                if name == "problems":
+                if name in ("problems", "notes"):
                     row[name] = [p for p in text.split(" | ") if p] if text else []
                 elif text == "":
                     row[name] = None

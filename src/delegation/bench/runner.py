@@ -83,7 +83,10 @@ class RunRecord:
     bound: float | None = None
     gap: float | None = None
     ratio_to_nearest: float | None = None
+    #: invariant violations found by ``check_invariants`` (empty: the plan is sound)
     problems: list[str] = field(default_factory=list)
+    #: what the strategy reported doing (e.g. optimal keeping the auction's plan when too large)
+    notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -379,6 +382,7 @@ def make_record(
         bound=_opt(plan.bound),
         gap=_opt(plan.gap),
         problems=problems,
+        notes=[str(n) for n in getattr(plan, "notes", [])],
     )
 
 

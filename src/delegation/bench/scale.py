@@ -57,6 +57,8 @@ class ScaleRecord:
     relative_to_best: float | None = None
     note: str = ""
     problems: list[str] = field(default_factory=list)
+    #: what the strategy reported doing (``Plan.notes``)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def size(self) -> int:
@@ -187,6 +189,7 @@ def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isol
     record.wall_time, record.solve_time = run.wall_time, run.solve_time
     record.objective_value, record.unassigned = run.objective_value, run.unassigned
     record.problems = run.problems
+    record.notes = run.notes
     record.status = OK
     if run.wall_time > budget:
         record.status = OVER_BUDGET
@@ -246,96 +249,116 @@ def _cell(value: Any) -> str:
 def scale_plot(
     records: Sequence[ScaleRecord], path: str | Path, *, budget: float | None = None
 ) -> Path:
-    """Two log-x panels over problem size (units x tasks): wall time (log-log), and objective
-    relative to the best strategy on the cell. Over-budget runs are ringed in red (on the budget
-    line when they were stopped there); skipped cells are an x on the budget line."""
+    """Two panels over the number of tasks (log x): wall time per plan (log-log), and objective
+    relative to the best strategy on the same cell. Colour: strategy; marker: number of units.
+    Over-budget runs are ringed in red (on the budget line when they were stopped there);
+    skipped cells are an x on the budget line."""
     import matplotlib
+    from matplotlib.lines import Line2D
 
     from delegation.bench.plots import new_figure
 
-    fig = new_figure(11.0, 4.6)
+    fig = new_figure(12.0, 5.0)
     ax_time, ax_rel = fig.subplots(1, 2)
     cmap = matplotlib.colormaps["tab10"]
     strategies = list(dict.fromkeys(r.strategy for r in records))
     objectives = list(dict.fromkeys(r.objective for r in records))
+    unit_counts = sorted({r.units for r in records})
+    markers = dict(zip(unit_counts, "osD^vP*Xph", strict=False))
     styles = ["-", "--", ":", "-."]
     for si, strategy in enumerate(strategies):
+        colour = cmap(si % 10)
         for oi, objective in enumerate(objectives):
-            mine = sorted(
-                (r for r in records if r.strategy == strategy and r.objective == objective),
-                key=lambda r: (r.size, r.units),
-            )
-            label = strategy if len(objectives) == 1 else f"{strategy}/{objective}"
-            colour, style = cmap(si % 10), styles[oi % len(styles)]
-            ran = [r for r in mine if r.wall_time is not None]
-            if ran:
+            style = styles[oi % len(styles)]
+            for n_units in unit_counts:
+                mine = sorted(
+                    (
+                        r
+                        for r in records
+                        if r.strategy == strategy
+                        and r.objective == objective
+                        and r.units == n_units
+                    ),
+                    key=lambda r: r.tasks,
+                )
+                marker = markers.get(n_units, "o")
+                ran = [r for r in mine if r.wall_time is not None]
                 ax_time.plot(
-                    [r.size for r in ran],
+                    [r.tasks for r in ran],
                     [r.wall_time for r in ran],
                     style,
-                    marker="o",
-                    ms=4,
+                    marker=marker,
+                    ms=5,
                     color=colour,
-                    label=label,
+                    alpha=0.85,
                 )
-                over = [r for r in ran if r.status == OVER_BUDGET]
+                over = [r for r in mine if r.status == OVER_BUDGET]
                 ax_time.plot(
-                    [r.size for r in over],
-                    [r.wall_time for r in over],
+                    [r.tasks for r in over],
+                    [r.wall_time if r.wall_time is not None else budget for r in over],
                     "o",
-                    ms=10,
+                    ms=12,
                     mfc="none",
                     mec="red",
                 )
-            stopped = [r for r in mine if r.status == OVER_BUDGET and r.wall_time is None]
-            if stopped and budget:
-                ax_time.plot(
-                    [r.size for r in stopped],
-                    [budget] * len(stopped),
-                    "o",
-                    ms=10,
-                    mfc="none",
-                    mec="red",
-                )
-            skipped = [r for r in mine if r.status == SKIPPED]
-            if skipped and budget:
-                ax_time.plot(
-                    [r.size for r in skipped], [budget] * len(skipped), "x", color=colour, ms=7
-                )
-            rel = [r for r in mine if r.relative_to_best is not None]
-            if rel:
+                skipped = [r for r in mine if r.status == SKIPPED]
+                if skipped and budget:
+                    ax_time.plot(
+                        [r.tasks for r in skipped],
+                        [budget] * len(skipped),
+                        "x",
+                        color=colour,
+                        ms=7,
+                    )
+                rel = [r for r in mine if r.relative_to_best is not None]
                 ax_rel.plot(
-                    [r.size for r in rel],
+                    [r.tasks for r in rel],
                     [r.relative_to_best for r in rel],
                     style,
-                    marker="o",
-                    ms=4,
+                    marker=marker,
+                    ms=5,
                     color=colour,
-                    label=label,
+                    alpha=0.85,
                 )
     if budget:
-        ax_time.axhline(budget, color="red", lw=0.8, ls="--", label=f"budget {budget:g} s")
+        ax_time.axhline(budget, color="red", lw=0.8, ls="--")
+    handles = [Line2D([], [], color=cmap(i % 10), lw=2, label=s) for i, s in enumerate(strategies)]
+    if len(objectives) > 1:
+        handles += [
+            Line2D([], [], color="grey", ls=styles[i % len(styles)], label=o)
+            for i, o in enumerate(objectives)
+        ]
+    handles += [
+        Line2D([], [], color="grey", ls="", marker=markers.get(u, "o"), label=f"{u} units")
+        for u in unit_counts
+    ]
+    time_handles = list(handles)
+    if budget:
+        time_handles += [
+            Line2D([], [], color="red", ls="--", lw=0.8, label=f"budget {budget:g} s"),
+            Line2D([], [], color="red", ls="", marker="o", mfc="none", ms=10, label="over budget"),
+            Line2D([], [], color="grey", ls="", marker="x", label="skipped"),
+        ]
     ax_time.set_xscale("log")
     times = [r.wall_time for r in records if r.wall_time is not None] + ([budget] if budget else [])
     if times and min(times) > 0:
         ax_time.set_ylim(min(times) / 2.0, max(times) * 2.0)
     ax_time.set_yscale("log")
-    ax_time.set_xlabel("problem size (units x tasks)")
+    ax_time.set_xlabel("tasks")
     ax_time.set_ylabel("wall time per plan (s)")
-    ax_time.set_title("planning time (x: skipped after exceeding the budget)", fontsize=10)
+    ax_time.set_title("planning time", fontsize=10)
     ax_time.grid(True, which="both", alpha=0.3)
-    ax_time.legend(fontsize=8)
+    ax_time.legend(handles=time_handles, fontsize=7, loc="upper left", ncol=2)
     ax_rel.set_xscale("log")
     values = [r.relative_to_best for r in records if r.relative_to_best is not None]
     if values and max(values) / max(min(values), 1e-9) > 10:
         ax_rel.set_yscale("log")
     ax_rel.axhline(1.0, color="black", lw=0.8)
-    ax_rel.set_xlabel("problem size (units x tasks)")
-    ax_rel.set_ylabel("objective / best strategy's")
-    ax_rel.set_title("plan quality (1 = best on that cell)", fontsize=10)
+    ax_rel.set_xlabel("tasks")
+    ax_rel.set_ylabel("objective / best strategy's on the same scenario")
+    ax_rel.set_title("plan quality (1 = best; plans with the fewest unassigned)", fontsize=10)
     ax_rel.grid(True, which="both", alpha=0.3)
-    if values:
-        ax_rel.legend(fontsize=8)
+    ax_rel.legend(handles=handles, fontsize=7, loc="upper left")
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
