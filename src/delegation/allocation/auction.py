@@ -7,9 +7,10 @@ or total time); the lowest bid wins, ties go to the lower unit, then the lower t
 When every task is activated at mission start (a ``conc`` of tasks, the common case and the one that
 must scale to 200 units x 1000 tasks), a unit's bids depend only on its own route: bids live in a
 (units x tasks) array and after each round only the winner's row is recomputed, with numpy over all
-candidate positions at once. When the tree orders tasks across units (``seq``), a task's marginal
-makespan depends on the other units' timing, so bids are evaluated with the schedule simulator on
-the two best positions (by added route time) of each (unit, task) pair, every round.
+candidate positions at once. When the tree orders tasks across units (``seq``), bids are the same
+route insertions restricted to positions that keep the tree's order, but a task's marginal makespan
+depends on the other units' timing: the auctioneer ranks the bids by an estimate and simulates the
+best few exactly (see ``_general_auction``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import logging
 import numpy as np
 
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import _home_leg, insertion_costs, valid_positions
+from delegation.allocation.routes import _home_leg, insertion_costs
 from delegation.allocation.schedule import EPS, Schedule, evaluate
 
 log = logging.getLogger(__name__)
@@ -132,47 +133,133 @@ def _flat_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[li
 
 
 def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[list[int]]]:
+    """Auction for trees with ``seq`` between tasks.
+
+    A task takes part once every task that must precede it has a unit ("ready"); it may go at any
+    place in a route after the tasks that start before it can be activated, which keeps routes and
+    tree free of cycles (nobody waits for someone who waits for them). Bids are each unit's added
+    travel + work time (kept per unit and route position, recomputed only for the winner); a
+    unit's marginal makespan also depends on waiting, so the auctioneer ranks bids by an estimate
+    (``max(unit finish, activation) + added time``) and simulates the best few exactly.
+    """
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
     routes: list[list[int]] = [[] for _ in range(n_units)]
     vehicle = problem.vehicle
     allowed = problem.allowed & vehicle[None, :]
     alias_of = problem.alias_of()
-    remaining = [t for t in range(n_tasks) if allowed[:, t].any()]
-    while remaining:
-        best_key: tuple[float, ...] | None = None
-        best_move: tuple[int, int, int] | None = None
-        for u in range(n_units):
-            cand = np.array([t for t in remaining if allowed[u, t]], dtype=int)
-            if cand.size == 0:
-                continue
-            costs = insertion_costs(problem, u, routes[u], cand)
-            for j, t in enumerate(cand.tolist()):
-                lo, hi = valid_positions(problem, routes[u], t)
-                if lo > hi:
+    before = problem.before
+    node_of = np.asarray(problem.structure.node_of_task, dtype=int)
+    has_pred = before.any(axis=0)
+    open_task = allowed.any(axis=0)
+    pending = (before & open_task[:, None]).sum(axis=0)
+    base = np.array([_home_leg(problem, u) for u in range(n_units)])
+    costs: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
+    delta = np.full((n_units, n_tasks), np.inf)
+    pos = np.zeros((n_units, n_tasks), dtype=int)
+    shortlist = int(np.clip(300 // max(n_tasks, 1), 1, 8))
+
+    def recompute(u: int) -> None:
+        table = np.full((len(routes[u]) + 1, n_tasks), np.inf)
+        cand = np.nonzero(allowed[u])[0]
+        if cand.size:
+            table[:, cand] = insertion_costs(problem, u, routes[u], cand)
+        costs[u] = table
+        free = ~has_pred
+        pos[u, free] = np.argmin(table[:, free], axis=0)
+        delta[u, free] = table[pos[u, free], np.nonzero(free)[0]]
+
+    def close(t: int) -> None:
+        """``t`` is settled (assigned or given up): its successors wait for one task less."""
+        open_task[t] = False
+        allowed[:, t] = False
+        delta[:, t] = np.inf
+        pending[before[t]] -= 1
+
+    for u in range(n_units):
+        recompute(u)
+    current = evaluate(problem, assign, routes)
+    rejected = np.zeros((n_units, n_tasks), dtype=bool)
+    while open_task.any():
+        ready = open_task & (pending <= 0)
+        act = current.node_act[node_of] if current.node_act is not None else np.zeros(n_tasks)
+        waiting = ready & has_pred
+        if waiting.any():
+            # Tasks with predecessors go after what starts before they can be activated.
+            for u in range(n_units):
+                cols = np.nonzero(waiting & allowed[u])[0]
+                if cols.size == 0:
                     continue
-                column = costs[lo : hi + 1, j]
-                for p in (lo + np.argsort(column, kind="stable")[:2]).tolist():
-                    trial_routes = [list(r) for r in routes]
-                    trial_routes[u].insert(p, t)
-                    assign[t] = u
-                    trial = evaluate(problem, assign, trial_routes)
-                    assign[t] = -1
-                    if not trial.valid:
-                        continue
-                    key = (*trial.key(objective), float(u), float(t))
-                    if best_key is None or key < best_key:
-                        best_key, best_move = key, (u, t, p)
-        if best_move is None:
-            break
-        u, t, p = best_move
-        routes[u].insert(p, t)
+                starts = current.start[routes[u]] if routes[u] else np.zeros(0)
+                lo = np.searchsorted(starts, act[cols] - 1e-9, side="left")
+                p = np.arange(len(routes[u]) + 1)[:, None]
+                table = np.where(p >= lo[None, :], costs[u][:, cols], np.inf)
+                pos[u, cols] = np.argmin(table, axis=0)
+                delta[u, cols] = table[pos[u, cols], np.arange(cols.size)]
+        finish = np.where([bool(r) for r in routes], current.unit_finish, base)[:, None]
+        estimate = np.maximum(finish, act[None, :]) + delta
+        bid = np.where(ready[None, :] & ~rejected, delta, np.inf)
+        if objective == "total":
+            primary, secondary = bid, estimate
+        else:
+            primary = np.where(np.isfinite(bid), np.maximum(estimate, current.makespan), np.inf)
+            secondary = bid
+        flat_primary = primary.ravel()
+        finite = np.flatnonzero(np.isfinite(flat_primary))
+        if finite.size == 0:
+            stuck = np.nonzero(ready)[0]
+            if stuck.size == 0:
+                break
+            for t in stuck.tolist():  # nobody can take them: their successors go on without
+                close(t)
+            continue
+        flat_secondary = secondary.ravel()
+        finite = _smallest(finite, flat_primary, flat_secondary, 4 * shortlist)
+        order = np.lexsort((finite, flat_secondary[finite], flat_primary[finite]))
+        chosen: tuple[tuple[float, ...], int, int, Schedule] | None = None
+        for rank, flat_index in enumerate(finite[order].tolist()):
+            if rank >= shortlist and chosen is not None:
+                break
+            u, t = divmod(flat_index, n_tasks)
+            trial_routes = [list(r) for r in routes]
+            trial_routes[u].insert(int(pos[u, t]), t)
+            assign[t] = u
+            trial = evaluate(problem, assign, trial_routes)
+            assign[t] = -1
+            if not trial.valid:
+                rejected[u, t] = True
+                continue
+            key = (*trial.key(objective), float(u), float(t))
+            if chosen is None or key < chosen[0]:
+                chosen = (key, u, t, trial)
+        if chosen is None:
+            continue
+        _, u, t, trial = chosen
+        routes[u].insert(int(pos[u, t]), t)
         assign[t] = u
-        remaining.remove(t)
+        current = trial
+        close(t)
+        rejected[:] = False
         g = alias_of[t]
         if g >= 0:
-            for m in problem.alias_groups[g]:
-                keep = allowed[u, m]
-                allowed[:, m] = False
-                allowed[u, m] = keep
+            members = problem.alias_groups[g]
+            others = np.ones(n_units, dtype=bool)
+            others[u] = False
+            allowed[np.ix_(others, members)] = False
+            delta[np.ix_(others, members)] = np.inf
+        recompute(u)
     return assign, routes
+
+
+def _smallest(index: np.ndarray, primary: np.ndarray, secondary: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` entries of ``index`` smallest by (primary, secondary), in no particular order."""
+    if index.size <= k:
+        return index
+    values = primary[index]
+    kth = np.partition(values, k - 1)[k - 1]
+    below = index[values < kth]
+    ties = index[values == kth]
+    need = k - below.size
+    if ties.size > need:
+        ties = ties[np.argpartition(secondary[ties], need - 1)[:need]]
+    return np.concatenate([below, ties])

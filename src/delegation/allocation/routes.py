@@ -70,29 +70,8 @@ def insertion_costs(
     return np.asarray(cost)
 
 
-def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
-    """Travel + work time of a route, including the way home (a unit's battery use when flat)."""
-    total = 0.0
-    for k, t in enumerate(route):
-        total += float(insertion_costs(problem, u, list(route[:k]), np.array([t]))[k, 0])
-    return total + _home_leg(problem, u)
-
-
 def _home_leg(problem: Problem, u: int) -> float:
     if not problem.has_home[u]:
         return 0.0
     d = float(np.hypot(*(problem.home_xy[u] - problem.unit_xy[u])))
     return d / float(problem.home_speed[u])
-
-
-def valid_positions(problem: Problem, route: Sequence[int], t: int) -> tuple[int, int]:
-    """The range [lo, hi] of positions where ``t`` may go without breaking the tree's order."""
-    if not route:
-        return 0, 0
-    before = problem.before
-    r = np.asarray(route, dtype=int)
-    must_precede = np.nonzero(before[r, t])[0]
-    must_follow = np.nonzero(before[t, r])[0]
-    lo = int(must_precede.max()) + 1 if must_precede.size else 0
-    hi = int(must_follow.min()) if must_follow.size else len(route)
-    return lo, hi

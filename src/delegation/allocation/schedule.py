@@ -143,7 +143,15 @@ def evaluate(
     travels = problem.travels.tolist()
     to_home = problem.home_task().tolist()
     has_home = problem.has_home
-    speed, work_t, work_d = problem.speed, problem.work_time, problem.work_distance
+    # Per task, the numbers of its unit (0 where unassigned): plain floats for the loop below.
+    safe = np.where(assign_arr >= 0, assign_arr, 0)
+    cols = np.arange(n_tasks)
+    speed_t = problem.speed[safe, cols].tolist()
+    work_tt = problem.work_time[safe, cols].tolist()
+    work_dt = problem.work_distance[safe, cols].tolist()
+    home_x = problem.home_xy[:, 0].tolist()
+    home_y = problem.home_xy[:, 1].tolist()
+    assigned_to = assign_arr.tolist()
 
     start = np.full(n_tasks, np.nan)
     end = np.full(n_tasks, np.nan)
@@ -163,11 +171,11 @@ def evaluate(
         t = s.task_of_node[n]
         if is_fin and t >= 0:
             begin = value[i]
-            u = int(assign_arr[t])
+            u = assigned_to[t]
             if u < 0:
                 end_t = begin
             elif not vehicle[t]:
-                w = float(work_t[u, t])
+                w = work_tt[t]
                 start[t], travel_time[t], work_time[t] = begin, 0.0, w
                 distance[t] = 0.0
                 end_t = begin + w
@@ -176,20 +184,20 @@ def evaluate(
                 p = prev[t]
                 px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
                 if to_home[t] and has_home[u]:
-                    hx, hy = float(problem.home_xy[u, 0]), float(problem.home_xy[u, 1])
+                    hx, hy = home_x[u], home_y[u]
                     d = math.hypot(hx - px, hy - py)
-                    tt = d / float(speed[u, t])
+                    tt = d / speed_t[t]
                     pos_x[t], pos_y[t] = hx, hy
                 elif travels[t] and not to_home[t]:
                     d = math.hypot(sx[t] - px, sy[t] - py)
-                    tt = d / float(speed[u, t])
+                    tt = d / speed_t[t]
                     pos_x[t], pos_y[t] = ex[t], ey[t]
                 else:
                     d, tt = 0.0, 0.0
                     pos_x[t], pos_y[t] = px, py
-                w = float(work_t[u, t])
+                w = work_tt[t]
                 start[t], travel_time[t], work_time[t] = begin, tt, w
-                distance[t] = d + float(work_d[u, t])
+                distance[t] = d + work_dt[t]
                 end_t = begin + tt + w
                 end[t] = end_t
             value[i] = end_t
@@ -214,18 +222,23 @@ def evaluate(
     unit_used = np.zeros(n_units)
     home_time = np.zeros(n_units)
     home_distance = np.zeros(n_units)
+    home_speed = problem.home_speed.tolist()
+    on_vehicle = (assign_arr >= 0) & problem.vehicle & np.isfinite(end)
+    if on_vehicle.any():
+        busy = np.nan_to_num(travel_time[on_vehicle]) + np.nan_to_num(work_time[on_vehicle])
+        unit_used += np.bincount(assign_arr[on_vehicle], weights=busy, minlength=n_units)
+    endurance = problem.endurance.tolist()
     for u, order in enumerate(orders):
         if not order:
             continue
         last = order[-1]
         if has_home[u]:
-            d = math.hypot(problem.home_xy[u, 0] - pos_x[last], problem.home_xy[u, 1] - pos_y[last])
+            d = math.hypot(home_x[u] - pos_x[last], home_y[u] - pos_y[last])
             home_distance[u] = d
-            home_time[u] = d / float(problem.home_speed[u])
+            home_time[u] = d / home_speed[u]
         unit_finish[u] = float(end[last]) + home_time[u]
-        idx = list(order)
-        unit_used[u] = float(np.nansum(travel_time[idx]) + np.nansum(work_time[idx])) + home_time[u]
-        if unit_used[u] > problem.endurance[u] * (1 + EPS) + EPS:
+        unit_used[u] += home_time[u]
+        if unit_used[u] > endurance[u] * (1 + EPS) + EPS:
             problems.append(
                 f"unit {problem.unit_names[u]} needs {unit_used[u]:.0f} s but has "
                 f"{problem.endurance[u]:.0f} s of endurance left"
