@@ -100,7 +100,7 @@ def optimise(
         result.schedule = candidate
     elif candidate is not None:
         result.notes.append(
-            f"{result.solver} found nothing better than the auction; keeping the auction's plan"
+            f"{result.solver} found no better plan than the auction's; keeping the auction's plan"
         )
     result.bound = bound
     for text in result.notes:

@@ -224,10 +224,11 @@ class Problem:
 
 
 def _summarise(reasons: dict[str, list[str]]) -> str:
+    """``dji0, dji1: does not offer search-area; usv0: is not alive ...`` (names shortened)."""
     parts = []
     for text, names in reasons.items():
         shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
-        parts.append(f"{text} ({shown})")
+        parts.append(f"{shown}: {text}")
     return "; ".join(parts)
 
 
@@ -293,6 +294,7 @@ def problem_from_arrays(
                 if tasks[t].kind is ExecUnitKind.FIXED and unit_names[u] != tasks[t].ref:
                     continue
                 text = tables.reason(u, t) or "cannot take it"
+                text = text.removeprefix(unit_names[u] + " ")  # the name is listed separately
                 why[t].setdefault(text, []).append(unit_names[u])
             reasons[t] = (
                 _summarise(why[t]) if why[t] else "no live unit in the fleet"

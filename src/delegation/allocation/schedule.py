@@ -146,9 +146,12 @@ def evaluate(
     # Per task, the numbers of its unit (0 where unassigned): plain floats for the loop below.
     safe = np.where(assign_arr >= 0, assign_arr, 0)
     cols = np.arange(n_tasks)
-    speed_t = problem.speed[safe, cols].tolist()
-    work_tt = problem.work_time[safe, cols].tolist()
-    work_dt = problem.work_distance[safe, cols].tolist()
+    if n_units:
+        speed_t = problem.speed[safe, cols].tolist()
+        work_tt = problem.work_time[safe, cols].tolist()
+        work_dt = problem.work_distance[safe, cols].tolist()
+    else:
+        speed_t = work_tt = work_dt = [0.0] * n_tasks
     home_x = problem.home_xy[:, 0].tolist()
     home_y = problem.home_xy[:, 1].tolist()
     assigned_to = assign_arr.tolist()
