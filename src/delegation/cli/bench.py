@@ -79,6 +79,13 @@ def register(subparsers: Any) -> None:
         "--no-maps", action="store_true", help="bar charts only, no route map per strategy"
     )
     parser.add_argument(
+        "--page",
+        type=Path,
+        default=None,
+        help="also write a markdown results page here (e.g. docs/results.md); it embeds "
+        "scale.png/scale.md found next to it (from --scale --out that folder)",
+    )
+    parser.add_argument(
         "--in-process",
         action="store_true",
         help="plan in this process (default: each run in a child process, so that a planner "
@@ -283,6 +290,17 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
                     result, args.out, maps=not args.no_maps, max_map_tasks=args.max_map_tasks
                 )
         err.print(f"wrote {len(written)} files to {args.out}")
+    if args.page and result.records:
+        from delegation.bench.page import write_results_page
+
+        page = write_results_page(
+            result.records,
+            args.page,
+            plots_dir=None if args.no_plots or not args.out else args.out,
+            command=_command_line(args),
+            time_limit=args.time_limit,
+        )
+        err.print(f"wrote {page}")
     return 1 if failures or result.violations else 0
 
 
@@ -347,7 +365,14 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     console.print(table)
     written = [write_scale_csv(records, out / "scale.csv")]
     md = out / "scale.md"
-    md.write_text(_scale_markdown(rows) + "\n", encoding="utf-8")
+    generator = _generator_options(args, 1, 1, args.seed)
+    setup = (
+        f"Grid: units {', '.join(map(str, args.units or DEFAULT_UNITS))} x tasks "
+        f"{', '.join(map(str, args.tasks or DEFAULT_TASKS))}; budget {budget:g} s per plan; "
+        f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
+        f"structure {generator.structure}, radius {generator.radius:g} m)."
+    )
+    md.write_text(setup + "\n\n" + _scale_markdown(rows) + "\n", encoding="utf-8")
     written.append(md)
     if not args.no_plots:
         written.append(scale_plot(records, out / "scale.png", budget=budget))
@@ -363,6 +388,30 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     for r in failed:
         err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
     return 1 if violations or failed else 0
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    """The bench command that reproduces this run (for the results page)."""
+    words = ["delegation", "bench", *(str(p) for p in args.scenarios)]
+    if args.generate:
+        words += ["--generate", "--seed", str(args.seed), "--site", args.site]
+        words += ["--units", ",".join(map(str, args.units or [5]))]
+        words += ["--tasks", ",".join(map(str, args.tasks or [20]))]
+    if args.strategies:
+        words += ["--strategies", ",".join(args.strategies)]
+    if args.objectives:
+        words += ["--objectives", ",".join(args.objectives)]
+    if args.repeat != 1:
+        words += ["--repeat", str(args.repeat)]
+    words += ["--time-limit", f"{args.time_limit:g}"]
+    if args.out:
+        words += ["--out", args.out.as_posix()]
+    if args.no_plots:
+        words.append("--no-plots")
+    if args.no_maps:
+        words.append("--no-maps")
+    words += ["--page", args.page.as_posix()]
+    return " ".join(words)
 
 
 def _scale_markdown(rows: list[dict[str, Any]]) -> str:

@@ -1,0 +1,151 @@
+"""A markdown results page (``docs/results.md``) made from bench records, so it never goes stale.
+
+Everything numeric on the page comes from the records of one ``delegation bench`` run; the scale
+section embeds the sweep's PNG and summary when they sit next to the page (``--scale --out`` the
+page's folder). The prose says how to read the numbers, never what they are.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from delegation.bench.report import markdown_columns, markdown_table
+from delegation.bench.runner import BASELINE, RunRecord
+
+
+def _geomean(values: Sequence[float]) -> float | None:
+    good = [v for v in values if v > 0 and math.isfinite(v)]
+    if not good:
+        return None
+    return math.exp(sum(math.log(v) for v in good) / len(good))
+
+
+def summary_table(records: Sequence[RunRecord]) -> str:
+    """Per objective x strategy: geometric mean ratio to nearest, wins, mean solve time."""
+    lines = [
+        "| objective | strategy | scenarios | geometric mean vs nearest | best or tied best on | "
+        "mean solve s | max solve s |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    objectives = list(dict.fromkeys(r.objective for r in records))
+    strategies = list(dict.fromkeys(r.strategy for r in records))
+    for objective in objectives:
+        mine = [r for r in records if r.objective == objective and r.repeat == 1]
+        best: dict[str, tuple[int, float]] = {}
+        for r in mine:
+            key = (r.unassigned, r.objective_value)
+            if r.source not in best or key < best[r.source]:
+                best[r.source] = key
+        for strategy in strategies:
+            runs = [r for r in mine if r.strategy == strategy]
+            if not runs:
+                continue
+            ratios = [r.ratio_to_nearest for r in runs if r.ratio_to_nearest is not None]
+            gm = _geomean(ratios)
+            wins = sum(
+                1
+                for r in runs
+                if r.unassigned == best[r.source][0]
+                and r.objective_value <= best[r.source][1] * (1 + 1e-6) + 1e-6
+            )
+            times = [r.solve_time for r in runs]
+            lines.append(
+                f"| {objective} | {strategy} | {len(runs)} | "
+                + ("-" if gm is None else f"{gm:.3f}")
+                + f" | {wins} of {len(runs)} | {sum(times) / len(times):.3f} | {max(times):.3f} |"
+            )
+    return "\n".join(lines)
+
+
+def _rel(target: Path, page: Path) -> str:
+    return Path(os.path.relpath(target, page.parent)).as_posix()
+
+
+def results_page(
+    records: Sequence[RunRecord],
+    page: str | Path,
+    *,
+    plots_dir: str | Path | None,
+    command: str,
+    time_limit: float,
+) -> str:
+    """The page's markdown; ``plots_dir`` holds the bar charts (``<scenario>-objective.png``)."""
+    page = Path(page)
+    scenarios = list(dict.fromkeys((r.scenario, r.units, r.tasks) for r in records))
+    parts = [
+        "# Allocation strategies: results",
+        "",
+        "Every number on this page was produced by `delegation bench`; regenerate the page with",
+        "",
+        "```sh",
+        command,
+        f"delegation bench --scale --out {page.parent.as_posix()}",
+        "```",
+        "",
+        "(the second command writes `scale.png`, `scale.csv` and `scale.md` next to this page).",
+        f"Each strategy planned each bundled scenario once per objective; `optimal` had a time "
+        f"limit of {time_limit:g} s. Every plan passed the planner's invariant checks "
+        "(`check_invariants`) unless the full table says otherwise.",
+        "",
+        "## Summary",
+        "",
+        f"Ratios are the plan's objective divided by `{BASELINE}`'s on the same scenario "
+        "(below 1 is better), over the scenarios where both plans leave the same tasks "
+        "unassigned. *Best or tied best* counts scenarios where no other strategy found a "
+        "plan with fewer unassigned tasks or a lower objective.",
+        "",
+        summary_table(records),
+        "",
+        "## Every run",
+        "",
+        "makespan: when the last task ends (units with a home: when back home); total time: sum "
+        "of all units' travel and work; distance: the same in metres; solve: the planner's own "
+        "time; bound/gap: where CP-SAT proved a lower bound; vs nearest: the objective "
+        "(makespan or total time, as planned for) relative to `nearest`'s.",
+        "",
+        markdown_table(records, markdown_columns(records)),
+        "",
+    ]
+    if plots_dir is not None:
+        parts += ["## Objective per strategy, per scenario", ""]
+        for name, units, tasks in scenarios:
+            png = Path(plots_dir) / f"{name}-objective.png"
+            if png.exists():
+                parts.append(f"- [{name}]({_rel(png, page)}) ({units} units, {tasks} tasks)")
+        parts.append("")
+    scale_png = page.parent / "scale.png"
+    scale_md = page.parent / "scale.md"
+    if scale_png.exists():
+        parts += [
+            "## Scale",
+            "",
+            "Generated scenarios (as `delegation bench --generate` makes them) on a grid of "
+            "units x tasks, one scenario per cell shared by all strategies. Left: wall time per "
+            "plan; a strategy that exceeds the budget is stopped there, and larger cells (at "
+            "least as many units and tasks) are skipped for it. Right: objective relative to the "
+            "best strategy on the same scenario. Raw numbers: [scale.csv](scale.csv).",
+            "",
+            f"![scale sweep]({_rel(scale_png, page)})",
+            "",
+        ]
+        if scale_md.exists():
+            parts += [scale_md.read_text(encoding="utf-8").strip(), ""]
+    return "\n".join(parts)
+
+
+def write_results_page(
+    records: Sequence[RunRecord],
+    page: str | Path,
+    *,
+    plots_dir: str | Path | None,
+    command: str,
+    time_limit: float,
+) -> Path:
+    out = Path(page)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    text = results_page(records, out, plots_dir=plots_dir, command=command, time_limit=time_limit)
+    out.write_text(text, encoding="utf-8")
+    return out
