@@ -33,8 +33,10 @@ log = logging.getLogger(__name__)
 
 #: Flat trees with at most this many vehicle tasks go to CP-SAT (which proves optimality).
 CP_MAX_FLAT_TASKS = 12
-#: CP-SAT is not tried when the circuits would have more arcs than this.
-CP_MAX_ARCS = 60_000
+#: Above this many circuit arcs, CP-SAT considers only each task's cheapest units (no bound then).
+CP_EXACT_ARCS = 6_000
+#: ... and is not tried when even the pruned circuits would have more arcs than this.
+CP_MAX_ARCS = 40_000
 #: Routing is not tried when its transit matrices would hold more entries than this.
 ROUTING_MAX_ENTRIES = 30_000_000
 #: Ticks per horizon: integer resolution of solver times.
@@ -73,14 +75,15 @@ def optimise(
         result.notes.append("no vehicle task to optimise; the auction's plan is optimal")
         return result
     flat = problem.flat
-    arcs = sum(int(problem.allowed[u, tasks].sum()) ** 2 for u in range(problem.n_units))
+    mask = _candidates(problem, tasks, base)
+    arcs = sum(int(mask[u, tasks].sum()) ** 2 for u in range(problem.n_units))
     remaining = max(0.05, time_limit - (time.perf_counter() - began))
     candidate: Schedule | None = None
     bound: float | None = None
     if (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
         result.solver = "cp-sat"
         candidate, bound, note = _cpsat(
-            problem, objective, base, tasks, remaining, use_all_units=use_all_units
+            problem, objective, base, tasks, remaining, mask, use_all_units=use_all_units
         )
     elif flat:
         result.solver = "routing"
@@ -327,12 +330,41 @@ def _routing_matrix(problem: Problem, u: int, idx: np.ndarray, scale: float) -> 
 # --------------------------------------------------------------------------- CP-SAT
 
 
+def _candidates(problem: Problem, tasks: list[int], base: Schedule) -> np.ndarray:
+    """Which units CP-SAT considers per task: all allowed ones while the model stays small,
+    else the cheapest few (from where the units are, plus the auction's choice)."""
+    allowed = problem.allowed.copy()
+    arcs = sum(int(allowed[u, tasks].sum()) ** 2 for u in range(problem.n_units))
+    if arcs <= CP_EXACT_ARCS or not tasks:
+        return allowed
+    idx = np.asarray(tasks, dtype=int)
+    keep = max(2, int(math.sqrt(CP_EXACT_ARCS * problem.n_units) / len(tasks)))
+    with np.errstate(invalid="ignore"):
+        start = np.where(problem.travels[idx, None], problem.start_xy[idx], 0.0)
+        reach = _dist(problem.unit_xy, start) / problem.speed[:, idx] + problem.work_time[:, idx]
+    reach = np.where(allowed[:, idx], reach, np.inf)
+    reach = np.nan_to_num(reach, nan=np.inf)
+    cheapest = np.argsort(reach, axis=0, kind="stable")[:keep]  # (keep, C)
+    mask = np.zeros_like(allowed)
+    mask[:, ~problem.vehicle] = allowed[:, ~problem.vehicle]
+    mask[cheapest, idx[None, :]] = True
+    mask[base.assign[idx], idx] = True
+    mask &= allowed
+    alias_of = problem.alias_of()
+    for g, members in enumerate(problem.alias_groups):
+        joint = mask[:, members].any(axis=1) & allowed[:, members[0]]
+        mask[:, [t for t in members if alias_of[t] == g]] = joint[:, None]
+    return mask
+
+
+
 def _cpsat(
     problem: Problem,
     objective: str,
     base: Schedule,
     tasks: list[int],
     limit: float,
+    mask: np.ndarray,
     *,
     use_all_units: bool = False,
 ) -> tuple[Schedule | None, float | None, str]:
@@ -346,14 +378,15 @@ def _cpsat(
         t for t in range(problem.n_tasks)
         if not problem.tasks[t].vehicle and problem.allowed[:, t].any()
     ]
-    exact = _exact_model(problem, tasks)
+    pruned = bool((mask != problem.allowed).any())
+    exact = _exact_model(problem, tasks) and not pruned
     before = problem.before
 
     # Data: durations (s) per unit and arc, then one horizon and one tick size for all.
     dur: dict[int, tuple[list[int], np.ndarray, np.ndarray, np.ndarray]] = {}
     worst = 0.0
     for u in range(n_units):
-        mine = [t for t in tasks if problem.allowed[u, t]]
+        mine = [t for t in tasks if mask[u, t]]
         if not mine:
             continue
         start, end, travels = _points(problem, u, mine)
@@ -401,7 +434,7 @@ def _cpsat(
     for t in [*tasks, *passive]:
         lits = []
         for u in np.nonzero(problem.allowed[:, t])[0].tolist():
-            if t in vehicle_set and u not in dur:
+            if t in vehicle_set and (u not in dur or not mask[u, t]):
                 continue
             x[t, u] = model.new_bool_var(f"x{t}_{u}")
             lits.append(x[t, u])
@@ -529,6 +562,21 @@ def _cpsat(
     def remaining() -> float:
         return max(0.05, limit - (time.perf_counter() - began))
 
+    def read_orders() -> list[list[int]]:
+        """Each unit's route: follow its arcs from the depot in the last solution."""
+        orders: list[list[int]] = []
+        for u in range(n_units):
+            route: list[int] = []
+            if u in dur:
+                succ = {a: b for (v, a, b), lit in arc_lits.items()
+                        if v == u and solver.value(lit)}
+                at = succ.get(-1, -1)
+                while at != -1 and len(route) <= len(dur[u][0]):
+                    route.append(at)
+                    at = succ.get(at, -1)
+            orders.append(route)
+        return orders
+
     if objective == "makespan":
         model.minimize(makespan)
         solver.parameters.max_time_in_seconds = remaining() * 0.7
@@ -538,19 +586,27 @@ def _cpsat(
         best = int(solver.objective_value)
         if exact:
             bound = solver.best_objective_bound / scale
-        phase1 = solver.status_name(status)
-        _hint_from(model, solver, [*x.values(), *arc_lits.values()])
+        phase1 = solver.status_name(status).lower()
+        found = _finish(problem, read_orders(), base)
+        control_done = [d for n, d in enumerate(done) if s.task_of_node[n] < 0]
+        everything: list[object] = [
+            *x.values(), *arc_lits.values(), *begin, *finish, *act, makespan, *control_done
+        ]
+        _hint_from(model, solver, everything)
         # Second phase: the best makespan found, with the smallest total time.
         model.add(makespan <= best)
         model.minimize(total)
         solver.parameters.max_time_in_seconds = remaining()
         status = solver.solve(model)
-        if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-            return None, bound, f"CP-SAT phase 2 found no solution ({solver.status_name(status)})"
-        note = (
-            f"CP-SAT: makespan {phase1.lower()}, then total time "
-            f"{solver.status_name(status).lower()} at that makespan"
-        )
+        if status in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            second = _finish(problem, read_orders(), base)
+            if second.valid and not better(found, second, objective):
+                found = second
+            note = (f"CP-SAT: makespan {phase1}, then total time "
+                    f"{solver.status_name(status).lower()} at that makespan")
+        else:
+            note = (f"CP-SAT: makespan {phase1}; no total-time improvement in time "
+                    f"({solver.status_name(status)})")
     else:
         model.minimize(total)
         solver.parameters.max_time_in_seconds = remaining()
@@ -564,21 +620,12 @@ def _cpsat(
             )
             bound = solver.best_objective_bound / scale + constant
         note = f"CP-SAT: total time {solver.status_name(status).lower()}"
-    if not exact:
+        found = _finish(problem, read_orders(), base)
+    if pruned:
+        note += " (each task among its cheapest units only: no bound)"
+    elif not exact:
         note += " (in-place vehicle tasks modelled approximately: no bound)"
-
-    # Read the routes: follow each unit's arcs from its depot.
-    orders: list[list[int]] = []
-    for u in range(n_units):
-        route: list[int] = []
-        if u in dur:
-            succ = {a: b for (v, a, b), lit in arc_lits.items() if v == u and solver.value(lit)}
-            at = succ.get(-1, -1)
-            while at != -1 and len(route) <= len(dur[u][0]):
-                route.append(at)
-                at = succ.get(at, -1)
-        orders.append(route)
-    return _finish(problem, orders, base), bound, note
+    return found, bound, note
 
 
 def _hint_from(model: object, solver: object, lits: list[object]) -> None:
