@@ -149,15 +149,42 @@ def test_usage_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_results_page_is_made_from_the_same_records(tmp_path: Path) -> None:
     docs = tmp_path / "docs"
-    assert main([
-        "bench", "--scale", "--units", "1", "--tasks", "2", "--strategies", "nearest",
-        "--out", str(docs),
-    ]) == 0
-    code = main([
-        "bench", "--generate", "--units", "2", "--tasks", "3", "--strategies", "nearest,auction",
-        "--objectives", "makespan", "--no-maps", "--out", str(docs / "bench"),
-        "--page", str(docs / "results.md"),
-    ])
+    assert (
+        main(
+            [
+                "bench",
+                "--scale",
+                "--units",
+                "1",
+                "--tasks",
+                "2",
+                "--strategies",
+                "nearest",
+                "--out",
+                str(docs),
+            ]
+        )
+        == 0
+    )
+    code = main(
+        [
+            "bench",
+            "--generate",
+            "--units",
+            "2",
+            "--tasks",
+            "3",
+            "--strategies",
+            "nearest,auction",
+            "--objectives",
+            "makespan",
+            "--no-maps",
+            "--out",
+            str(docs / "bench"),
+            "--page",
+            str(docs / "results.md"),
+        ]
+    )
     assert code == 0
     page = (docs / "results.md").read_text()
     table = (docs / "bench" / "results.md").read_text().strip()

@@ -74,6 +74,16 @@ def results_page(
 ) -> str:
     """The page's markdown; ``plots_dir`` holds the bar charts (``<scenario>-objective.png``)."""
     page = Path(page)
+    violated = [r for r in records if r.problems]
+    if violated:
+        checks = (
+            f"**{len(violated)} of {len(records)} plans failed the planner's invariant checks** "
+            "(`check_invariants`): see the `checks` column."
+        )
+    else:
+        checks = (
+            f"All {len(records)} plans passed the planner's invariant checks (`check_invariants`)."
+        )
     scenarios = list(dict.fromkeys((r.scenario, r.units, r.tasks) for r in records))
     parts = [
         "# Allocation strategies: results",
@@ -86,9 +96,8 @@ def results_page(
         "```",
         "",
         "(the second command writes `scale.png`, `scale.csv` and `scale.md` next to this page).",
-        f"Each strategy planned each bundled scenario once per objective; `optimal` had a time "
-        f"limit of {time_limit:g} s. Every plan passed the planner's invariant checks "
-        "(`check_invariants`) unless the full table says otherwise.",
+        f"Each strategy planned each scenario once per objective; `optimal` had a time limit of "
+        f"{time_limit:g} s. {checks}",
         "",
         "## Summary",
         "",
@@ -126,7 +135,10 @@ def results_page(
             "units x tasks, one scenario per cell shared by all strategies. Left: wall time per "
             "plan; a strategy that exceeds the budget is stopped there, and larger cells (at "
             "least as many units and tasks) are skipped for it. Right: objective relative to the "
-            "best strategy on the same scenario. Raw numbers: [scale.csv](scale.csv).",
+            "best strategy on the same scenario; *strictly best* counts the cells where a "
+            "strategy beat every other one. Raw numbers, with what each strategy reported doing "
+            "(column `notes`: e.g. whether CP-SAT ran or the auction's plan was kept): "
+            "[scale.csv](scale.csv).",
             "",
             f"![scale sweep]({_rel(scale_png, page)})",
             "",

@@ -366,6 +366,20 @@ def scale_plot(
     return out
 
 
+def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
+    """True when ``record`` beat every other strategy on its cell (same objective)."""
+    if record.relative_to_best is None or record.relative_to_best > 1.0 + 1e-9:
+        return False
+    rivals = [
+        r
+        for r in records
+        if (r.units, r.tasks, r.objective) == (record.units, record.tasks, record.objective)
+        and r is not record
+        and r.relative_to_best is not None
+    ]
+    return all(r.relative_to_best is not None and r.relative_to_best > 1.0 + 1e-9 for r in rivals)
+
+
 def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
     """Per strategy x objective: the largest cell it ran within budget, and where it stopped."""
     rows = []
@@ -386,6 +400,8 @@ def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
                 "skipped": sum(r.status == SKIPPED for r in mine),
                 "failed": sum(r.status == FAILED for r in mine),
                 "median_relative": float(np.median(rel)) if rel else None,
+                "compared": len(rel),
+                "strictly_best": sum(_strictly_best(records, r) for r in ok),
             }
         )
     return rows

@@ -349,6 +349,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         "skipped",
         "failed",
         "median vs best",
+        "strictly best",
     ):
         table.add_column(header)
     for row in rows:
@@ -361,6 +362,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             str(row["skipped"]),
             str(row["failed"]),
             "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
+            f"{row['strictly_best']} of {row['compared']}",
         )
     console.print(table)
     written = [write_scale_csv(records, out / "scale.csv")]
@@ -417,8 +419,8 @@ def _command_line(args: argparse.Namespace) -> str:
 def _scale_markdown(rows: list[dict[str, Any]]) -> str:
     lines = [
         "| strategy | objective | largest within budget | its time s | exceeded at | skipped | "
-        "median vs best |",
-        "|---|---|---|---:|---|---:|---:|",
+        "median vs best | strictly best |",
+        "|---|---|---|---:|---|---:|---:|---:|",
     ]
     for row in rows:
         lines.append(
@@ -426,6 +428,6 @@ def _scale_markdown(rows: list[dict[str, Any]]) -> str:
             + ("-" if row["largest_time"] is None else f"{row['largest_time']:.2f}")
             + f" | {row['exceeded_at'] or '-'} | {row['skipped']} | "
             + ("-" if row["median_relative"] is None else f"{row['median_relative']:.3f}")
-            + " |"
+            + f" | {row['strictly_best']} of {row['compared']} |"
         )
     return "\n".join(lines)
