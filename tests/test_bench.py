@@ -217,3 +217,20 @@ def test_isolated_bench_gives_the_same_plans(result: BenchResult) -> None:
         for s in ("nearest", "auction")
         for o in ("makespan", "total")
     }
+
+
+def test_a_run_past_its_timeout_is_a_named_failure_and_the_rest_go_on() -> None:
+    data = [
+        generate_scenario(seed=1, units=2, tasks=3),
+        generate_scenario(seed=2, units=2, tasks=3),
+    ]
+    result = run_bench(
+        scenarios_from_dicts(data),
+        strategies=["nearest"],
+        objectives=["makespan"],
+        isolate=True,
+        run_timeout=1e-6,
+    )
+    assert result.records == []
+    assert [f.source for f in result.failures] == [f"generated:{d['name']}" for d in data]
+    assert all("nearest/makespan run 1: stopped after" in f.message for f in result.failures)

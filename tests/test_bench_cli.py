@@ -142,8 +142,11 @@ def test_usage_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench"]) == 1
     assert main(["bench", "--generate", "--strategies", "greedy"]) == 1
     assert main(["bench", "--generate", "--site", "atlantis"]) == 1
+    assert main(["bench", "--scale", "scenarios/"]) == 1
+    assert main(["bench", "--generate", "--in-process", "--run-timeout", "5"]) == 1
     err = capsys.readouterr().err
     assert "greedy" in err and "atlantis" in err
+    assert "--scale" in err and "--run-timeout" in err
     assert "Traceback" not in err
 
 

@@ -160,7 +160,17 @@ def run(args: argparse.Namespace) -> int:
     if not console.is_terminal:
         console = Console(width=200)  # piped or captured: the whole table, unwrapped
     err = Console(stderr=True, soft_wrap=True)
+    if args.in_process and args.run_timeout is not None:
+        raise InputError(
+            Problem("bench", "--run-timeout", "needs child processes: drop --in-process")
+        )
     if args.scale:
+        if args.scenarios or args.page or args.save:
+            raise InputError(
+                Problem(
+                    "bench", "--scale", "generates its own scenarios: no SCENARIO, --page, --save"
+                )
+            )
         return _run_scale(args, console, err)
     return _run_bench(args, console, err)
 
