@@ -11,7 +11,10 @@
    unit at home, so min-sum is reported both ways (``idle allowed`` is the product's own answer;
    ``all units used`` is comparable with the table). ``auction`` and ``nearest`` are printed too.
 2. Speed: ``auction`` end to end (``plan_mission``: cost tables, problem, auction, plan and the
-   instantiated tree) on 20 units x 100 tasks and 200 units x 1000 tasks under one ``conc``.
+   instantiated tree) on 20 units x 100 tasks and 200 units x 1000 tasks, with the move-tos under
+   one ``conc`` (flat) and in a ``mixed`` tree (a conc of single tasks and short seqs, some holding
+   a small conc, like ``delegation bench``'s generator), where seq order crosses units.
+3. The same mixed trees, 20 x 100: nearest, auction, optimal (5 s) side by side.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -84,8 +88,11 @@ def reference(time_limit: float) -> None:
           "for objective makespan; real-valued distances, the table's are rounded)")
 
 
-def random_fleet(n_units: int, n_tasks: int, seed: int) -> tuple[TstNode, list[UnitState]]:
-    """Units and move-tos spread over a 10 km square near Motala, all under one conc."""
+def random_fleet(
+    n_units: int, n_tasks: int, seed: int, shape: str = "flat"
+) -> tuple[TstNode, list[UnitState]]:
+    """Units and move-tos spread over a 10 km square near Motala, under one conc (``flat``) or
+    in a ``mixed`` tree."""
     rng = random.Random(seed)
     frame = LocalFrame(58.54, 15.04)
 
@@ -98,22 +105,60 @@ def random_fleet(n_units: int, n_tasks: int, seed: int) -> tuple[TstNode, list[U
     children = [{"name": "move-to", "params": {"speed": speeds[rng.randrange(3)],
                                                "waypoint": frame.geopoint(*point()).to_wire()}}
                 for _ in range(n_tasks)]
+    if shape == "mixed":
+        children = _mixed(children, rng)
     return parse_tree({"name": "conc", "children": children}), units
 
 
+def _mixed(leaves: list[dict[str, Any]], rng: random.Random) -> list[dict[str, Any]]:
+    """Half single tasks, half seqs of 2-4 (some ending in a small conc)."""
+    out: list[dict[str, Any]] = []
+    i = 0
+    while i < len(leaves):
+        roll = rng.random()
+        if roll < 0.5:
+            out.append(leaves[i])
+            i += 1
+            continue
+        group = leaves[i : i + rng.randint(2, 4)]
+        i += len(group)
+        if len(group) >= 3 and roll > 0.85:
+            group = [group[0], {"name": "conc", "children": group[1:]}]
+        out.append({"name": "seq", "children": group} if len(group) > 1 else group[0])
+    return out
+
+
 def speed(repeats: int) -> None:
-    print("\n== auction speed, end to end (plan_mission), one conc of move-tos ==")
-    print(f"{'units x tasks':>14} {'objective':<9} {'median s':>9} {'max s':>7} {'target s':>9}")
+    print("\n== auction speed, end to end (plan_mission), move-tos ==")
+    print(f"{'units x tasks':>14} {'tree':<6} {'objective':<9} {'median s':>9} {'max s':>7} "
+          f"{'target s':>9}")
     for n_units, n_tasks, target in ((20, 100, 0.2), (200, 1000, 10.0)):
-        tree, units = random_fleet(n_units, n_tasks, seed=7)
+        for shape in ("flat", "mixed"):
+            tree, units = random_fleet(n_units, n_tasks, seed=7, shape=shape)
+            for objective in ("makespan", "total"):
+                times = []
+                for _ in range(repeats if n_tasks <= 100 else max(1, repeats // 3)):
+                    plan = plan_mission(tree, units, strategy="auction", objective=objective)
+                    times.append(plan.solve_time)
+                    assert plan.feasible
+                print(f"{n_units:>5} x {n_tasks:<6} {shape:<6} {objective:<9} "
+                      f"{statistics.median(times):>9.3f} {max(times):>7.3f} {target:>9.1f}")
+
+
+def mixed_quality(time_limit: float) -> None:
+    print(f"\n== mixed trees, 20 units x 100 move-tos (optimal: {time_limit:g} s) ==")
+    print(f"{'seed':>4} {'objective':<9} {'nearest':>9} {'auction':>9} {'optimal':>9} "
+          f"{'opt/auc':>8}")
+    for seed in (1, 2, 3):
+        tree, units = random_fleet(20, 100, seed=seed, shape="mixed")
         for objective in ("makespan", "total"):
-            times = []
-            for _ in range(repeats if n_tasks <= 100 else max(1, repeats // 3)):
-                plan = plan_mission(tree, units, strategy="auction", objective=objective)
-                times.append(plan.solve_time)
-                assert plan.feasible
-            print(f"{n_units:>5} x {n_tasks:<6} {objective:<9} {statistics.median(times):>9.3f} "
-                  f"{max(times):>7.3f} {target:>9.1f}")
+            values = []
+            for strategy in ("nearest", "auction", "optimal"):
+                plan = plan_mission(tree, units, strategy=strategy, objective=objective,
+                                    time_limit=time_limit)
+                values.append(plan.makespan if objective == "makespan" else plan.total_time)
+            print(f"{seed:>4} {objective:<9} {values[0]:>9.0f} {values[1]:>9.0f} "
+                  f"{values[2]:>9.0f} {values[2] / values[1]:>8.3f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     reference(2.0 if args.quick else 10.0)
     speed(3 if args.quick else 9)
+    mixed_quality(2.0 if args.quick else 5.0)
     return 0
 
 
