@@ -201,7 +201,7 @@ def test_isolated_runs_survive_crashes_and_are_stopped_at_their_deadline() -> No
 def test_isolated_bench_gives_the_same_plans(result: BenchResult) -> None:
     data = [generate_scenario(seed=1, units=3, tasks=6)]
     isolated = run_bench(
-        scenarios_from_dicts(data), strategies=["nearest", "auction"], isolate=True
+        scenarios_from_dicts(data), strategies=["nearest", "auction"], isolate=True, run_timeout=120
     )
     assert not isolated.failures
     key = ("strategy", "objective", "makespan", "total_time", "total_distance", "unassigned")

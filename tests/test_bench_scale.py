@@ -36,7 +36,7 @@ def test_generous_budget_runs_every_cell(tmp_path: Path) -> None:
         ["nearest", "auction"],
         units=UNITS,
         tasks=TASKS,
-        budget=600.0,
+        budget=120.0,
         time_limit=0.5,
         generator=GeneratorOptions(seed=3),
     )
@@ -56,7 +56,7 @@ def test_generous_budget_runs_every_cell(tmp_path: Path) -> None:
     assert [float(r["wall_time"]) for r in rows] == [r.wall_time for r in records]
     assert [int(r["size"]) for r in rows] == [r.units * r.tasks for r in records]
 
-    png = scale_plot(records, tmp_path / "scale.png", budget=600.0)
+    png = scale_plot(records, tmp_path / "scale.png", budget=120.0)
     assert png.read_bytes()[:8] == PNG_SIGNATURE
     import matplotlib.image
 
