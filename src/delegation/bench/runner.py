@@ -50,6 +50,8 @@ class ScenarioFailure:
     message: str
 
     def __str__(self) -> str:
+        if self.message.startswith(self.source):  # the loader already named the file
+            return self.message
         return f"{self.source}: {self.message}"
 
 
