@@ -9,6 +9,7 @@ of after it. The child is always joined (or killed and joined) before this retur
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -41,6 +42,9 @@ def _child(conn: Connection, fn: Callable[..., Any], kwargs: dict[str, Any]) -> 
         message = ("error", f"{type(exc).__name__}: {exc}")
     conn.send(message)
     conn.close()
+    # Leave at once: a normal exit flushes stdio, whose locks another parent thread (the progress
+    # bar's refresher) may have held at fork time, and the child would hang there.
+    os._exit(0)
 
 
 def _exit_text(code: int | None) -> str:

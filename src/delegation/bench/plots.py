@@ -93,7 +93,7 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
 
 
 def write_plots(
-    result: BenchResult, directory: str | Path, *, maps: bool = True, max_map_tasks: int = 400
+    result: BenchResult, directory: str | Path, *, maps: bool = True, max_map_tasks: int = 150
 ) -> list[Path]:
     """Per scenario: ``<name>-objective.png`` and ``<name>-<strategy>-<objective>-map.png``.
 

@@ -100,7 +100,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--max-map-tasks",
         type=int,
-        default=400,
+        default=150,
         help="draw route maps only for scenarios with at most this many tasks",
     )
 
