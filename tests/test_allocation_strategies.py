@@ -195,3 +195,30 @@ def test_evaluator_agrees_with_plan_times() -> None:
     s = auction(p, "makespan")
     again = evaluate(p, s.assign, s.orders)
     assert np.allclose(again.end, s.end, equal_nan=True)
+
+
+def test_larger_mixed_trees_keep_the_invariants() -> None:
+    # A conc of single move-tos and short seqs (some ending in a conc), 40 tasks, 5 units.
+    import random
+
+    for seed in range(3):
+        rng = random.Random(seed)
+        leaves = [move_to(rng.uniform(-3000, 3000), rng.uniform(-3000, 3000)) for _ in range(40)]
+        children: list[dict[str, object]] = []
+        i = 0
+        while i < len(leaves):
+            size = rng.choice([1, 1, 2, 3, 4])
+            group = leaves[i : i + size]
+            i += size
+            if len(group) >= 3 and rng.random() < 0.4:
+                group = [group[0], {"name": "conc", "children": group[1:]}]
+            children.append(group[0] if len(group) == 1 else {"name": "seq", "children": group})
+        tree = parse_tree({"name": "conc", "children": children})
+        units = [unit(f"u{k}", rng.uniform(-3000, 3000), rng.uniform(-3000, 3000),
+                      home=k % 2 == 0) for k in range(5)]
+        for strategy in ("nearest", "auction", "optimal"):
+            for objective in ("makespan", "total"):
+                plan = plan_mission(tree, units, strategy=strategy, objective=objective,
+                                    time_limit=1.0)
+                assert plan.feasible
+                assert check_invariants(plan, tree, units) == []

@@ -196,9 +196,13 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
                 table = np.where(p >= lo[None, :], costs[u][:, cols], np.inf)
                 pos[u, cols] = np.argmin(table, axis=0)
                 delta[u, cols] = table[pos[u, cols], np.arange(cols.size)]
+        # Only ready tasks bid: work on their columns.
+        cols = np.nonzero(ready)[0]
+        if cols.size == 0:
+            break
         finish = np.where([bool(r) for r in routes], current.unit_finish, base)[:, None]
-        estimate = np.maximum(finish, act[None, :]) + delta
-        bid = np.where(ready[None, :] & ~rejected, delta, np.inf)
+        bid = np.where(rejected[:, cols], np.inf, delta[:, cols])
+        estimate = np.maximum(finish, act[None, cols]) + bid
         if objective == "total":
             primary, secondary = bid, estimate
         else:
@@ -207,10 +211,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
         flat_primary = primary.ravel()
         finite = np.flatnonzero(np.isfinite(flat_primary))
         if finite.size == 0:
-            stuck = np.nonzero(ready)[0]
-            if stuck.size == 0:
-                break
-            for t in stuck.tolist():  # nobody can take them: their successors go on without
+            for t in cols.tolist():  # nobody can take them: their successors go on without
                 close(t)
             continue
         flat_secondary = secondary.ravel()
@@ -220,7 +221,8 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
         for rank, flat_index in enumerate(finite[order].tolist()):
             if rank >= shortlist and chosen is not None:
                 break
-            u, t = divmod(flat_index, n_tasks)
+            u, j = divmod(flat_index, cols.size)
+            t = int(cols[j])
             trial_routes = [list(r) for r in routes]
             trial_routes[u].insert(int(pos[u, t]), t)
             assign[t] = u
