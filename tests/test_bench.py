@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -10,10 +11,12 @@ import pytest
 
 from delegation.bench.generate import generate_scenario, save_scenarios
 from delegation.bench.report import (
-    COLUMNS,
+    TERMINAL_COLUMNS,
+    Column,
+    markdown_columns,
     markdown_table,
     read_csv,
-    results_table,
+    results_tables,
     table_rows,
     write_csv,
     write_json,
@@ -90,29 +93,50 @@ def test_csv_json_and_table_carry_the_same_numbers(result: BenchResult, tmp_path
         assert list(obj) == list(RECORD_FIELDS)
         assert row == obj == record.to_dict()
 
-    # The rich table, rendered from the same records, shows these values.
-    table = results_table(records)
-    cells = [[str(c) for c in column._cells] for column in table.columns]
-    rendered = [list(row) for row in zip(*cells, strict=True)]
-    assert rendered == table_rows(records)
-    for row, csv_row in zip(rendered, csv_rows, strict=True):
-        for column, cell in zip(COLUMNS, row, strict=True):
+    # The terminal tables (one per scenario), rendered from the same records, show these values.
+    tables = results_tables(records)
+    assert len(tables) == len({r.source for r in records})
+    rendered: list[list[str]] = []
+    for table in tables:
+        columns = [[str(c) for c in column.cells] for column in table.columns]
+        rendered += [list(row) for row in zip(*columns, strict=True)]
+    headers = [column.header for column in tables[0].columns]
+    shown = [c for c in TERMINAL_COLUMNS if c.header in headers]
+    assert [c.header for c in shown] == headers
+    assert "run" in headers and "checks" not in headers  # two repeats; every check passed
+    assert rendered == table_rows(records, shown)
+    _same_values(shown, rendered, csv_rows)
+    for table, source in zip(tables, dict.fromkeys(r.source for r in records), strict=True):
+        first = next(r for r in records if r.source == source)
+        assert first.scenario in str(table.title) and f"{first.units} units" in str(table.title)
+
+    # The markdown table (docs) shows them too.
+    md_columns = markdown_columns(records)
+    md = markdown_table(records, md_columns).splitlines()
+    assert len(md) == 2 + len(records)
+    md_rows = [[c.strip() for c in line.strip("|").split(" | ")] for line in md[2:]]
+    assert md_rows == table_rows(records, md_columns)
+    _same_values(md_columns, md_rows, csv_rows)
+
+
+def _same_values(columns: Sequence[Column], rows: list[list[str]], csv_rows: list[dict]) -> None:
+    """Each cell shows the CSV's value, to the digits the cell has."""
+    assert len(rows) == len(csv_rows)
+    for row, csv_row in zip(rows, csv_rows, strict=True):
+        for column, cell in zip(columns, row, strict=True):
             value = csv_row[column.field]
             if column.field == "problems":
-                assert cell == "ok"
+                assert cell == ("ok" if not value else f"{len(value)} violated")
             elif value is None:
                 assert cell == "-"
             elif isinstance(value, str):
                 assert cell == value
             else:
-                shown = _number(cell)
+                number = _number(cell)
                 if column.field == "gap":
                     value = 100.0 * value
                 digits = len(cell.rstrip("%").split(".")[1]) if "." in cell else 0
-                assert shown == pytest.approx(value, abs=0.51 * 10.0**-digits)
-    md = markdown_table(records).splitlines()
-    assert len(md) == 2 + len(records)
-    assert md[2] == "| " + " | ".join(rendered[0]) + " |"
+                assert number == pytest.approx(value, abs=0.51 * 10.0**-digits)
 
 
 def test_plots_are_valid_pngs(result: BenchResult, tmp_path: Path) -> None:

@@ -87,40 +87,87 @@ def format_cell(column: Column, record: RunRecord) -> str:
     return column.fmt(getattr(record, column.field))
 
 
-def table_rows(records: Sequence[RunRecord]) -> list[list[str]]:
+def table_rows(
+    records: Sequence[RunRecord], columns: Sequence[Column] = COLUMNS
+) -> list[list[str]]:
     """The table's cells, one row per record, in record order."""
-    return [[format_cell(c, r) for c in COLUMNS] for r in records]
+    return [[format_cell(c, r) for c in columns] for r in records]
 
 
-def results_table(
-    records: Sequence[RunRecord], title: str | None = "Allocation benchmark"
-) -> Table:
-    """A ``rich`` table of the records (numbers right-aligned)."""
-    table = Table(title=title, header_style="bold")
-    for column in COLUMNS:
-        # Fold rather than cut: a narrow terminal must never hide digits.
-        table.add_column(
-            column.header, justify="right" if column.numeric else "left", overflow="fold"
-        )
-    previous: tuple[str, str] | None = None
-    for record, row in zip(records, table_rows(records), strict=True):
-        key = (record.source, record.objective)
-        table.add_row(*row, end_section=False)
-        if previous is not None and previous != key and table.rows:
-            # A rule between scenarios/objectives keeps groups readable.
-            table.rows[-2].end_section = True
-        previous = key
-    return table
+#: Per-scenario terminal tables: scenario, units and tasks go in the title; short headers so a
+#: table fits an 80-column terminal.
+TERMINAL_COLUMNS: tuple[Column, ...] = (
+    Column("objective", "objective", _text, numeric=False),
+    Column("strategy", "strategy", _text, numeric=False),
+    Column("repeat", "run", _int),
+    Column("makespan", "makespan", _fixed(1)),
+    Column("total_time", "total", _fixed(1)),
+    Column("total_distance", "dist m", _fixed(0)),
+    Column("solve_time", "solve s", _fixed(3)),
+    Column("unassigned", "unasg", _int),
+    Column("bound", "bound", _fixed(1)),
+    Column("gap", "gap", _percent),
+    Column("ratio_to_nearest", "ratio", _ratio),
+    Column("problems", "checks", _problems, numeric=False),
+)
+
+TABLE_NOTE = (
+    "makespan, total (travel + work of all units) and solve in seconds; unasg: tasks unassigned; "
+    "bound/gap: proven by CP-SAT; ratio: the objective / nearest's on the same scenario; "
+    "-: unknown"
+)
 
 
-def markdown_columns(records: Sequence[RunRecord]) -> tuple[Column, ...]:
-    """The table's columns without those that say nothing here (one run; every check ok)."""
+def _useful(columns: Sequence[Column], records: Sequence[RunRecord]) -> tuple[Column, ...]:
+    """``columns`` without those that say nothing here (one run each; every check ok)."""
     drop = set()
     if all(r.repeat == 1 for r in records):
         drop.add("repeat")
     if not any(r.problems for r in records):
         drop.add("problems")
-    return tuple(c for c in COLUMNS if c.field not in drop)
+    return tuple(c for c in columns if c.field not in drop)
+
+
+def results_tables(records: Sequence[RunRecord]) -> list[Table]:
+    """One compact ``rich`` table per scenario (numbers right-aligned, never cut)."""
+    from rich import box
+
+    columns = _useful(TERMINAL_COLUMNS, records)
+    tables: list[Table] = []
+    for source in dict.fromkeys(r.source for r in records):
+        mine = [r for r in records if r.source == source]
+        first = mine[0]
+        table = Table(
+            title=f"[bold]{first.scenario}[/bold]: {first.units} units, {first.tasks} tasks",
+            title_justify="left",
+            box=box.SIMPLE_HEAD,
+            show_edge=False,
+            padding=(0, 0),
+            pad_edge=False,
+            header_style="bold",
+        )
+        rows = table_rows(mine, columns)
+        for i, column in enumerate(columns):
+            # Values are never folded or cut (headers may wrap on a narrow terminal).
+            table.add_column(
+                column.header,
+                justify="right" if column.numeric else "left",
+                overflow="fold",
+                min_width=max(len(row[i]) for row in rows),
+            )
+        previous = None
+        for record, row in zip(mine, rows, strict=True):
+            if previous is not None and previous != record.objective:
+                table.add_section()
+            table.add_row(*row)
+            previous = record.objective
+        tables.append(table)
+    return tables
+
+
+def markdown_columns(records: Sequence[RunRecord]) -> tuple[Column, ...]:
+    """The full table's columns without those that say nothing here."""
+    return _useful(COLUMNS, records)
 
 
 def markdown_table(records: Sequence[RunRecord], columns: Sequence[Column] = COLUMNS) -> str:

@@ -230,9 +230,10 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
 def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     from delegation.bench.generate import save_scenarios
     from delegation.bench.report import (
+        TABLE_NOTE,
         markdown_columns,
         markdown_table,
-        results_table,
+        results_tables,
         write_csv,
         write_json,
     )
@@ -266,7 +267,10 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     failures += result.failures
 
     if result.records:
-        console.print(results_table(result.records))
+        for table in results_tables(result.records):
+            console.print(table)
+            console.print()
+        console.print(TABLE_NOTE, style="dim")
     for record in result.violations:
         err.print(
             f"[red]invariant violated[/red] {record.source} {record.strategy}/{record.objective}: "
