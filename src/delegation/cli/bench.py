@@ -319,6 +319,7 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
 
 
 def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
+    from rich import box
     from rich.table import Table
 
     from delegation.bench.scale import (
@@ -352,33 +353,31 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         )
     rows = summary_rows(records)
     table = Table(
-        title=f"Scale sweep (budget {budget:g} s per plan, time limit {args.time_limit:g} s)"
+        title=f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        padding=(0, 0),
+        header_style="bold",
     )
-    for header in (
-        "strategy",
-        "objective",
-        "largest within budget",
-        "its time s",
-        "exceeded at",
-        "skipped",
-        "failed",
-        "median vs best",
-        "strictly best",
-    ):
-        table.add_column(header)
-    for row in rows:
-        table.add_row(
-            row["strategy"],
-            row["objective"],
-            row["largest_within_budget"] or "-",
-            "-" if row["largest_time"] is None else f"{row['largest_time']:.2f}",
-            row["exceeded_at"] or "-",
-            str(row["skipped"]),
-            str(row["failed"]),
-            "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
-            f"{row['strictly_best']} of {row['compared']}",
+    headers = _SCALE_HEADERS
+    cells = [_scale_cells(row) for row in rows]
+    for i, header in enumerate(headers):
+        table.add_column(
+            header,
+            justify="left" if i < 2 else "right",
+            overflow="fold",
+            min_width=max(len(c[i]) for c in cells) if cells else None,
         )
+    for row_cells in cells:
+        table.add_row(*row_cells)
     console.print(table)
+    console.print(
+        "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
+        "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
+        "where it beat every other strategy",
+        style="dim",
+    )
     written = [write_scale_csv(records, out / "scale.csv")]
     md = out / "scale.md"
     generator = _generator_options(args, 1, 1, args.seed)
@@ -430,18 +429,48 @@ def _command_line(args: argparse.Namespace) -> str:
     return " ".join(words)
 
 
-def _scale_markdown(rows: list[dict[str, Any]]) -> str:
-    lines = [
-        "| strategy | objective | largest within budget | its time s | exceeded at | skipped | "
-        "median vs best | strictly best |",
-        "|---|---|---|---:|---|---:|---:|---:|",
+_SCALE_HEADERS = (
+    "strategy",
+    "objective",
+    "largest ok",
+    "time s",
+    "over at",
+    "skipped",
+    "failed",
+    "vs best",
+    "best on",
+)
+
+
+def _scale_cells(row: dict[str, Any]) -> list[str]:
+    return [
+        row["strategy"],
+        row["objective"],
+        row["largest_within_budget"] or "-",
+        "-" if row["largest_time"] is None else f"{row['largest_time']:.2f}",
+        row["exceeded_at"] or "-",
+        str(row["skipped"]),
+        str(row["failed"]),
+        "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
+        f"{row['strictly_best']} of {row['compared']}",
     ]
-    for row in rows:
-        lines.append(
-            f"| {row['strategy']} | {row['objective']} | {row['largest_within_budget'] or '-'} | "
-            + ("-" if row["largest_time"] is None else f"{row['largest_time']:.2f}")
-            + f" | {row['exceeded_at'] or '-'} | {row['skipped']} | "
-            + ("-" if row["median_relative"] is None else f"{row['median_relative']:.3f}")
-            + f" | {row['strictly_best']} of {row['compared']} |"
-        )
+
+
+def _scale_markdown(rows: list[dict[str, Any]]) -> str:
+    headers = [
+        "strategy",
+        "objective",
+        "largest cell within budget",
+        "its time s",
+        "exceeded the budget at",
+        "skipped cells",
+        "failed",
+        "median objective / best",
+        "strictly best on",
+    ]
+    lines = [
+        "| " + " | ".join(headers) + " |",
+        "|---|---|---|---:|---|---:|---:|---:|---:|",
+    ]
+    lines += ["| " + " | ".join(_scale_cells(row)) + " |" for row in rows]
     return "\n".join(lines)
