@@ -177,7 +177,8 @@ def render_map(
     ax.set_ylabel("north (m)")
     makespan = float(data.get("makespan") or 0.0)
     heading = title or f"{data.get('strategy', '')} plan, makespan {makespan:.0f} s"
-    ax.set_title(heading + "  (dashed: planned, solid: flown)", fontsize=10)
+    legend = "  (dashed: planned, solid: flown)" if tracks else "  (planned routes)"
+    ax.set_title(heading + legend, fontsize=10)
     ax.grid(True, alpha=0.3)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
