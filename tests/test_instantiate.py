@@ -82,10 +82,10 @@ def test_wrapping_keeps_other_children_in_place() -> None:
          "params": {"geopoint": geo(0, 0)}},
     ]})
     placements = {
-        "x1": Placement("a", 50.0, True),
-        "y": Placement("b", 0.0, True),
-        "x2": Placement("a", 10.0, True),
-        "look": Placement("a", 0.0, False),  # not a vehicle task: may run alongside
+        "x1": Placement("a", 1, True),
+        "y": Placement("b", 0, True),
+        "x2": Placement("a", 0, True),
+        "look": Placement("a", 0, False),  # not a vehicle task: may run alongside
     }
     out = instantiate(tree, placements, "op0", counter())
     kids = out.children
@@ -103,8 +103,8 @@ def test_subtrees_sharing_a_unit_are_serialised() -> None:
             {**move_to(0, 0), "common_params": {"node-uuid": "b1"}}]},
         {**move_to(0, 0), "common_params": {"node-uuid": "a2"}},
     ]})
-    placements = {"a1": Placement("a", 0.0, True), "b1": Placement("b", 5.0, True),
-                  "a2": Placement("a", 3.0, True)}
+    placements = {"a1": Placement("a", 0, True), "b1": Placement("b", 0, True),
+                  "a2": Placement("a", 1, True)}
     out = instantiate(tree, placements, "op0", counter())
     assert [c.node_uuid for c in out.children[0].children] == ["s", "a2"]
 

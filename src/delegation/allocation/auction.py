@@ -4,13 +4,15 @@ Each round every capable unit bids, for every unassigned task, the marginal cost
 the best place in its own route (for the chosen objective: makespan with ties broken by total time,
 or total time); the lowest bid wins, ties go to the lower unit, then the lower task index.
 
-When every task is activated at mission start (a ``conc`` of tasks, the common case and the one that
-must scale to 200 units x 1000 tasks), a unit's bids depend only on its own route: bids live in a
-(units x tasks) array and after each round only the winner's row is recomputed, with numpy over all
-candidate positions at once. When the tree orders tasks across units (``seq``), bids are the same
-route insertions restricted to positions that keep the tree's order, but a task's marginal makespan
-depends on the other units' timing: the auctioneer ranks the bids by an estimate and simulates the
-best few exactly (see ``_general_auction``).
+When every task is activated at mission start and no conc child holds more than one task (a
+``conc`` of tasks, the common case and the one that must scale to 200 units x 1000 tasks;
+``Problem.plain``), a unit's bids depend only on its own route: bids live in a (units x tasks)
+array and after each round only the winner's row is recomputed, with numpy over all candidate
+positions at once. Otherwise (``seq`` orders tasks across units, or conc children are subtrees that
+run one after another where they share a unit), bids are the same route insertions restricted to
+positions that keep the tree's order and every subtree's tasks in one run per unit, but a task's
+marginal makespan depends on the other units' timing: the auctioneer ranks the bids by an estimate
+and simulates the best few exactly (see ``_general_auction``).
 """
 
 from __future__ import annotations
@@ -20,10 +22,14 @@ import logging
 import numpy as np
 
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import _home_leg, insertion_costs
+from delegation.allocation.routes import _home_leg, insertion_costs, keeps_subtrees_whole
 from delegation.allocation.schedule import EPS, Schedule, evaluate
+from delegation.allocation.serialise import Serialisation, conc_paths
 
 log = logging.getLogger(__name__)
+
+#: Route positions the general auction simulates for one bid before giving the bid up.
+POSITION_TRIES = 3
 
 
 def assign_passive(problem: Problem, assign: np.ndarray) -> None:
@@ -63,7 +69,7 @@ def unassigned_reason(problem: Problem, t: int) -> str:
 
 def auction(problem: Problem, objective: str = "makespan") -> Schedule:
     """Plan with the sequential auction; see the module docstring."""
-    if problem.flat:
+    if problem.plain:
         assign, orders = _flat_auction(problem, objective)
     else:
         assign, orders = _general_auction(problem, objective)
@@ -137,10 +143,13 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
 
     A task takes part once every task that must precede it has a unit ("ready"); it may go at any
     place in a route after the tasks that start before it can be activated, which keeps routes and
-    tree free of cycles (nobody waits for someone who waits for them). Bids are each unit's added
-    travel + work time (kept per unit and route position, recomputed only for the winner); a
+    tree free of cycles (nobody waits for someone who waits for them), and that keeps the unit's
+    tasks under every node of the tree in one run (``keeps_subtrees_whole``). Bids are each unit's
+    added travel + work time (kept per unit and route position, recomputed only for the winner); a
     unit's marginal makespan also depends on waiting, so the auctioneer ranks bids by an estimate
-    (``max(unit finish, activation) + added time``) and simulates the best few exactly.
+    (``max(unit finish, activation) + added time``) and simulates the best few exactly. A
+    simulation that cannot run (units that would order two subtrees both ways round) moves the
+    bid to the unit's next-best position, up to ``POSITION_TRIES`` of them.
     """
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
@@ -157,13 +166,15 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
     costs: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
     delta = np.full((n_units, n_tasks), np.inf)
     pos = np.zeros((n_units, n_tasks), dtype=int)
+    low = np.zeros((n_units, n_tasks), dtype=int)  # first position a waiting task may take
     shortlist = int(np.clip(300 // max(n_tasks, 1), 1, 8))
 
     def recompute(u: int) -> None:
         table = np.full((len(routes[u]) + 1, n_tasks), np.inf)
         cand = np.nonzero(allowed[u])[0]
         if cand.size:
-            table[:, cand] = insertion_costs(problem, u, routes[u], cand)
+            whole = keeps_subtrees_whole(problem, routes[u], cand)
+            table[:, cand] = np.where(whole, insertion_costs(problem, u, routes[u], cand), np.inf)
         costs[u] = table
         free = ~has_pred
         pos[u, free] = np.argmin(table[:, free], axis=0)
@@ -175,6 +186,75 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
         allowed[:, t] = False
         delta[:, t] = np.inf
         pending[before[t]] -= 1
+
+    paths = [dict(path) for path in conc_paths(problem, every_conc=False)]
+
+    def keeps_order(u: int, t: int, p: int, places: dict[int, tuple[int, int]]) -> bool:
+        """Whether ``t`` at position ``p`` of ``u``'s route keeps the order of every wrapped
+        component it joins (a sufficient test: the simulation has the last word)."""
+        route = routes[u]
+        a = paths[route[p - 1]] if p > 0 else {}
+        b = paths[route[p]] if p < len(route) else {}
+        for n, x in paths[t].items():
+            left, right = a.get(n), b.get(n)
+            if x in (left, right):
+                continue
+            kids = problem.structure.children[n]
+            near = left if left is not None else right
+            mine = places.get(kids[near]) if near is not None else None
+            ours = places.get(kids[x])
+            if mine is None or ours is None or mine[0] != ours[0]:
+                continue  # joins another component (or none): no way round
+            if left is not None and places[kids[left]][1] > ours[1]:
+                return False
+            if right is not None and places[kids[right]][1] < ours[1]:
+                return False
+        return True
+
+    # Per conc whose children are subtrees: which child each task is under (-1: not under it),
+    # a child of each unit there (all of a unit's children are in one wrapped component), and how
+    # many tasks each child has on units.
+    s = problem.structure
+    child_at: dict[int, np.ndarray] = {}
+    for t, path in enumerate(paths):
+        for n, k in path.items():
+            child_at.setdefault(n, np.full(n_tasks, -1, dtype=int))[t] = k
+    unit_child = {n: np.full(n_units, -1, dtype=int) for n in child_at}
+    child_count = {n: np.zeros(len(s.children[n]), dtype=int) for n in child_at}
+
+    def joined_estimate(cols: np.ndarray, bid: np.ndarray, state: Schedule) -> np.ndarray:
+        """(U, C) when the wrapped component that unit u and task t's subtree would share
+        ends: both components' lengths one after the other, plus the bid (a unit that takes a
+        task under a subtree already on other units joins their subtrees to its own)."""
+        out = np.zeros_like(bid)
+        if not child_at or state.node_act is None or state.node_fin is None:
+            return out
+        spans: list[float] = []
+        comp_of_node: dict[int, int] = {}
+        for w, (_, wrapped) in enumerate(state.serialised.wraps if state.serialised else []):
+            spans.append(float(state.node_fin[wrapped[-1]] - state.node_act[wrapped[0]]))
+            for kid in wrapped:
+                comp_of_node[kid] = w
+        for n, at in child_at.items():
+            xs = at[cols]
+            under = xs >= 0
+            if not under.any():
+                continue
+            kids = np.asarray(s.children[n], dtype=int)
+            child_comp = np.array([comp_of_node.get(int(k), -1) for k in kids], dtype=int)
+            single = np.nonzero((child_count[n] > 0) & (child_comp < 0))[0]
+            span = np.concatenate([
+                np.asarray(spans, dtype=float),
+                state.node_fin[kids[single]] - state.node_act[kids[single]],
+                [0.0],
+            ])
+            child_comp[single] = len(spans) + np.arange(single.size)
+            mine = np.where(unit_child[n] >= 0, child_comp[unit_child[n]], -1)
+            theirs = np.where(under, child_comp[np.maximum(xs, 0)], -1)
+            other = (mine[:, None] >= 0) & (mine[:, None] != theirs[None, :])
+            length = np.where(other, span[mine][:, None], 0.0) + span[theirs][None, :]
+            out = np.where(under[None, :], np.maximum(out, state.node_act[n] + length + bid), out)
+        return out
 
     for u in range(n_units):
         recompute(u)
@@ -194,6 +274,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
                 lo = np.searchsorted(starts, act[cols] - 1e-9, side="left")
                 p = np.arange(len(routes[u]) + 1)[:, None]
                 table = np.where(p >= lo[None, :], costs[u][:, cols], np.inf)
+                low[u, cols] = lo
                 pos[u, cols] = np.argmin(table, axis=0)
                 delta[u, cols] = table[pos[u, cols], np.arange(cols.size)]
         # Only ready tasks bid: work on their columns.
@@ -202,7 +283,8 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             break
         finish = np.where([bool(r) for r in routes], current.unit_finish, base)[:, None]
         bid = np.where(rejected[:, cols], np.inf, delta[:, cols])
-        estimate = np.maximum(finish, act[None, cols]) + bid
+        estimate = np.maximum(np.maximum(finish, act[None, cols]) + bid,
+                              joined_estimate(cols, bid, current))
         if objective == "total":
             primary, secondary = bid, estimate
         else:
@@ -215,30 +297,49 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
                 close(t)
             continue
         flat_secondary = secondary.ravel()
+        places = _places(current.serialised)
         finite = _smallest(finite, flat_primary, flat_secondary, 4 * shortlist)
         order = np.lexsort((finite, flat_secondary[finite], flat_primary[finite]))
-        chosen: tuple[tuple[float, ...], int, int, Schedule] | None = None
+        chosen: tuple[tuple[float, ...], int, int, int, Schedule] | None = None
         for rank, flat_index in enumerate(finite[order].tolist()):
             if rank >= shortlist and chosen is not None:
                 break
             u, j = divmod(flat_index, cols.size)
             t = int(cols[j])
-            trial_routes = [list(r) for r in routes]
-            trial_routes[u].insert(int(pos[u, t]), t)
-            assign[t] = u
-            trial = evaluate(problem, assign, trial_routes)
-            assign[t] = -1
-            if not trial.valid:
+            column = np.array(costs[u][:, t], dtype=float)
+            column[: int(low[u, t]) if bool(has_pred[t]) else 0] = np.inf
+            tries = [int(pos[u, t])] + [
+                int(q) for q in np.argsort(column, kind="stable")[:POSITION_TRIES]
+                if np.isfinite(column[q]) and q != pos[u, t]
+            ]
+            tries = [q for q in tries if keeps_order(u, t, q, places)][:POSITION_TRIES]
+            found: tuple[int, Schedule] | None = None
+            for spot in tries:
+                trial_routes = [list(r) for r in routes]
+                trial_routes[u].insert(spot, t)
+                assign[t] = u
+                trial = evaluate(problem, assign, trial_routes)
+                assign[t] = -1
+                if trial.valid:
+                    found = (spot, trial)
+                    break
+                if any("endurance" in text for text in trial.problems):
+                    break  # other positions add more travel: they do not fit either
+            if found is None:
                 rejected[u, t] = True
                 continue
+            spot, trial = found
             key = (*trial.key(objective), float(u), float(t))
             if chosen is None or key < chosen[0]:
-                chosen = (key, u, t, trial)
+                chosen = (key, u, t, spot, trial)
         if chosen is None:
             continue
-        _, u, t, trial = chosen
-        routes[u].insert(int(pos[u, t]), t)
+        _, u, t, spot, trial = chosen
+        routes[u].insert(spot, t)
         assign[t] = u
+        for n, k in paths[t].items():
+            unit_child[n][u] = k
+            child_count[n][k] += 1
         current = trial
         close(t)
         rejected[:] = False
@@ -251,6 +352,15 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             delta[np.ix_(others, members)] = np.inf
         recompute(u)
     return assign, routes
+
+
+def _places(serialised: Serialisation | None) -> dict[int, tuple[int, int]]:
+    """Tree node of each wrapped child -> (its wrapper, its place in the wrapper)."""
+    out: dict[int, tuple[int, int]] = {}
+    for w, (_, kids) in enumerate(serialised.wraps if serialised is not None else []):
+        for i, child in enumerate(kids):
+            out[child] = (w, i)
+    return out
 
 
 def _smallest(index: np.ndarray, primary: np.ndarray, secondary: np.ndarray, k: int) -> np.ndarray:

@@ -2,7 +2,9 @@
 
 Every leaf gets its unit, control nodes the engine's unit unless fixed; uuids, unknown fields and
 the caller's key order are kept. A unit runs one vehicle task at a time, so where the plan gives one
-unit several children of a ``conc``, those children are wrapped in a new ``seq`` in planned order.
+unit several children of a ``conc``, those children (with every child sharing a unit with them) are
+wrapped in a new ``seq``, in the order ``serialise.order_children`` derives from the units' orders:
+the order the schedule evaluator simulated, so the plan's times are the tree's.
 """
 
 from __future__ import annotations
@@ -11,15 +13,16 @@ import uuid as uuid_module
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from delegation.allocation.serialise import order_children
 from delegation.tst import ExecUnitKind, TstNode, classify_execunit, leaves, make_node, map_tree
 
 
 @dataclass(frozen=True, slots=True)
 class Placement:
-    """Where the plan put one task."""
+    """Where the plan put one task: its unit, and its position in that unit's order."""
 
     unit: str
-    start: float
+    rank: int  # 0 for the unit's first vehicle task; unused for other tasks
     vehicle: bool
 
 
@@ -36,15 +39,14 @@ def instantiate(
     make = new_uuid or (lambda: str(uuid_module.uuid4()))
     engine = "/" + engine_unit.strip("/")
 
-    def units_of(node: TstNode) -> tuple[set[str], float]:
-        found: set[str] = set()
-        first = float("inf")
+    def visits(node: TstNode) -> list[tuple[str, int]]:
+        """(unit, rank) of the vehicle tasks under ``node``."""
+        found = []
         for leaf in leaves(node):
             p = placements.get(leaf.node_uuid or "")
             if p is not None and p.vehicle:
-                found.add(p.unit)
-                first = min(first, p.start)
-        return found, first
+                found.append((p.unit, p.rank))
+        return found
 
     def fill(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
         node = node.with_children(children)
@@ -58,7 +60,7 @@ def instantiate(
         if kind is not ExecUnitKind.FIXED:
             node = node.with_common_values({"execunit": engine})
         if node.name == "conc" and len(children) > 1:
-            node = node.with_children(_serialise_shared(list(children), units_of, engine, make))
+            node = node.with_children(_serialise_shared(list(children), visits, engine, make))
         return node
 
     return map_tree(tree, fill)
@@ -66,38 +68,26 @@ def instantiate(
 
 def _serialise_shared(
     children: list[TstNode],
-    units_of: Callable[[TstNode], tuple[set[str], float]],
+    visits: Callable[[TstNode], list[tuple[str, int]]],
     engine: str,
     make: Callable[[], str],
 ) -> list[TstNode]:
-    """Wrap the children of a conc that share a unit in a seq, ordered by planned start."""
-    info = [units_of(c) for c in children]
-    parent = list(range(len(children)))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    owner: dict[str, int] = {}
-    for i, (units, _) in enumerate(info):
-        for unit in sorted(units):
-            if unit in owner:
-                parent[find(i)] = find(owner[unit])
-            else:
-                owner[unit] = i
-    groups: dict[int, list[int]] = {}
-    for i in range(len(children)):
-        groups.setdefault(find(i), []).append(i)
+    """Wrap the children of a conc that share a unit in a seq, in the units' order."""
+    per_unit: dict[str, list[tuple[int, int]]] = {}
+    for i, child in enumerate(children):
+        for unit, rank in visits(child):
+            per_unit.setdefault(unit, []).append((rank, i))
+    runs = [(unit, [i for _, i in sorted(items)]) for unit, items in sorted(per_unit.items())]
+    groups, _ = order_children(runs)
+    first = {min(group): group for group in groups}  # the wrapper takes its first child's place
+    inside = {i for group in groups for i in group}
     out: list[TstNode] = []
-    for i in range(len(children)):
-        members = groups[find(i)]
-        if len(members) == 1:
-            out.append(children[i])
-        elif i == members[0]:
-            ordered = sorted(members, key=lambda k: (info[k][1], k))
+    for i, child in enumerate(children):
+        if i in first:
+            group = first[i]
             out.append(
-                make_node("seq", [children[k] for k in ordered], execunit=engine, node_uuid=make())
+                make_node("seq", [children[k] for k in group], execunit=engine, node_uuid=make())
             )
+        elif i not in inside:
+            out.append(child)
     return out

@@ -2,7 +2,8 @@
 
 Used by the tests on every scenario and strategy, and cheap enough to run in the service. Times
 are recomputed from the cost tables and the plan's own routes, so a strategy that got its
-bookkeeping wrong is caught here.
+bookkeeping wrong is caught here; and by running the instantiated tree itself (its seq/conc
+structure as the engine runs it), so that a plan's times are what executing its tree does.
 """
 
 from __future__ import annotations
@@ -166,6 +167,15 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
             if items:
                 ended = max(ended, max(a.end for a in items))
 
+    # Each unit's route (its order) holds exactly its vehicle tasks.
+    routes: dict[str, list[Assignment]] = {}
+    for name, items in per_unit.items():
+        route = [a for a in plan.routes.get(name, []) if is_vehicle_task(a.name)]
+        if sorted(a.node_uuid for a in route) != sorted(a.node_uuid for a in items):
+            out.append(f"the route of {name} does not list exactly its vehicle tasks")
+            route = items
+        routes[name] = route
+
     # Times agree with distances and speeds; battery holds; totals add up.
     if inst_leaves and units:
         unit_list = list(units)
@@ -174,8 +184,15 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
         total_time = sum(a.travel_time + a.work_time for a in plan.assignments)
         total_distance = sum(a.distance for a in plan.assignments)
         latest = max((a.end for a in plan.assignments), default=0.0)
-        for name, items in per_unit.items():
-            u = next(i for i, x in enumerate(unit_list) if x.name == name)
+        unit_index = {x.name: i for i, x in enumerate(unit_list)}
+        duration: dict[str, float] = {}  # travel + work per task, from the tables and the route
+        for a in plan.assignments:
+            u = unit_index.get(a.execunit.strip("/"))
+            t = index.get(a.node_uuid)
+            if u is not None and t is not None and not is_vehicle_task(a.name):
+                duration[a.node_uuid] = float(tables.work_time[u, t])
+        for name, items in routes.items():
+            u = unit_index[name]
             here = tables.unit_xy[u]
             spent = 0.0
             for a in items:
@@ -183,6 +200,7 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
                 start, end = tables.start_for(u, t), tables.end_for(u, t)
                 d = 0.0 if start is None else float(np.hypot(*(start - here)))
                 speed = float(tables.speed[u, t])
+                duration[a.node_uuid] = d / speed + float(tables.work_time[u, t])
                 if not _close(a.travel_time, d / speed):
                     out.append(f"{a.node_uuid}: travel time {a.travel_time:.3f} s does not match "
                                f"{d:.1f} m at {speed} m/s")
@@ -210,4 +228,78 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
                        f"{total_distance:.1f}")
         if not _close(plan.makespan, latest):
             out.append(f"makespan {plan.makespan:.3f} is not the last end {latest:.3f}")
+        out.extend(_run_the_tree(plan.tst, assigned, routes, duration))
+    return out
+
+
+def _run_the_tree(
+    tst: TstNode,
+    assigned: dict[str, Assignment],
+    routes: dict[str, list[Assignment]],
+    duration: dict[str, float],
+) -> list[str]:
+    """Run the instantiated tree as the engine does and compare with the plan's times.
+
+    ``seq`` activates a child when the previous one has ended, ``conc`` all children at once; a
+    task starts when it is activated and its unit has ended the task before it on its route;
+    it takes its ``duration`` (travel + work, from the cost tables); an unassigned task ends at
+    once. Earliest times everywhere, as the engine starts what is activated.
+    """
+    nodes = list(walk(tst))
+    at = {path: i for i, (path, _) in enumerate(nodes)}
+    succ: list[list[int]] = [[] for _ in range(2 * len(nodes))]  # act(i) = 2i, fin(i) = 2i + 1
+    for i, (path, node) in enumerate(nodes):
+        kids = [at[f"{path}/children[{k}]"] for k in range(len(node.children))]
+        succ[2 * i].append(2 * i + 1)
+        if node.name == "seq" and kids:
+            succ[2 * i].append(2 * kids[0])
+            for a, b in itertools.pairwise(kids):
+                succ[2 * a + 1].append(2 * b)
+            succ[2 * kids[-1] + 1].append(2 * i + 1)
+        else:
+            for k in kids:
+                succ[2 * i].append(2 * k)
+                succ[2 * k + 1].append(2 * i + 1)
+    leaf_of = {node.node_uuid: i for i, (_, node) in enumerate(nodes) if not node.is_control}
+    start_node: dict[int, str] = {}  # the fin node of a task: where its time is computed
+    after: list[list[int]] = [[] for _ in range(2 * len(nodes))]
+    for route in routes.values():
+        for p, q in itertools.pairwise(route):
+            if p.node_uuid in leaf_of and q.node_uuid in leaf_of:
+                after[2 * leaf_of[p.node_uuid] + 1].append(2 * leaf_of[q.node_uuid] + 1)
+    for uid, i in leaf_of.items():
+        if uid in assigned:
+            start_node[2 * i + 1] = uid
+    indeg = [0] * len(succ)
+    for i in range(len(succ)):
+        for j in (*succ[i], *after[i]):
+            indeg[j] += 1
+    value = [0.0] * len(succ)
+    began: dict[str, float] = {}
+    stack = [i for i, d in enumerate(indeg) if d == 0]
+    done = 0
+    while stack:
+        i = stack.pop()
+        done += 1
+        uid = start_node.get(i)
+        if uid is not None:
+            began[uid] = value[i]
+            value[i] += duration.get(uid, 0.0)
+        for j in (*succ[i], *after[i]):
+            value[j] = max(value[j], value[i])
+            indeg[j] -= 1
+            if indeg[j] == 0:
+                stack.append(j)
+    if done < len(succ):
+        return ["the instantiated tree cannot run the routes: they wait for each other"]
+    out = []
+    for uid, item in assigned.items():
+        if uid not in began:
+            continue
+        end = value[2 * leaf_of[uid] + 1]
+        if not (_close(item.start, began[uid]) and _close(item.end, end)):
+            out.append(
+                f"{uid} ({item.name} on {item.execunit}): the instantiated tree runs it at "
+                f"{began[uid]:.1f}-{end:.1f} s, the plan says {item.start:.1f}-{item.end:.1f} s"
+            )
     return out

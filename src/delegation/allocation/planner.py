@@ -108,6 +108,7 @@ def make_plan(
     assignments: list[Assignment] = []
     unassigned: list[Unassigned] = []
     placements: dict[str, Placement] = {}
+    rank = {t: k for order in schedule.orders for k, t in enumerate(order)}
     for t, task in enumerate(problem.tasks):
         u = int(schedule.assign[t])
         if u < 0:
@@ -126,7 +127,7 @@ def make_plan(
                 distance=float(schedule.distance[t]),
             )
         )
-        placements[task.uuid] = Placement(unit, float(schedule.start[t]), task.vehicle)
+        placements[task.uuid] = Placement(unit, rank.get(t, 0), task.vehicle)
     order = {a.node_uuid: i for i, a in enumerate(assignments)}
     assignments.sort(key=lambda a: (a.start, a.execunit, order[a.node_uuid]))
     by_uuid = {a.node_uuid: a for a in assignments}

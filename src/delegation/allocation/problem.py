@@ -69,15 +69,20 @@ class Structure:
     children: tuple[tuple[int, ...], ...]
     task_of_node: tuple[int, ...]  # task index, or -1 for control nodes
     node_of_task: tuple[int, ...]
+    paths: tuple[str, ...] = ()  # per tree node, ``root/children[2]`` (for messages)
 
     @property
     def size(self) -> int:
         return len(self.kinds)
 
+    def path(self, n: int) -> str:
+        return self.paths[n] if n < len(self.paths) else f"node {n}"
+
 
 def flatten_tree(root: TstNode) -> tuple[Structure, list[tuple[str, TstNode]]]:
     """The structure of ``root`` (node 0) and its leaves (path, node) in tree order."""
     kinds: list[str] = []
+    paths: list[str] = []
     children: list[list[int]] = []
     task_of_node: list[int] = []
     node_of_task: list[int] = []
@@ -86,6 +91,7 @@ def flatten_tree(root: TstNode) -> tuple[Structure, list[tuple[str, TstNode]]]:
     for path, node in walk(root):
         i = len(kinds)
         index_of[path] = i
+        paths.append(path)
         parent = path.rsplit("/", 1)[0] if "/" in path else None
         if parent is not None:
             children[index_of[parent]].append(i)
@@ -99,7 +105,8 @@ def flatten_tree(root: TstNode) -> tuple[Structure, list[tuple[str, TstNode]]]:
             node_of_task.append(i)
             leaves.append((path, node))
     structure = Structure(
-        tuple(kinds), tuple(tuple(c) for c in children), tuple(task_of_node), tuple(node_of_task)
+        tuple(kinds), tuple(tuple(c) for c in children), tuple(task_of_node), tuple(node_of_task),
+        tuple(paths),
     )
     return structure, leaves
 
@@ -180,6 +187,54 @@ class Problem:
             if kind == "seq" and sum(1 for c in self.structure.children[n] if counts[c]) > 1:
                 return False
         return True
+
+    @property
+    def plain(self) -> bool:
+        """True when the tree is a conc of tasks in effect: flat, and no child of a conc holds more
+        than one task. Then a unit's order alone says when its tasks run (no whole subtrees to
+        serialise, see ``serialise``), so routing on a unit's own route is exact."""
+        value = self.cache.get("plain")
+        if value is None:
+            counts = self._task_counts()
+            s = self.structure
+            value = self.flat
+            for n, kind in enumerate(s.kinds):
+                holding = [c for c in s.children[n] if counts[c]]
+                if kind != "task" and len(holding) > 1 and any(counts[c] > 1 for c in holding):
+                    value = False
+                    break
+            self.cache["plain"] = value
+        return bool(value)
+
+    def ancestry(self) -> np.ndarray:
+        """(T, D) tree nodes from the root down to each task (the task's own node last), padded
+        with -1: two tasks' lowest common ancestor is where their rows stop agreeing."""
+        value = self.cache.get("ancestry")
+        if value is None:
+            s = self.structure
+            parent = [-1] * s.size
+            for n in range(s.size):
+                for c in s.children[n]:
+                    parent[c] = n
+            chains = []
+            for n in s.node_of_task:
+                chain = [n]
+                while parent[chain[-1]] >= 0:
+                    chain.append(parent[chain[-1]])
+                chains.append(chain[::-1])
+            depth = max((len(c) for c in chains), default=1)
+            value = np.full((len(chains), depth), -1, dtype=np.int64)
+            for t, chain in enumerate(chains):
+                value[t, : len(chain)] = chain
+            self.cache["ancestry"] = value
+        return np.asarray(value)
+
+    def lca_depth(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Depth (root = 1) of the lowest common ancestor of tasks ``a`` and ``b`` (broadcast);
+        for ``a == b`` the task's own depth + 1."""
+        anc = self.ancestry()
+        same = anc[np.asarray(a, dtype=int)] == anc[np.asarray(b, dtype=int)]
+        return np.asarray(np.cumprod(same, axis=-1).sum(axis=-1))
 
     def _task_counts(self) -> list[int]:
         s = self.structure

@@ -75,3 +75,30 @@ def _home_leg(problem: Problem, u: int) -> float:
         return 0.0
     d = float(np.hypot(*(problem.home_xy[u] - problem.unit_xy[u])))
     return d / float(problem.home_speed[u])
+
+
+def keeps_subtrees_whole(problem: Problem, route: Sequence[int], cand: np.ndarray) -> np.ndarray:
+    """(L+1, C): may candidate task ``cand[c]`` go at position ``p`` of ``route``?
+
+    A unit's tasks under any node of the tree must stay one run in its route: where a conc's
+    children share a unit they run one after another as whole subtrees (``serialise``), and a
+    seq runs its children in order. So ``t`` may go between ``a`` and ``b`` only if every node
+    holding both also holds ``t``, and next to the unit's other tasks in the deepest node that
+    holds ``t`` and any of them.
+    """
+    cand = np.asarray(cand, dtype=int)
+    n = len(route)
+    if n == 0:
+        return np.ones((1, cand.size), dtype=bool)
+    r = np.asarray(route, dtype=int)
+    d = problem.lca_depth(cand[:, None], r[None, :])  # (C, L)
+    deepest = d.max(axis=1)
+    none = np.full((cand.size, 1), -1)
+    left = np.hstack([none, d])  # (C, L+1): depth of LCA with the task before position p
+    right = np.hstack([d, none])
+    near = np.maximum(left, right)
+    pair = np.full(n + 1, -1)
+    if n > 1:
+        pair[1:n] = problem.lca_depth(r[:-1], r[1:])
+    ok = (near == deepest[:, None]) & (pair[None, :] <= near)
+    return np.asarray(ok.T)

@@ -5,6 +5,10 @@ invariants and the tests agree (DESIGN 3.6): a task is executed when the tree ac
 after its predecessor ended; conc: with its siblings) and its unit is free; travel starts then, from
 where the unit is at that time. Non-vehicle tasks (``look-at-*``) do not occupy the unit and do not
 travel. A unit with a ``home`` flies back after its last task; that counts for makespan and totals.
+
+The tree simulated is the tree as it will run (``serialise``): children of a conc that share a
+unit run one after another as whole subtrees, in the order ``instantiate`` gives them, so the times
+are those of executing the instantiated tree.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from delegation.allocation.problem import Problem
+from delegation.allocation.serialise import Serialisation, serialisation
 
 #: Relative slack when comparing times against endurance (float noise, not a real margin).
 EPS = 1e-9
@@ -40,9 +45,11 @@ class Schedule:
     makespan: float
     total_time: float
     total_distance: float
-    problems: list[str] = field(default_factory=list)  # deadlock, battery: empty when valid
+    problems: list[str] = field(default_factory=list)  # deadlock, battery, serialisation
     node_act: np.ndarray | None = None  # (tree nodes,) when each node was activated
     node_fin: np.ndarray | None = None  # (tree nodes,) when each node finished
+    #: The wrappers that change times (concs whose children holding tasks are subtrees).
+    serialised: Serialisation | None = None
 
     @property
     def valid(self) -> bool:
@@ -114,8 +121,10 @@ def evaluate(
     prev = [-1] * n_tasks
     seen = [False] * n_tasks
     vehicle = [t.vehicle for t in problem.tasks]
+    clean: list[list[int]] = []
     for u, order in enumerate(orders):
         p = -1
+        kept: list[int] = []
         for t in order:
             if assign_arr[t] != u or not vehicle[t] or seen[t]:
                 problems.append(f"order of unit {problem.unit_names[u]} lists task {t} wrongly")
@@ -123,19 +132,29 @@ def evaluate(
             seen[t] = True
             prev[t] = p
             p = t
+            kept.append(t)
+        clean.append(kept)
     for t in range(n_tasks):
         if assign_arr[t] >= 0 and vehicle[t] and not seen[t]:
             problems.append(f"task {t} is assigned but in no unit's order")
 
     succ = tpl.succ
     indeg = list(tpl.indeg)
-    extra: dict[int, int] = {}
+    extra: dict[int, int] = {}  # a unit's previous task ends -> its next task may begin
     node_of = s.node_of_task
     for t in range(n_tasks):
         if prev[t] >= 0:
             src = 2 * node_of[prev[t]] + 1
             extra[src] = 2 * node_of[t] + 1
             indeg[2 * node_of[t] + 1] += 1
+    # Whole subtrees sharing a unit run one after another: fin(X) -> act(next X).
+    wrapped = serialisation(problem, clean, every_conc=False)
+    problems.extend(wrapped.problems)
+    chained: dict[int, int] = {}
+    for _, kids in wrapped.wraps:
+        for a, b in itertools.pairwise(kids):
+            chained[2 * a + 1] = 2 * b
+            indeg[2 * b] += 1
 
     ux, uy = problem.unit_xy[:, 0].tolist(), problem.unit_xy[:, 1].tolist()
     sx, sy = problem.start_xy[:, 0].tolist(), problem.start_xy[:, 1].tolist()
@@ -218,8 +237,18 @@ def evaluate(
             indeg[j] -= 1
             if indeg[j] == 0:
                 stack.append(j)
-    if done < 2 * s.size:
+        j = chained.get(i, -1)
+        if j >= 0:
+            if v > value[j]:
+                value[j] = v
+            indeg[j] -= 1
+            if indeg[j] == 0:
+                stack.append(j)
+    if done < 2 * s.size and not wrapped.problems:
         problems.append("deadlock: the units' orders and the tree's order wait for each other")
+    elif done < 2 * s.size:
+        problems.append("deadlock: the serialised subtrees and the units' orders wait for each "
+                        "other")
 
     unit_finish = np.zeros(n_units)
     unit_used = np.zeros(n_units)
@@ -273,6 +302,7 @@ def evaluate(
         problems=problems,
         node_act=np.array(value[0::2]),
         node_fin=np.array(value[1::2]),
+        serialised=wrapped,
     )
 
 
