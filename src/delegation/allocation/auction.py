@@ -159,7 +159,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
     alias_of = problem.alias_of()
     before = problem.before
     node_of = np.asarray(problem.structure.node_of_task, dtype=int)
-    has_pred = before.any(axis=0)
+    has_pred: np.ndarray = np.asarray(before.any(axis=0))
     open_task = allowed.any(axis=0)
     pending = (before & open_task[:, None]).sum(axis=0)
     base = np.array([_home_leg(problem, u) for u in range(n_units)])

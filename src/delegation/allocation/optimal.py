@@ -4,9 +4,14 @@ Which solver (DESIGN 4):
 - the **routing solver** for larger trees where every task is activated at mission start (a
   ``conc`` of tasks: an mTSP with per-unit speeds, capabilities, aliases, homes and battery);
   guided local search from the auction's routes; it proves no bound;
-- **CP-SAT** where the tree orders tasks across units (``seq``), and for small flat trees (it proves
-  optimality there, so the plan carries a ``bound``): per-unit circuits over optional arcs,
-  activation times from the tree, makespan and battery as linear constraints.
+- **CP-SAT** where the tree orders tasks across units (``seq``) or has conc children that are
+  subtrees, and for small flat trees (it proves optimality there, so the plan carries a ``bound``):
+  per-unit circuits over optional arcs, activation times from the tree, makespan and battery as
+  linear constraints. Conc children that share a unit run one after another as whole subtrees, in
+  the order ``serialise`` derives (DESIGN 3.4); for concs with at most ``CP_EXACT_CHILDREN``
+  children holding tasks the model encodes exactly that (which children share a unit, the total
+  order of each component, the tie rule), for larger ones a relaxation (each unit's consecutive
+  subtrees one after another), so the bound stays a lower bound and the solution is re-evaluated.
 
 Solver costs are integers (ticks); durations are rounded down so that CP-SAT's bound stays a proven
 lower bound. Whatever the solver returns is re-evaluated with the schedule simulator, and the
@@ -28,6 +33,7 @@ import numpy as np
 from delegation.allocation.auction import assign_passive, auction
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule, better, evaluate
+from delegation.allocation.serialise import conc_paths, serialisation
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +45,8 @@ CP_EXACT_ARCS = 6_000
 CP_MAX_ARCS = 40_000
 #: Routing is not tried when its transit matrices would hold more entries than this.
 ROUTING_MAX_ENTRIES = 30_000_000
+#: Concs with at most this many children holding tasks get the exact subtree-serialisation model.
+CP_EXACT_CHILDREN = 8
 #: Ticks per horizon: integer resolution of solver times.
 TICKS = 1_000_000
 #: Routing runs for makespan: (weight of the longest route against the total, share of the time).
@@ -74,7 +82,7 @@ def optimise(
     if not tasks:
         result.notes.append("no vehicle task to optimise; the auction's plan is optimal")
         return result
-    flat = problem.flat
+    flat = problem.plain  # routing models a unit's own route only: exact for plain trees
     mask = _candidates(problem, tasks, base)
     arcs = sum(int(mask[u, tasks].sum()) ** 2 for u in range(problem.n_units))
     remaining = max(0.05, time_limit - (time.perf_counter() - began))
@@ -482,6 +490,9 @@ def _cpsat(
                 model.add(done[n] >= done[c])
 
     # Each unit runs its vehicle tasks one after another: a circuit through its depot.
+    paths = [dict(path) for path in conc_paths(problem, every_conc=False)]
+    under_node = _tasks_under(problem, vehicle_set)
+    chained: dict[int, list[tuple[int, int, Any]]] = {}  # conc -> (child, next child, arc)
     total_terms: list[tuple[cp_model.IntVar, int]] = []
     arc_lits: dict[tuple[int, int, int], cp_model.IntVar] = {}
     for u, (mine, first, between, home) in dur.items():
@@ -512,11 +523,29 @@ def _cpsat(
                 arc_lits[u, r, t] = lit
                 model.add(begin[t] >= finish[r]).only_enforce_if(lit)
                 model.add(finish[t] >= begin[t] + down(between[i - 1, j - 1])).only_enforce_if(lit)
+                split = _split_at(paths, r, t)
+                if split is not None:
+                    # r and t are under different children P, Q of a conc with subtree children:
+                    # the unit runs P whole, then Q.
+                    n, kp, kq = split
+                    kids = s.children[n]
+                    model.add(act[kids[kq]] >= done[kids[kp]]).only_enforce_if(lit)
+                    chained.setdefault(n, []).append((kp, kq, lit))
                 total_terms.append((lit, down(between[i - 1, j - 1])))
                 use_terms.append((lit, up(between[i - 1, j - 1])))
         model.add_circuit(arcs)
         for t in mine:
             model.add_implication(x[t, u], used)
+        # A unit's tasks under any node are one run of its route (else the subtree they are in
+        # could not run whole): at most one arc enters the node's tasks.
+        mine_set = set(mine)
+        for inside in under_node.values():
+            held = [t for t in inside if t in mine_set]
+            if len(held) < 2 or len(held) == len(mine):
+                continue
+            outside = [-1] + [r for r in mine if r not in inside]
+            entering = [arc_lits[u, r, t] for t in held for r in outside if (u, r, t) in arc_lits]
+            model.add(sum(entering) <= 1)
         if use_all_units:
             model.add(used == 1)
         # A unit's travel + work (+ way home) fits in its remaining endurance.
@@ -526,6 +555,9 @@ def _cpsat(
                 <= math.floor(problem.endurance[u] * scale)
             )
     total = sum(lit * c for lit, c in total_terms)
+    wrap_vars, relaxed = _serialisation_model(
+        model, problem, paths, x, act, done, chained, dur, vehicle_set
+    )
 
     # Warm start: the auction's assignment, routes and times (rounded down, as the durations).
     if base.valid and base.node_act is not None and base.node_fin is not None:
@@ -551,6 +583,8 @@ def _cpsat(
     for key, lit in arc_lits.items():
         if key not in hinted:
             model.add_hint(lit, 0)
+    if base.valid:
+        _hint_serialisation(model, problem, base, wrap_vars)
 
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = 2
@@ -590,7 +624,8 @@ def _cpsat(
         found = _finish(problem, read_orders(), base)
         control_done = [d for n, d in enumerate(done) if s.task_of_node[n] < 0]
         everything: list[object] = [
-            *x.values(), *arc_lits.values(), *begin, *finish, *act, makespan, *control_done
+            *x.values(), *arc_lits.values(), *begin, *finish, *act, makespan, *control_done,
+            *wrap_vars.all(),
         ]
         _hint_from(model, solver, everything)
         # Second phase: the best makespan found, with the smallest total time.
@@ -621,6 +656,9 @@ def _cpsat(
             bound = solver.best_objective_bound / scale + constant
         note = f"CP-SAT: total time {solver.status_name(status).lower()}"
         found = _finish(problem, read_orders(), base)
+    if relaxed:
+        note += (f" (subtrees sharing a unit under {relaxed} conc(s) with more than "
+                 f"{CP_EXACT_CHILDREN} children relaxed: the solver's plan re-evaluated)")
     if pruned:
         note += " (each task among its cheapest units only: no bound)"
     elif not exact:
@@ -633,3 +671,160 @@ def _hint_from(model: object, solver: object, lits: list[object]) -> None:
     model.clear_hints()  # type: ignore[attr-defined]
     for lit in lits:
         model.add_hint(lit, solver.value(lit))  # type: ignore[attr-defined]
+
+
+# --------------------------------------------------------------------------- CP-SAT: subtrees
+
+
+@dataclass
+class _WrapVars:
+    """The serialisation model's variables, per conc: ``prec[n][i, j]`` child i runs before j."""
+
+    has: dict[tuple[int, int, int], Any] = field(default_factory=dict)  # (conc, child, unit)
+    share: dict[tuple[int, int, int], Any] = field(default_factory=dict)  # (conc, i, j), i < j
+    prec: dict[tuple[int, int, int], Any] = field(default_factory=dict)  # (conc, i, j)
+    together: dict[tuple[int, int, int], Any] = field(default_factory=dict)  # (conc, i, j), i < j
+
+    def all(self) -> list[Any]:
+        return [*self.has.values(), *self.share.values(), *self.prec.values(),
+                *self.together.values()]
+
+
+def _split_at(paths: list[dict[int, int]], r: int, t: int) -> tuple[int, int, int] | None:
+    """(conc, child of r, child of t) where r and t are under different children of a conc
+    whose children are subtrees (their lowest common ancestor), else None."""
+    mine = paths[r]
+    for n, kq in paths[t].items():
+        kp = mine.get(n)
+        if kp is not None and kp != kq:
+            return n, kp, kq
+    return None
+
+
+def _tasks_under(problem: Problem, tasks: set[int]) -> dict[int, set[int]]:
+    """Control nodes (not the root) holding two or more of ``tasks``, with those tasks."""
+    s = problem.structure
+    under: list[set[int]] = [set() for _ in range(s.size)]
+    for n in range(s.size - 1, -1, -1):
+        t = s.task_of_node[n]
+        if t >= 0:
+            if t in tasks:
+                under[n] = {t}
+        else:
+            under[n] = set().union(*(under[c] for c in s.children[n])) if s.children[n] else set()
+    return {n: under[n] for n in range(1, s.size)
+            if s.task_of_node[n] < 0 and len(under[n]) >= 2}
+
+
+def _serialisation_model(
+    model: Any,
+    problem: Problem,
+    paths: list[dict[int, int]],
+    x: dict[tuple[int, int], Any],
+    act: list[Any],
+    done: list[Any],
+    chained: dict[int, list[tuple[int, int, Any]]],
+    dur: dict[int, Any],
+    vehicle_set: set[int],
+) -> tuple[_WrapVars, int]:
+    """Children of a conc that share a unit: one total order per component, as ``serialise``.
+
+    Exact for concs with at most ``CP_EXACT_CHILDREN`` children holding tasks: ``has`` (a unit
+    has a task under a child), ``share`` (two children have a unit in common), ``together``
+    (same component: closed under sharing), ``prec`` (a total order on each component,
+    transitive, consistent with every unit's route) and the tie rule: a child j runs before an
+    earlier one i (in the tree) only if i waits for j (they share a unit) or for a child that
+    shares a unit with i, runs before i and after j. So the order is the topological order that
+    takes the child first in the tree among those free to go. Extra ``together`` pairs only add
+    constraints, so they never beat the true model. Returns the variables and how many concs
+    were relaxed.
+    """
+    wv = _WrapVars()
+    s = problem.structure
+    relaxed = 0
+    children_of: dict[int, dict[int, list[int]]] = {}
+    for t in vehicle_set:
+        for n, k in paths[t].items():
+            children_of.setdefault(n, {}).setdefault(k, []).append(t)
+    for n, held in sorted(children_of.items()):
+        ks = sorted(held)
+        if len(ks) < 2:
+            continue
+        if len(ks) > CP_EXACT_CHILDREN:
+            relaxed += 1
+            continue
+        kids = s.children[n]
+        for k in ks:
+            for u in dur:
+                lits = [x[t, u] for t in held[k] if (t, u) in x]
+                if lits:
+                    var = model.new_bool_var(f"has{n}_{k}_{u}")
+                    model.add_max_equality(var, lits)
+                    wv.has[n, k, u] = var
+        for i, j in itertools.combinations(ks, 2):
+            both = []
+            for u in dur:
+                a, b = wv.has.get((n, i, u)), wv.has.get((n, j, u))
+                if a is None or b is None:
+                    continue
+                lit = model.new_bool_var(f"both{n}_{i}_{j}_{u}")
+                model.add_implication(lit, a)
+                model.add_implication(lit, b)
+                model.add_bool_or([a.Not(), b.Not(), lit])
+                both.append(lit)
+            if both:
+                share = model.new_bool_var(f"share{n}_{i}_{j}")
+                model.add_max_equality(share, both)
+                wv.share[n, i, j] = share
+            together = model.new_bool_var(f"together{n}_{i}_{j}")
+            wv.together[n, i, j] = together
+            wv.prec[n, i, j] = model.new_bool_var(f"prec{n}_{i}_{j}")
+            wv.prec[n, j, i] = model.new_bool_var(f"prec{n}_{j}_{i}")
+            model.add(wv.prec[n, i, j] + wv.prec[n, j, i] == together)
+            if both:
+                model.add_implication(wv.share[n, i, j], together)
+            model.add(act[kids[j]] >= done[kids[i]]).only_enforce_if(wv.prec[n, i, j])
+            model.add(act[kids[i]] >= done[kids[j]]).only_enforce_if(wv.prec[n, j, i])
+
+        def tog(i: int, j: int, n: int = n) -> Any:
+            return wv.together[n, min(i, j), max(i, j)]
+
+        for i, j, m in itertools.permutations(ks, 3):
+            model.add_bool_or([wv.prec[n, i, m].Not(), wv.prec[n, m, j].Not(), wv.prec[n, i, j]])
+            if i < j:
+                model.add_bool_or([tog(i, m).Not(), tog(m, j).Not(), tog(i, j)])
+        for kp, kq, lit in chained.get(n, []):
+            model.add_implication(lit, wv.prec[n, kp, kq])
+        # The tie rule: j (later in the tree) before i only if i waits for j or for a child p
+        # that shares a unit with it and runs after j.
+        for i, j in itertools.combinations(ks, 2):
+            direct = wv.share.get((n, i, j))
+            blockers = [direct] if direct is not None else []
+            for p in ks:
+                share = wv.share.get((n, min(p, i), max(p, i))) if p not in (i, j) else None
+                if share is None:
+                    continue
+                z = model.new_bool_var(f"block{n}_{p}_{i}_{j}")
+                model.add_implication(z, share)
+                model.add_implication(z, wv.prec[n, p, i])
+                model.add_implication(z, wv.prec[n, j, p])
+                blockers.append(z)
+            model.add_bool_or([wv.prec[n, j, i].Not(), *blockers])
+    return wv, relaxed
+
+
+def _hint_serialisation(model: Any, problem: Problem, base: Schedule, wv: _WrapVars) -> None:
+    """Hint the serialisation variables from the auction's schedule."""
+    s = problem.structure
+    order = serialisation(problem, base.orders, every_conc=False)
+    place: dict[tuple[int, int], tuple[int, int]] = {}
+    for w, (n, kids) in enumerate(order.wraps):
+        position = {child: k for k, child in enumerate(s.children[n])}
+        for rank, child in enumerate(kids):
+            place[n, position[child]] = (w, rank)
+    for (n, i, j), lit in wv.prec.items():
+        a, b = place.get((n, i)), place.get((n, j))
+        model.add_hint(lit, int(a is not None and b is not None and a[0] == b[0] and a[1] < b[1]))
+    for (n, i, j), lit in wv.together.items():
+        a, b = place.get((n, i)), place.get((n, j))
+        model.add_hint(lit, int(a is not None and b is not None and a[0] == b[0]))
