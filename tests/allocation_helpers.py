@@ -2,7 +2,10 @@
 
 The brute force enumerates every assignment of vehicle tasks to allowed units (aliases: one unit per
 alias) and every order on every unit, evaluates each with the schedule simulator (itself tested
-against hand-computed numbers in test_allocation_schedule.py) and keeps the best.
+against hand-computed numbers in test_allocation_schedule.py, including conc children that share
+a unit running one after another as whole subtrees) and keeps the best. Allocations the
+instantiated tree cannot run (deadlocks, units disagreeing on the order of subtrees) are invalid
+and skipped.
 """
 
 from __future__ import annotations
@@ -44,7 +47,8 @@ def unit(name: str, x: float, y: float, speed: float = 5.0, home: bool = False,
     )
 
 
-SHAPES = ("conc", "seq-of-concs", "conc-of-seqs", "seq", "aliases", "mixed")
+SHAPES = ("conc", "seq-of-concs", "conc-of-seqs", "seq", "aliases", "mixed", "subtrees",
+          "nested")
 
 
 def random_instance(seed: int, shape: str, n_tasks: int = 6, n_units: int = 3,
@@ -87,6 +91,22 @@ def random_instance(seed: int, shape: str, n_tasks: int = 6, n_units: int = 3,
             leaves[0],
             {"name": "conc", "children": [{"name": "seq", "children": leaves[1:3]}, *leaves[3:]]},
         ]}
+    elif shape == "subtrees":
+        # Four conc children, two of them seqs: units shared between subtrees and single tasks
+        # make components of three or four children, some with no unit in common.
+        h = max(2, n_tasks // 3)
+        tree = {"name": "conc", "children": [
+            {"name": "seq", "children": leaves[:h]},
+            {"name": "seq", "children": leaves[h : 2 * h]},
+            *leaves[2 * h :],
+        ]}
+    elif shape == "nested":
+        # A seq ending in a conc, next to a seq and a single task: wrappers at two levels.
+        tree = {"name": "conc", "children": [
+            {"name": "seq", "children": [leaves[0], {"name": "conc", "children": leaves[1:3]}]},
+            {"name": "seq", "children": leaves[3:5]},
+            *leaves[5:],
+        ]}
     else:
         raise ValueError(shape)
     return parse_tree(tree), units
@@ -100,11 +120,16 @@ def problem_for(tree: TstNode, units: list[UnitState]) -> Problem:
 
 def brute_force(problem: Problem, objective: str) -> Schedule:
     """The best schedule over all assignments and all orders (small instances only)."""
+    return brute_force_all(problem)[objective]
+
+
+def brute_force_all(problem: Problem) -> dict[str, Schedule]:
+    """The best schedule per objective, from one enumeration of all assignments and orders."""
     vehicle = [t for t in range(problem.n_tasks) if problem.tasks[t].vehicle
                and problem.allowed[:, t].any()]
     alias_of = problem.alias_of()
     choices = [np.nonzero(problem.allowed[:, t])[0].tolist() for t in vehicle]
-    best: Schedule | None = None
+    best: dict[str, Schedule] = {}
     for combo in itertools.product(*choices):
         bound: dict[int, int] = {}
         ok = True
@@ -125,7 +150,8 @@ def brute_force(problem: Problem, objective: str) -> Schedule:
             s = evaluate(problem, assign, [list(o) for o in orders])
             if not s.valid:
                 continue
-            if best is None or s.key(objective) < best.key(objective):
-                best = s
-    assert best is not None
+            for objective in ("makespan", "total"):
+                if objective not in best or s.key(objective) < best[objective].key(objective):
+                    best[objective] = s
+    assert len(best) == 2
     return best

@@ -175,3 +175,81 @@ def test_wrong_orders_are_reported() -> None:
              Tables(unit_xy=[[0, 0], [1, 1]], start_xy=[[100, 0], [200, 0]]))
     assert not evaluate(p, [0, 0], [[0]]).valid  # task 1 assigned but in no order
     assert not evaluate(p, [0, 1], [[0, 1], []]).valid  # task 1 listed on the wrong unit
+
+
+# --------------------------------------------------------------------------- whole subtrees
+
+
+def test_conc_children_sharing_a_unit_run_one_after_another_as_whole_subtrees() -> None:
+    # conc(seq(a, b), c): a and c on u0, b on u1 (all 10 m/s, units at the origin).
+    # a at (100, 0), b at (0, 300), c at (0, 50). u0 does c first, then a: the instantiated
+    # tree wraps [c, seq(a, b)] in a seq, so a (and b after it) start only once c has ended;
+    # b does not run alongside c.
+    tree = {"name": "conc", "children": [{"name": "seq", "children": [task(), task()]}, task()]}
+    p = make(tree, Tables(unit_xy=[[0, 0], [0, 0]], start_xy=[[100, 0], [0, 300], [0, 50]]))
+    s = evaluate(p, [0, 1, 0], [[2, 0], [1]])
+    assert s.valid
+    assert (s.start[2], s.end[2]) == (0.0, 5.0)  # c: 50 m
+    assert s.start[0] == 5.0 and s.end[0] == pytest.approx(5.0 + math.hypot(100, 50) / 10)
+    assert s.start[1] == s.end[0] and s.end[1] == pytest.approx(s.end[0] + 30.0)  # b: 300 m
+    assert s.serialised is not None and s.serialised.wraps == [(0, [4, 1])]  # c, then the seq
+    # The other way round on u0 (a, then c): c waits for the whole seq, b included.
+    s = evaluate(p, [0, 1, 0], [[0, 2], [1]])
+    assert s.valid
+    assert (s.start[0], s.end[0]) == (0.0, 10.0)
+    assert (s.start[1], s.end[1]) == (10.0, 40.0)
+    assert s.start[2] == 40.0  # not 10.0: the seq (with b on u1) ends at 40
+    assert s.end[2] == pytest.approx(40.0 + math.hypot(100, 50) / 10)
+
+
+def test_the_wrap_order_comes_from_the_units_orders_first_in_tree_on_ties() -> None:
+    # conc(A = seq(a1, a2), B = seq(b1, b2), C = c). u0: a1 then c (A before C); u1: b1 then
+    # a2 (B before A); u2: b2. The wrap runs B, A, C: B waits for nothing, A for B, C for A.
+    tree = {"name": "conc", "children": [
+        {"name": "seq", "children": [task(), task()]},
+        {"name": "seq", "children": [task(), task()]},
+        task()]}
+    p = make(tree, Tables(unit_xy=[[0, 0], [0, 0], [0, 0]],
+                          start_xy=[[10, 0], [20, 0], [0, 10], [0, 20], [30, 0]]))
+    s = evaluate(p, [0, 1, 1, 2, 0], [[0, 4], [2, 1], [3]])
+    assert s.valid
+    a, b, c = 1, 4, 7  # tree nodes of the three children
+    assert s.serialised is not None and s.serialised.wraps == [(0, [b, a, c])]
+    # b2 is on u2, which shares nothing: it is in the component only through seq B.
+    assert s.start[2] == 0.0 and s.start[3] == s.end[2]  # B: b1 then b2
+    assert s.start[0] == pytest.approx(s.end[3])  # A starts when B (b2 included) has ended
+    assert s.start[4] == pytest.approx(s.end[1])  # C after A
+
+
+def test_children_free_to_go_together_run_in_tree_order() -> None:
+    # conc(A = seq(a1, a2), B = b, C = seq(c1, c2)). u0: a1 then c1 (A before C); u1: b then c2
+    # (B before C). A and B are both free to go first: the one first in the tree (A) goes
+    # first, then B (although it shares no unit with A), then C. Not by time: b is shorter.
+    tree = {"name": "conc", "children": [
+        {"name": "seq", "children": [task(), task()]},
+        task(),
+        {"name": "seq", "children": [task(), task()]}]}
+    p = make(tree, Tables(unit_xy=[[0, 0], [0, 0], [0, 0]],
+                          start_xy=[[100, 0], [200, 0], [0, 10], [0, 20], [0, 30]]))
+    s = evaluate(p, [0, 2, 1, 0, 1], [[0, 3], [2, 4], [1]])
+    assert s.valid
+    assert s.serialised is not None and s.serialised.wraps == [(0, [1, 4, 5])]
+    assert (s.start[0], s.end[0], s.end[1]) == (0.0, 10.0, 30.0)  # a1; a2 (u2, 200 m)
+    assert s.start[2] == 30.0 and s.end[2] == 31.0  # b after the whole of A
+    assert s.start[3] == 31.0 and s.end[3] == pytest.approx(31.0 + math.hypot(100, 20) / 10)
+    assert s.start[4] == pytest.approx(s.end[3]) and s.end[4] == pytest.approx(s.end[3] + 2.0)
+
+
+def test_allocations_that_cannot_run_as_whole_subtrees_are_invalid() -> None:
+    tree = {"name": "conc", "children": [
+        {"name": "seq", "children": [task(), task()]},
+        {"name": "seq", "children": [task(), task()]}]}
+    p = make(tree, Tables(unit_xy=[[0, 0], [0, 0]], start_xy=[[10, 0]] * 4))
+    # u0: a1 then b1 (A before B); u1: b2 then a2 (B before A): the units disagree.
+    s = evaluate(p, [0, 1, 0, 1], [[0, 2], [3, 1]])
+    assert not s.valid
+    assert any("disagree" in text for text in s.problems)
+    # u0: a1, b1, a2: it would leave A and come back to it.
+    s = evaluate(p, [0, 0, 0, 1], [[0, 2, 1], [3]])
+    assert not s.valid
+    assert any("come back" in text for text in s.problems)

@@ -3,12 +3,17 @@ catalogue defaults filled, conc children on one unit wrapped in a seq in planned
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
+
+import pytest
 
 from allocation_helpers import geo, move_to, unit
 from delegation.allocation import check_invariants, plan_mission
 from delegation.allocation.instantiate import Placement, instantiate
-from delegation.tst import leaves, parse_tree, walk
+from delegation.scenario import load_scenario
+from delegation.tst import leaves, map_tree, parse_tree, walk
 
 
 def counter() -> Any:
@@ -120,3 +125,49 @@ def test_unassigned_leaves_keep_their_execunit() -> None:
     look = next(n for n in leaves(plan.tst) if n.name == "look-at-position")
     assert look.execunit == "A"
     assert all(n.node_uuid for _, n in walk(plan.tst))
+
+
+DEMO = Path(__file__).resolve().parents[1] / "scenarios" / "demo.yaml"
+
+
+def _demo_plan(strategy: str) -> tuple[Any, Any, Any]:
+    scenario = load_scenario(DEMO)
+    tree, units = scenario.tree(), scenario.units()
+    return plan_mission(tree, units, strategy=strategy, time_limit=1.0), tree, units
+
+
+def test_plan_times_are_those_of_the_instantiated_tree() -> None:
+    # The demo with nearest: dji0 takes the move-to of seq(move-to, search-area) and the
+    # move-path; usv0 the search-area and a move-to. The tree runs the whole seq (usv0's search
+    # included) before the move-path, and the plan says so.
+    plan, tree, units = _demo_plan("nearest")
+    by_name = {a.name: a for a in plan.assignments}
+    search, path = by_name["search-area"], by_name["move-path"]
+    assert path.execunit == "/dji0" and search.execunit == "/usv0"
+    assert path.start == pytest.approx(search.end)
+    assert check_invariants(plan, tree, units) == []
+
+
+def test_invariants_run_the_tree_and_catch_times_it_does_not_have() -> None:
+    plan, tree, units = _demo_plan("nearest")
+    # The bug this guards: the move-path timed as if the seq ahead of it in the tree's wrapper
+    # ran alongside (dji0 free after its move-to), the plan otherwise consistent.
+    moved = next(a for a in plan.assignments if a.name == "move-path")
+    first = next(a for a in plan.assignments if a.name == "move-to" and a.execunit == "/dji0")
+    early = replace(moved, start=first.end, end=first.end + moved.travel_time + moved.work_time)
+    plan.assignments[plan.assignments.index(moved)] = early
+    problems = check_invariants(plan, tree, units)
+    assert any("the instantiated tree runs it at" in p and moved.node_uuid in p
+               for p in problems)
+
+
+def test_invariants_catch_a_tree_that_contradicts_the_routes() -> None:
+    plan, tree, units = _demo_plan("nearest")
+    assert plan.source is not None
+    given = {node.node_uuid for _, node in walk(plan.source)}
+    wrapper = next(node for _, node in walk(plan.tst) if node.node_uuid not in given)
+    assert wrapper.name == "seq" and len(wrapper.children) >= 2
+    # The wrapped subtrees in the opposite order: dji0's route cannot run in that tree.
+    plan.tst = map_tree(plan.tst, lambda node, kids: node.with_children(
+        kids[::-1] if node.node_uuid == wrapper.node_uuid else kids))
+    assert check_invariants(plan, tree, units) != []

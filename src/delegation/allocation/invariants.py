@@ -167,10 +167,11 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
             if items:
                 ended = max(ended, max(a.end for a in items))
 
-    # Each unit's route (its order) holds exactly its vehicle tasks.
+    # Each unit's route (its order; the plan's assignments in it) holds exactly its vehicle tasks.
     routes: dict[str, list[Assignment]] = {}
     for name, items in per_unit.items():
-        route = [a for a in plan.routes.get(name, []) if is_vehicle_task(a.name)]
+        route = [assigned[a.node_uuid] for a in plan.routes.get(name, [])
+                 if a.node_uuid in assigned and is_vehicle_task(a.name)]
         if sorted(a.node_uuid for a in route) != sorted(a.node_uuid for a in items):
             out.append(f"the route of {name} does not list exactly its vehicle tasks")
             route = items
