@@ -18,6 +18,7 @@ and simulates the best few exactly (see ``_general_auction``).
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -260,14 +261,25 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
         recompute(u)
     current = evaluate(problem, assign, routes)
     rejected = np.zeros((n_units, n_tasks), dtype=bool)
+    seen_act = np.full(n_tasks, np.nan)  # activation when a waiting task's bids were made
+    seen_start = np.full(n_tasks, np.nan)
+    dirty = np.ones(n_units, dtype=bool)  # units whose waiting bids must all be remade
     while open_task.any():
         ready = open_task & (pending <= 0)
         act = current.node_act[node_of] if current.node_act is not None else np.zeros(n_tasks)
         waiting = ready & has_pred
         if waiting.any():
-            # Tasks with predecessors go after what starts before they can be activated.
-            for u in range(n_units):
-                cols = np.nonzero(waiting & allowed[u])[0]
+            # Tasks with predecessors go after what starts before they can be activated. Their
+            # bids change only where the unit's route or start times changed, or the task's
+            # activation did (or it is new).
+            fresh = waiting & ~(act == seen_act)
+            moved = ~(current.start == seen_start) & (assign >= 0)
+            dirty[np.unique(assign[moved])] = True
+            seen_act[waiting] = act[waiting]
+            seen_start = current.start.copy()
+            units = range(n_units) if fresh.any() else np.nonzero(dirty)[0].tolist()
+            for u in units:
+                cols = np.nonzero((waiting if dirty[u] else fresh) & allowed[u])[0]
                 if cols.size == 0:
                     continue
                 starts = current.start[routes[u]] if routes[u] else np.zeros(0)
@@ -277,6 +289,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
                 low[u, cols] = lo
                 pos[u, cols] = np.argmin(table, axis=0)
                 delta[u, cols] = table[pos[u, cols], np.arange(cols.size)]
+            dirty[:] = False
         # Only ready tasks bid: work on their columns.
         cols = np.nonzero(ready)[0]
         if cols.size == 0:
@@ -298,10 +311,10 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             continue
         flat_secondary = secondary.ravel()
         places = _places(current.serialised)
-        finite = _smallest(finite, flat_primary, flat_secondary, 4 * shortlist)
-        order = np.lexsort((finite, flat_secondary[finite], flat_primary[finite]))
         chosen: tuple[tuple[float, ...], int, int, int, Schedule] | None = None
-        for rank, flat_index in enumerate(finite[order].tolist()):
+        for rank, flat_index in enumerate(
+            _ranked(finite, flat_primary, flat_secondary, 4 * shortlist)
+        ):
             if rank >= shortlist and chosen is not None:
                 break
             u, j = divmod(flat_index, cols.size)
@@ -309,7 +322,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             column = np.array(costs[u][:, t], dtype=float)
             column[: int(low[u, t]) if bool(has_pred[t]) else 0] = np.inf
             tries = [int(pos[u, t])] + [
-                int(q) for q in np.argsort(column, kind="stable")[:POSITION_TRIES]
+                int(q) for q in np.argsort(column, kind="stable")
                 if np.isfinite(column[q]) and q != pos[u, t]
             ]
             tries = [q for q in tries if keeps_order(u, t, q, places)][:POSITION_TRIES]
@@ -351,6 +364,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             allowed[np.ix_(others, members)] = False
             delta[np.ix_(others, members)] = np.inf
         recompute(u)
+        dirty[u] = True
     return assign, routes
 
 
@@ -361,6 +375,22 @@ def _places(serialised: Serialisation | None) -> dict[int, tuple[int, int]]:
         for i, child in enumerate(kids):
             out[child] = (w, i)
     return out
+
+
+def _ranked(
+    index: np.ndarray, primary: np.ndarray, secondary: np.ndarray, k: int
+) -> Iterator[int]:
+    """``index`` by (primary, secondary, index), sorting only as far as the caller reads."""
+    done = np.zeros(0, dtype=index.dtype)
+    while True:
+        pool = _smallest(index, primary, secondary, k)
+        pool = pool[~np.isin(pool, done)]
+        order = np.lexsort((pool, secondary[pool], primary[pool]))
+        yield from pool[order].tolist()
+        if k >= index.size:
+            return
+        done = np.concatenate([done, pool])
+        k *= 8
 
 
 def _smallest(index: np.ndarray, primary: np.ndarray, secondary: np.ndarray, k: int) -> np.ndarray:
