@@ -17,6 +17,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -104,6 +105,23 @@ def template_for(problem: Problem) -> _Template:
     return tpl
 
 
+def _static_for(problem: Problem) -> dict[str, list[Any]]:
+    """The problem's per-task and per-unit numbers as plain lists (the simulation loop is
+    Python), made once per problem."""
+    static: dict[str, list[Any]] | None = problem.cache.get("static")
+    if static is None:
+        static = problem.cache["static"] = {
+            "vehicle": [t.vehicle for t in problem.tasks],
+            "ux": problem.unit_xy[:, 0].tolist(), "uy": problem.unit_xy[:, 1].tolist(),
+            "sx": problem.start_xy[:, 0].tolist(), "sy": problem.start_xy[:, 1].tolist(),
+            "ex": problem.end_xy[:, 0].tolist(), "ey": problem.end_xy[:, 1].tolist(),
+            "travels": problem.travels.tolist(), "to_home": problem.home_task().tolist(),
+            "has_home": problem.has_home.tolist(),
+            "home_x": problem.home_xy[:, 0].tolist(), "home_y": problem.home_xy[:, 1].tolist(),
+        }
+    return static
+
+
 def evaluate(
     problem: Problem, assign: Sequence[int] | np.ndarray, orders: Sequence[Sequence[int]]
 ) -> Schedule:
@@ -120,7 +138,8 @@ def evaluate(
 
     prev = [-1] * n_tasks
     seen = [False] * n_tasks
-    vehicle = [t.vehicle for t in problem.tasks]
+    static = _static_for(problem)
+    vehicle = static["vehicle"]
     clean: list[list[int]] = []
     for u, order in enumerate(orders):
         p = -1
@@ -156,12 +175,9 @@ def evaluate(
             chained[2 * a + 1] = 2 * b
             indeg[2 * b] += 1
 
-    ux, uy = problem.unit_xy[:, 0].tolist(), problem.unit_xy[:, 1].tolist()
-    sx, sy = problem.start_xy[:, 0].tolist(), problem.start_xy[:, 1].tolist()
-    ex, ey = problem.end_xy[:, 0].tolist(), problem.end_xy[:, 1].tolist()
-    travels = problem.travels.tolist()
-    to_home = problem.home_task().tolist()
-    has_home = problem.has_home
+    ux, uy, sx, sy = static["ux"], static["uy"], static["sx"], static["sy"]
+    ex, ey, travels, to_home = static["ex"], static["ey"], static["travels"], static["to_home"]
+    has_home = static["has_home"]
     # Per task, the numbers of its unit (0 where unassigned): plain floats for the loop below.
     safe = np.where(assign_arr >= 0, assign_arr, 0)
     cols = np.arange(n_tasks)
@@ -171,58 +187,73 @@ def evaluate(
         work_dt = problem.work_distance[safe, cols].tolist()
     else:
         speed_t = work_tt = work_dt = [0.0] * n_tasks
-    home_x = problem.home_xy[:, 0].tolist()
-    home_y = problem.home_xy[:, 1].tolist()
+    home_x, home_y = static["home_x"], static["home_y"]
     assigned_to = assign_arr.tolist()
 
-    start = np.full(n_tasks, np.nan)
-    end = np.full(n_tasks, np.nan)
-    travel_time = np.full(n_tasks, np.nan)
-    work_time = np.full(n_tasks, np.nan)
-    distance = np.full(n_tasks, np.nan)
+    nan = math.nan
+    start_l = [nan] * n_tasks
+    end_l = [nan] * n_tasks
+    travel_l = [nan] * n_tasks
+    work_l = [nan] * n_tasks
+    dist_l = [nan] * n_tasks
     pos_x = [0.0] * n_tasks
     pos_y = [0.0] * n_tasks
 
     value = [0.0] * (2 * s.size)
+    after = [-1] * (2 * s.size)  # the extra successors: a unit's next task, the next subtree
+    for i, j in extra.items():
+        after[i] = j
+    wrap_next = [-1] * (2 * s.size)
+    for i, j in chained.items():
+        wrap_next[i] = j
+    task_of_node = s.task_of_node
     stack = [i for i in range(2 * s.size) if indeg[i] == 0]
     done = 0
     while stack:
         i = stack.pop()
         done += 1
-        n, is_fin = divmod(i, 2)
-        t = s.task_of_node[n]
-        if is_fin and t >= 0:
-            begin = value[i]
-            u = assigned_to[t]
-            if u < 0:
-                end_t = begin
-            elif not vehicle[t]:
-                w = work_tt[t]
-                start[t], travel_time[t], work_time[t] = begin, 0.0, w
-                distance[t] = 0.0
-                end_t = begin + w
-                end[t] = end_t
-            else:
-                p = prev[t]
-                px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
-                if to_home[t] and has_home[u]:
-                    hx, hy = home_x[u], home_y[u]
-                    d = math.hypot(hx - px, hy - py)
-                    tt = d / speed_t[t]
-                    pos_x[t], pos_y[t] = hx, hy
-                elif travels[t] and not to_home[t]:
-                    d = math.hypot(sx[t] - px, sy[t] - py)
-                    tt = d / speed_t[t]
-                    pos_x[t], pos_y[t] = ex[t], ey[t]
+        if i & 1:
+            t = task_of_node[i >> 1]
+            if t >= 0:
+                begin = value[i]
+                u = assigned_to[t]
+                if u < 0:
+                    end_t = begin
+                elif not vehicle[t]:
+                    w = work_tt[t]
+                    start_l[t], travel_l[t], work_l[t] = begin, 0.0, w
+                    dist_l[t] = 0.0
+                    end_t = begin + w
+                    end_l[t] = end_t
                 else:
-                    d, tt = 0.0, 0.0
-                    pos_x[t], pos_y[t] = px, py
-                w = work_tt[t]
-                start[t], travel_time[t], work_time[t] = begin, tt, w
-                distance[t] = d + work_dt[t]
-                end_t = begin + tt + w
-                end[t] = end_t
-            value[i] = end_t
+                    p = prev[t]
+                    px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
+                    if to_home[t] and has_home[u]:
+                        hx, hy = home_x[u], home_y[u]
+                        d = math.hypot(hx - px, hy - py)
+                        tt = d / speed_t[t]
+                        pos_x[t], pos_y[t] = hx, hy
+                    elif travels[t] and not to_home[t]:
+                        d = math.hypot(sx[t] - px, sy[t] - py)
+                        tt = d / speed_t[t]
+                        pos_x[t], pos_y[t] = ex[t], ey[t]
+                    else:
+                        d, tt = 0.0, 0.0
+                        pos_x[t], pos_y[t] = px, py
+                    w = work_tt[t]
+                    start_l[t], travel_l[t], work_l[t] = begin, tt, w
+                    dist_l[t] = d + work_dt[t]
+                    end_t = begin + tt + w
+                    end_l[t] = end_t
+                value[i] = end_t
+            v = value[i]
+            for j in (after[i], wrap_next[i]):
+                if j >= 0:
+                    if v > value[j]:
+                        value[j] = v
+                    indeg[j] -= 1
+                    if indeg[j] == 0:
+                        stack.append(j)
         v = value[i]
         for j in succ[i]:
             if v > value[j]:
@@ -230,20 +261,11 @@ def evaluate(
             indeg[j] -= 1
             if indeg[j] == 0:
                 stack.append(j)
-        j = extra.get(i, -1)
-        if j >= 0:
-            if v > value[j]:
-                value[j] = v
-            indeg[j] -= 1
-            if indeg[j] == 0:
-                stack.append(j)
-        j = chained.get(i, -1)
-        if j >= 0:
-            if v > value[j]:
-                value[j] = v
-            indeg[j] -= 1
-            if indeg[j] == 0:
-                stack.append(j)
+    start = np.array(start_l, dtype=float)
+    end = np.array(end_l, dtype=float)
+    travel_time = np.array(travel_l, dtype=float)
+    work_time = np.array(work_l, dtype=float)
+    distance = np.array(dist_l, dtype=float)
     if done < 2 * s.size and not wrapped.problems:
         problems.append("deadlock: the units' orders and the tree's order wait for each other")
     elif done < 2 * s.size:
