@@ -272,15 +272,26 @@ def evaluate(
         problems.append("deadlock: the serialised subtrees and the units' orders wait for each "
                         "other")
 
-    unit_finish = np.zeros(n_units)
-    unit_used = np.zeros(n_units)
-    home_time = np.zeros(n_units)
-    home_distance = np.zeros(n_units)
+    # Per unit: travel + work of its vehicle tasks, the way home, when it is done (plain
+    # Python: cheaper than numpy at the sizes the auction simulates hundreds of times).
+    unit_finish_l = [0.0] * n_units
+    unit_used_l = [0.0] * n_units
+    home_time_l = [0.0] * n_units
+    home_dist_l = [0.0] * n_units
+    makespan = 0.0
+    total_time = 0.0
+    total_distance = 0.0
+    for t in range(n_tasks):
+        e = end_l[t]
+        if e != e:  # NaN: unassigned or never reached
+            continue
+        tt, w = travel_l[t], work_l[t]
+        total_time += tt + w
+        total_distance += dist_l[t]
+        makespan = max(makespan, e)
+        if vehicle[t]:
+            unit_used_l[assigned_to[t]] += tt + w
     home_speed = problem.home_speed.tolist()
-    on_vehicle = (assign_arr >= 0) & problem.vehicle & np.isfinite(end)
-    if on_vehicle.any():
-        busy = np.nan_to_num(travel_time[on_vehicle]) + np.nan_to_num(work_time[on_vehicle])
-        unit_used += np.bincount(assign_arr[on_vehicle], weights=busy, minlength=n_units)
     endurance = problem.endurance.tolist()
     for u, order in enumerate(orders):
         if not order:
@@ -288,24 +299,22 @@ def evaluate(
         last = order[-1]
         if has_home[u]:
             d = math.hypot(home_x[u] - pos_x[last], home_y[u] - pos_y[last])
-            home_distance[u] = d
-            home_time[u] = d / home_speed[u]
-        unit_finish[u] = float(end[last]) + home_time[u]
-        unit_used[u] += home_time[u]
-        if unit_used[u] > endurance[u] * (1 + EPS) + EPS:
+            home_dist_l[u] = d
+            home_time_l[u] = d / home_speed[u]
+        unit_finish_l[u] = end_l[last] + home_time_l[u]
+        unit_used_l[u] += home_time_l[u]
+        total_time += home_time_l[u]
+        total_distance += home_dist_l[u]
+        makespan = max(makespan, unit_finish_l[u])
+        if unit_used_l[u] > endurance[u] * (1 + EPS) + EPS:
             problems.append(
-                f"unit {problem.unit_names[u]} needs {unit_used[u]:.0f} s but has "
-                f"{problem.endurance[u]:.0f} s of endurance left"
+                f"unit {problem.unit_names[u]} needs {unit_used_l[u]:.0f} s but has "
+                f"{endurance[u]:.0f} s of endurance left"
             )
-    assigned = assign_arr >= 0
-    makespan = 0.0
-    ends = end[assigned]
-    if np.isfinite(ends).any():
-        makespan = float(np.nanmax(ends))
-    if n_units:
-        makespan = max(makespan, float(unit_finish.max()))
-    total_time = float(np.nansum(travel_time) + np.nansum(work_time) + home_time.sum())
-    total_distance = float(np.nansum(distance) + home_distance.sum())
+    unit_finish = np.array(unit_finish_l, dtype=float)
+    unit_used = np.array(unit_used_l, dtype=float)
+    home_time = np.array(home_time_l, dtype=float)
+    home_distance = np.array(home_dist_l, dtype=float)
     return Schedule(
         assign=assign_arr.copy(),
         orders=[list(o) for o in orders],
