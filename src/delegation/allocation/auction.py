@@ -148,9 +148,12 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
     tasks under every node of the tree in one run (``keeps_subtrees_whole``). Bids are each unit's
     added travel + work time (kept per unit and route position, recomputed only for the winner); a
     unit's marginal makespan also depends on waiting, so the auctioneer ranks bids by an estimate
-    (``max(unit finish, activation) + added time``) and simulates the best few exactly. A
-    simulation that cannot run (units that would order two subtrees both ways round) moves the
-    bid to the unit's next-best position, up to ``POSITION_TRIES`` of them.
+    (``max(unit finish, activation) + added time``, or, where the task's subtree and the unit's
+    are in different wrapped components, both components' lengths one after the other: taking
+    it joins them into one seq) and simulates the best few exactly. For makespan, bids that do
+    not raise the makespan are ranked by that estimate (the exact simulations then break ties by
+    total time). A simulation that cannot run (units that would order two subtrees both ways
+    round) moves the bid to the unit's next-best position, up to ``POSITION_TRIES`` of them.
     """
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
@@ -302,7 +305,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             primary, secondary = bid, estimate
         else:
             primary = np.where(np.isfinite(bid), np.maximum(estimate, current.makespan), np.inf)
-            secondary = bid
+            secondary = estimate
         flat_primary = primary.ravel()
         finite = np.flatnonzero(np.isfinite(flat_primary))
         if finite.size == 0:
