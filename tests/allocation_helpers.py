@@ -112,10 +112,14 @@ def random_instance(seed: int, shape: str, n_tasks: int = 6, n_units: int = 3,
     return parse_tree(tree), units
 
 
-def problem_for(tree: TstNode, units: list[UnitState]) -> Problem:
+def prepared_for(tree: TstNode) -> TstNode:
+    """The tree with uuids (``n0``, ``n1`` ...) and catalogue defaults, as planning prepares it."""
     n = iter(range(10_000))
-    prepared = with_defaults(with_uuids(tree, lambda: f"n{next(n)}"))
-    return build_problem(prepared, units)
+    return with_defaults(with_uuids(tree, lambda: f"n{next(n)}"))
+
+
+def problem_for(tree: TstNode, units: list[UnitState]) -> Problem:
+    return build_problem(prepared_for(tree), units)
 
 
 def brute_force(problem: Problem, objective: str) -> Schedule:
