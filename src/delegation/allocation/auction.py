@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 #: Route positions the general auction simulates for one bid before giving the bid up.
 POSITION_TRIES = 3
+#: Scale of "one unit's share of the work" in the general auction's estimates (see there).
+SHARE_FACTOR = 2.0
 
 
 def assign_passive(problem: Problem, assign: np.ndarray) -> None:
@@ -257,8 +259,24 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             theirs = np.where(under, child_comp[np.maximum(xs, 0)], -1)
             other = (mine[:, None] >= 0) & (mine[:, None] != theirs[None, :])
             length = np.where(other, span[mine][:, None], 0.0) + span[theirs][None, :]
+            # Units in one component work one after another from then on: a component of k
+            # units will take about k units' shares of the work.
+            size = np.bincount(mine[mine >= 0], minlength=span.size + 1).astype(float)
+            size[-1] = 0.0
+            joined = np.where(other, size[mine][:, None], 0.0) + size[theirs][None, :]
+            joined = np.maximum(joined, 1.0)
+            joined += np.where(mine < 0, 1.0, 0.0)[:, None] * (theirs >= 0)[None, :]
+            length = np.maximum(length, np.where(joined > 1, joined * share, 0.0))
             out = np.where(under[None, :], np.maximum(out, state.node_act[n] + length + bid), out)
         return out
+
+    # One unit's share of the work (s), roughly: each task from its nearest capable unit.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        start_xy = np.where(problem.travels[:, None], problem.start_xy, np.nan)
+        leg = np.hypot(*(problem.unit_xy[:, None, :] - start_xy[None, :, :]).transpose(2, 0, 1))
+        first = np.where(allowed, np.nan_to_num(leg / problem.speed) + problem.work_time, np.inf)
+    cheapest = first.min(axis=0) if n_units else np.zeros(n_tasks)
+    share = SHARE_FACTOR * float(cheapest[np.isfinite(cheapest)].sum()) / max(n_units, 1)
 
     for u in range(n_units):
         recompute(u)
