@@ -317,8 +317,9 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
             break
         finish = np.where([bool(r) for r in routes], current.unit_finish, base)[:, None]
         bid = np.where(rejected[:, cols], np.inf, delta[:, cols])
-        estimate = np.maximum(np.maximum(finish, act[None, cols]) + bid,
-                              joined_estimate(cols, bid, current))
+        estimate = np.maximum(finish, act[None, cols]) + bid
+        if objective == "makespan":  # for total it would only break ties between bids
+            estimate = np.maximum(estimate, joined_estimate(cols, bid, current))
         if objective == "total":
             primary, secondary = bid, estimate
         else:
