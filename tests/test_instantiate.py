@@ -3,15 +3,18 @@ catalogue defaults filled, conc children on one unit wrapped in a seq in planned
 
 from __future__ import annotations
 
+import random
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from allocation_helpers import geo, move_to, unit
-from delegation.allocation import check_invariants, plan_mission
+from allocation_helpers import geo, move_to, prepared_for, problem_for, random_instance, unit
+from delegation.allocation import check_invariants, make_plan, plan_mission
 from delegation.allocation.instantiate import Placement, instantiate
+from delegation.allocation.schedule import evaluate
 from delegation.scenario import load_scenario
 from delegation.tst import leaves, map_tree, parse_tree, walk
 
@@ -171,3 +174,27 @@ def test_invariants_catch_a_tree_that_contradicts_the_routes() -> None:
     plan.tst = map_tree(plan.tst, lambda node, kids: node.with_children(
         kids[::-1] if node.node_uuid == wrapper.node_uuid else kids))
     assert check_invariants(plan, tree, units) != []
+
+
+def test_every_runnable_allocation_runs_as_planned() -> None:
+    # Random assignments and orders (not a strategy's): whenever the evaluator accepts one, the
+    # instantiated tree runs it at exactly the evaluated times.
+    checked = 0
+    for seed, shape in [(0, "subtrees"), (1, "nested"), (2, "seq-of-concs"), (3, "conc-of-seqs")]:
+        tree, units = random_instance(seed, shape, n_tasks=6, n_units=3)
+        problem = problem_for(tree, units)
+        rng = random.Random(seed)
+        for _ in range(60):
+            assign = np.array([rng.choice(np.nonzero(problem.allowed[:, t])[0].tolist())
+                               for t in range(problem.n_tasks)])
+            orders: list[list[int]] = [[] for _ in range(problem.n_units)]
+            for t in rng.sample(range(problem.n_tasks), problem.n_tasks):
+                orders[int(assign[t])].append(t)
+            schedule = evaluate(problem, assign, orders)
+            if not schedule.valid:
+                continue
+            plan = make_plan(problem, schedule, prepared_for(tree), strategy="auction",
+                             objective="makespan", solve_time=0.0)
+            assert check_invariants(plan, tree, units) == []
+            checked += 1
+    assert checked >= 40, checked
