@@ -10,12 +10,10 @@ it publishes ``tst/response``, ``tst/feedback`` for every node status change, ``
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 import uuid
-from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -46,6 +44,7 @@ from delegation.messages import (
     decode,
     encode,
 )
+from delegation.messages.answers import AnswerCache, com_uuid_of
 from delegation.mqtt import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
@@ -91,7 +90,7 @@ class TstEngine(MqttUnit):
         self.core = EngineCore(**core_options)
         self.bases: dict[str, str] = {}
         self.agent_uuid = ""
-        self._answers: OrderedDict[str, bytes] = OrderedDict()
+        self._answers = AnswerCache(COM_HISTORY)
         self._next_info = 0.0
         self._seen = threading.Condition()
 
@@ -144,20 +143,17 @@ class TstEngine(MqttUnit):
     # ---- tst/command
 
     def _command(self, message: Message, now: float) -> None:
-        try:
-            raw = json.loads(message.payload)
-        except ValueError:
-            raw = None
-        com_uuid = raw.get("com-uuid") if isinstance(raw, dict) else None
-        if isinstance(com_uuid, str) and com_uuid in self._answers:
+        com_uuid = com_uuid_of(message.payload)
+        previous = self._answers.get(com_uuid)
+        if previous is not None:
             log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
-            self.publish(f"{self.base}/tst/response", self._answers[com_uuid], qos=QOS_COMMAND)
+            self.publish(f"{self.base}/tst/response", previous, qos=QOS_COMMAND)
             return
         try:
             command = decode(message.topic, message.payload)
         except MessageError as exc:
             log.warning("%s: bad command: %s", self.name, exc)
-            if isinstance(com_uuid, str):
+            if com_uuid is not None:
                 self._respond(com_uuid, "failed", fail_reason=exc.fail_reason)
             return
         actions: list[Action] = []
@@ -197,10 +193,7 @@ class TstEngine(MqttUnit):
             fail_reason=fail_reason, response=response, response_to=com_uuid, root_uuid=root_uuid
         )
         data = encode(answer)
-        if com_uuid:
-            self._answers[com_uuid] = data
-            while len(self._answers) > COM_HISTORY:
-                self._answers.popitem(last=False)
+        self._answers.put(com_uuid, data)
         self.publish(f"{self.base}/tst/response", data, qos=QOS_COMMAND)
 
     # ---- from the units

@@ -19,7 +19,6 @@ import json
 import logging
 import time
 import uuid
-from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +39,7 @@ from delegation.messages import (
     decode,
     encode,
 )
+from delegation.messages.answers import AnswerCache, com_uuid_of
 from delegation.messages.base import WireModel
 from delegation.mqtt import (
     DEFAULT_PREFIX,
@@ -95,7 +95,7 @@ class SimUnit(MqttUnit):
         self.base = unit_base_topic(unit.name, unit.agent_type, role, prefix)
         self.vehicle = SimVehicle(unit, example_agent=example_agent)
         self.agent_uuid = str(uuid.uuid4())
-        self._answers: OrderedDict[str, bytes] = OrderedDict()
+        self._answers = AnswerCache(COM_HISTORY)
         self._last_tick: float | None = None
         self._next_publish = 0.0
         self.commands_handled = 0
@@ -123,20 +123,17 @@ class SimUnit(MqttUnit):
         if self.example_agent:
             self._handle_like_example(message)
             return
-        try:
-            raw = json.loads(message.payload)
-        except ValueError:
-            raw = None
-        com_uuid = raw.get("com-uuid") if isinstance(raw, dict) else None
-        if isinstance(com_uuid, str) and com_uuid in self._answers:
+        com_uuid = com_uuid_of(message.payload)
+        previous = self._answers.get(com_uuid)
+        if previous is not None:
             log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
-            self.publish(f"{self.base}/exec/response", self._answers[com_uuid], qos=QOS_COMMAND)
+            self.publish(f"{self.base}/exec/response", previous, qos=QOS_COMMAND)
             return
         try:
             command = decode(message.topic, message.payload)
         except MessageError as exc:
             log.warning("%s: bad command: %s", self.name, exc)
-            if isinstance(com_uuid, str):
+            if com_uuid is not None:
                 self._respond(com_uuid, "failed", fail_reason=str(exc))
             return
         self.commands_handled += 1
@@ -197,9 +194,7 @@ class SimUnit(MqttUnit):
             task_uuid=task_uuid,
         )
         data = encode(answer)
-        self._answers[com_uuid] = data
-        while len(self._answers) > COM_HISTORY:
-            self._answers.popitem(last=False)
+        self._answers.put(com_uuid, data)
         self.publish(f"{self.base}/exec/response", data, qos=QOS_COMMAND)
 
     def _feedback(self, event: TaskEvent) -> None:
