@@ -171,3 +171,6 @@ def test_serve_profiles_from_a_scenario_or_a_plain_file(tmp_path: Path) -> None:
     plain.write_text("air: fast\n")
     with pytest.raises(InputError, match="air"):
         _read_profiles(str(plain))
+    plain.write_bytes(b"\xff\xfeair: {}\n")
+    with pytest.raises(InputError, match=r"p\.yaml: not UTF-8 text"):
+        _read_profiles(str(plain))

@@ -225,6 +225,12 @@ def test_unreadable_files(tmp_path: Path) -> None:
     assert "must be a mapping" in str(_bad(tmp_path, None, raw="- just\n- a list\n"))
     with pytest.raises(InputError, match="cannot read"):
         load_scenario(tmp_path / "missing.yaml")
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"\xff\xfename: x\n")
+    with pytest.raises(InputError, match=r"binary\.yaml: not UTF-8 text: invalid start byte"):
+        load_scenario(binary)
+    with pytest.raises(InputError, match=r"binary\.yaml: not UTF-8 text"):
+        read_tsplib(binary)
 
 
 def test_scenario_from_dict_names_its_source() -> None:

@@ -223,6 +223,10 @@ def load_scenario(path: str | Path) -> Scenario:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            Problem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+        ) from None
     try:
         data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
     except json.JSONDecodeError as exc:
@@ -249,6 +253,10 @@ def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            Problem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+        ) from None
     coords: list[tuple[float, float]] = []
     in_section = False
     for number, line in enumerate(lines, start=1):

@@ -394,6 +394,10 @@ def _read_object(path: str) -> dict[str, Any]:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(Problem(path, "", f"cannot read: {exc.strerror}")) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            Problem(path, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+        ) from None
     try:
         data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:
