@@ -158,6 +158,18 @@ def test_optimal_is_never_worse_than_auction() -> None:
             assert got.key(objective) <= base.key(objective)
 
 
+def test_optimal_says_when_it_keeps_the_auctions_plan(caplog: pytest.LogCaptureFixture) -> None:
+    # No unit can take the only task: nothing to optimise, so the auction's plan is kept; the
+    # plan's notes and the log both say so (no silent fallback).
+    tree = parse_tree({"name": "seq", "children": [move_to(100, 0)]})
+    units = [unit("a", 0, 0, tasks=("search-area",))]
+    with caplog.at_level("INFO", logger="delegation.allocation.optimal"):
+        plan = plan_mission(tree, units, strategy="optimal", time_limit=1.0)
+    assert any("auction's plan" in note for note in plan.notes)
+    logged = [r.getMessage() for r in caplog.records if r.name == "delegation.allocation.optimal"]
+    assert all(f"optimal: {note}" in logged for note in plan.notes)
+
+
 # --------------------------------------------------------------------------- plan_mission
 
 

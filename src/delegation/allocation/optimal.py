@@ -81,6 +81,7 @@ def optimise(
     result = OptimalResult(base)
     if not tasks:
         result.notes.append("no vehicle task to optimise; the auction's plan is optimal")
+        log.info("optimal: %s", result.notes[-1])
         return result
     flat = problem.plain  # routing models a unit's own route only: exact for plain trees
     mask = _candidates(problem, tasks, base)
