@@ -115,15 +115,19 @@ def _round_trip(settings: BrokerSettings, prefix: str) -> MqttClient:
     client = MqttClient(settings)
     client.subscribe(f"{prefix}/#")
     client.connect()
-    deadline = time.monotonic() + 10
-    got: Message | None = None
-    while got is None and time.monotonic() < deadline:
-        client.publish(f"{prefix}/hello", b"hi", qos=1)
-        try:
-            got = client.messages.get(timeout=0.5)
-        except Exception:
-            got = None
-    assert got is not None and got.topic == f"{prefix}/hello" and got.payload == b"hi"
+    try:
+        deadline = time.monotonic() + 10
+        got: Message | None = None
+        while got is None and time.monotonic() < deadline:
+            client.publish(f"{prefix}/hello", b"hi", qos=1)
+            try:
+                got = client.messages.get(timeout=0.5)
+            except queue.Empty:
+                got = None
+        assert got is not None and got.topic == f"{prefix}/hello" and got.payload == b"hi"
+    except BaseException:
+        client.disconnect()  # the caller only stops a client it got back
+        raise
     return client
 
 
@@ -205,7 +209,11 @@ def test_reconnect_after_broker_restart(prefix: str) -> None:
     # A port outside the ephemeral range: no outgoing connection takes it while the broker is down.
     port = free_port(stable=True)
     first = EmbeddedBroker(port=port).start()
-    client = _round_trip(first.settings(), prefix)
+    try:
+        client = _round_trip(first.settings(), prefix)
+    except BaseException:
+        first.stop()
+        raise
     second: EmbeddedBroker | None = None
     try:
         first.stop()

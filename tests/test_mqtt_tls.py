@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import queue
 import shutil
 import subprocess
 import time
@@ -73,7 +74,7 @@ def test_tls_with_credentials(secure_broker: tuple[PrivateMosquitto, Path]) -> N
             client.publish("secure/x", b"1", qos=1)
             try:
                 got = client.messages.get(timeout=0.5)
-            except Exception:
+            except queue.Empty:
                 got = None
         assert got is not None and got.payload == b"1"
         assert client.protocol_version is not None and int(client.protocol_version) == 5
