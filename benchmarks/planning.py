@@ -40,7 +40,7 @@ from delegation.geo import LocalFrame
 from delegation.scenario import berlin52_scenario
 from delegation.tst import TstNode, parse_tree, with_defaults, with_uuids
 
-BERLIN = Path("/work/shared/benchmarks/berlin52.tsp")
+BERLIN = Path(__file__).resolve().parent / "data" / "berlin52.tsp"  # TSPLIB, bundled
 #: Best published values (LKH-3, integer-rounded distances), from the instance's README.
 PUBLISHED = {3: {"min-sum": 7735.0, "min-max": 3070.0}, 5: {"min-sum": 8124.0, "min-max": 2440.0}}
 

@@ -25,7 +25,7 @@ from delegation.tst import ExecUnitKind, TstNode, classify_execunit, leaves, rea
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"
-BERLIN52 = Path("/work/shared/benchmarks/berlin52.tsp")
+BERLIN52 = ROOT / "benchmarks" / "data" / "berlin52.tsp"  # TSPLIB, bundled
 FILES = sorted(p for p in SCENARIOS.glob("*") if p.suffix in (".yaml", ".yml", ".json"))
 SITES = {"granso": (57.76, 16.68), "motala": (58.54, 15.04), "linkoping": (58.41, 15.62)}
 
@@ -243,7 +243,6 @@ def test_scenario_from_dict_names_its_source() -> None:
 # --------------------------------------------------------------------------- berlin52
 
 
-@pytest.mark.skipif(not BERLIN52.exists(), reason="berlin52.tsp not available")
 def test_berlin52_scenario() -> None:
     coords = np.array(read_tsplib(BERLIN52))
     assert coords.shape == (52, 2)
