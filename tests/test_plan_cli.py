@@ -57,3 +57,22 @@ def test_missing_file_is_one_clear_line(capsys: pytest.CaptureFixture[str], tmp_
     assert main(["plan", str(tmp_path / "none.yaml")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "none.yaml" in err and "Traceback" not in err
+
+
+def test_cli_choices_are_the_planners_names() -> None:
+    from delegation.allocation import OBJECTIVES, STRATEGIES
+    from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
+
+    assert tuple(STRATEGY_CHOICES) == tuple(STRATEGIES)
+    assert tuple(OBJECTIVE_CHOICES) == tuple(OBJECTIVES)
+
+
+def test_demo_rejects_an_unknown_strategy_before_starting_anything(capsys) -> None:
+    import pytest
+
+    from delegation.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--strategy", "bogus"])
+    assert exc.value.code == 2
+    assert "invalid choice: 'bogus'" in capsys.readouterr().err

@@ -18,6 +18,7 @@ from contextlib import ExitStack, suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.errors import DelegationError, InputError, Problem
 
 if TYPE_CHECKING:
@@ -40,11 +41,13 @@ DEMO_TARGET_WALL_S = 15.0
 def add_broker_args(parser: argparse.ArgumentParser) -> None:
     """``--broker/--port/--tls/--username/--password``, defaulting to ``WARAPS_*``."""
     g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
-    g.add_argument("--broker", default=None, metavar="HOST",
-                   help="MQTT broker host [WARAPS_BROKER]")
+    g.add_argument(
+        "--broker", default=None, metavar="HOST", help="MQTT broker host [WARAPS_BROKER]"
+    )
     g.add_argument("--port", default=None, help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
-    g.add_argument("--tls", action="store_true", default=None,
-                   help="connect with TLS [WARAPS_TLS_CONNECTION]")
+    g.add_argument(
+        "--tls", action="store_true", default=None, help="connect with TLS [WARAPS_TLS_CONNECTION]"
+    )
     g.add_argument("--username", default=None, help="[WARAPS_USERNAME]")
     g.add_argument("--password", default=None, help="[WARAPS_PASSWORD]")
     g.add_argument("--prefix", default="waraps", help="first topic level (default: waraps)")
@@ -62,8 +65,9 @@ def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
     port = args.port or os.environ.get("WARAPS_PORT") or None
     username = args.username if args.username is not None else (env.username if env else "")
     password = args.password if args.password is not None else (env.password if env else "")
-    return BrokerSettings.from_values(host=host, port=port, tls=bool(tls), username=username,
-                                      password=password)
+    return BrokerSettings.from_values(
+        host=host, port=port, tls=bool(tls), username=username, password=password
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -75,16 +79,27 @@ def register(subparsers: Any) -> None:
         "submits the scenario's mission, shows live progress, prints a summary and writes a map. "
         "Exit 0 when the mission succeeded.",
     )
-    demo.add_argument("--scenario", default=DEFAULT_SCENARIO,
-                      help=f"scenario file or name under scenarios/ (default {DEFAULT_SCENARIO})")
-    demo.add_argument("--strategy", default="auction", help="nearest, auction or optimal")
-    demo.add_argument("--objective", default="makespan", help="makespan or total")
+    demo.add_argument(
+        "--scenario",
+        default=DEFAULT_SCENARIO,
+        help=f"scenario file or name under scenarios/ (default {DEFAULT_SCENARIO})",
+    )
+    demo.add_argument("--strategy", default="auction", choices=STRATEGY_CHOICES)
+    demo.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
     demo.add_argument("--time-limit", type=float, default=2.0, help="planner time limit (s)")
-    demo.add_argument("--speedup", type=float, default=None,
-                      help="simulation time factor (default: fit the plan into ~15 s)")
+    demo.add_argument(
+        "--speedup",
+        type=float,
+        default=None,
+        help="simulation time factor (default: fit the plan into ~15 s)",
+    )
     demo.add_argument("--out", default="demo-out", help="directory for map.png and plan.json")
-    demo.add_argument("--timeout", type=float, default=50.0,
-                      help="give up after this many wall seconds of execution")
+    demo.add_argument(
+        "--timeout",
+        type=float,
+        default=50.0,
+        help="give up after this many wall seconds of execution",
+    )
     add_broker_args(demo)
     demo.set_defaults(func=_demo)
 
@@ -96,26 +111,43 @@ def register(subparsers: Any) -> None:
     submit = subparsers.add_parser(
         "submit", help="send a mission to a running service and follow it to the end"
     )
-    submit.add_argument("mission", help="a TST (JSON/YAML), a scenario file, or a "
-                        "start-tst/delegate command file")
+    submit.add_argument(
+        "mission", help="a TST (JSON/YAML), a scenario file, or a start-tst/delegate command file"
+    )
     submit.add_argument("--service", default="delegator0", help="the service's unit name")
-    submit.add_argument("--wait", type=float, default=10.0,
-                        help="seconds to wait for the service's heartbeat (default 10)")
-    submit.add_argument("--strategy", default=None)
-    submit.add_argument("--objective", default=None)
+    submit.add_argument(
+        "--wait",
+        type=float,
+        default=10.0,
+        help="seconds to wait for the service's heartbeat (default 10)",
+    )
+    submit.add_argument("--strategy", default=None, choices=STRATEGY_CHOICES)
+    submit.add_argument("--objective", default=None, choices=OBJECTIVE_CHOICES)
     submit.add_argument("--time-limit", type=float, default=None)
-    submit.add_argument("--speedup", type=float, default=1.0,
-                        help="the fleet's time factor, to show actual times in mission seconds")
-    submit.add_argument("--timeout", type=float, default=3600.0,
-                        help="stop following after this many seconds (exit 1)")
-    submit.add_argument("--enough", action="store_true",
-                        help="send $enough to open-ended tasks (look-at-*) once all others ended")
+    submit.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        help="the fleet's time factor, to show actual times in mission seconds",
+    )
+    submit.add_argument(
+        "--timeout",
+        type=float,
+        default=3600.0,
+        help="stop following after this many seconds (exit 1)",
+    )
+    submit.add_argument(
+        "--enough",
+        action="store_true",
+        help="send $enough to open-ended tasks (look-at-*) once all others ended",
+    )
     add_broker_args(submit)
     submit.set_defaults(func=_submit)
 
     agents = subparsers.add_parser("agents", help="list the live units a broker shows")
-    agents.add_argument("--wait", type=float, default=3.0,
-                        help="seconds to listen for heartbeats (default 3)")
+    agents.add_argument(
+        "--wait", type=float, default=3.0, help="seconds to listen for heartbeats (default 3)"
+    )
     agents.add_argument("--format", choices=("table", "json"), default="table")
     add_broker_args(agents)
     agents.set_defaults(func=_agents)
@@ -124,15 +156,24 @@ def register(subparsers: Any) -> None:
 def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default="delegator0", help="the service's unit name")
     p.add_argument("--engine", default="op0", help="the TST engine's unit name")
-    p.add_argument("--strategy", default="auction", help="default strategy for start-tst")
-    p.add_argument("--objective", default="makespan")
+    p.add_argument(
+        "--strategy",
+        default="auction",
+        choices=STRATEGY_CHOICES,
+        help="default strategy for start-tst",
+    )
+    p.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
     p.add_argument("--time-limit", type=float, default=2.0)
     p.add_argument("--agent-type", default="ground", help="agent-type in the heartbeat topic")
     p.add_argument("--role", default="simulation", help="role level of the topic (real, ...)")
-    p.add_argument("--profiles", default=None, metavar="FILE",
-                   help="what heartbeats do not tell (speeds, endurance, home, camera): a "
-                   "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
-                   "agent type")
+    p.add_argument(
+        "--profiles",
+        default=None,
+        metavar="FILE",
+        help="what heartbeats do not tell (speeds, endurance, home, camera): a "
+        "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
+        "agent type",
+    )
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -160,8 +201,13 @@ def find_scenario(name: str) -> Path:
         for n in names:
             if (d / n).is_file():
                 return d / n
-    raise InputError(Problem(name, "", "no such scenario file (looked in ./scenarios and the "
-                                      "project's scenarios/ directory)"))
+    raise InputError(
+        Problem(
+            name,
+            "",
+            "no such scenario file (looked in ./scenarios and the project's scenarios/ directory)",
+        )
+    )
 
 
 # --------------------------------------------------------------------------- following
@@ -191,8 +237,9 @@ def follow(
     progress = MissionProgress(plan, speedup=speedup)
     root = progress.root_uuid
     deadline = time.monotonic() + timeout
-    with Live(progress.table(), console=console, refresh_per_second=6,
-              transient=False, auto_refresh=True) as live:
+    with Live(
+        progress.table(), console=console, refresh_per_second=6, transient=False, auto_refresh=True
+    ) as live:
         while not progress.done and time.monotonic() < deadline:
             if enough:
                 _send_enough(client, progress, time.time())
@@ -206,8 +253,9 @@ def follow(
                 continue
             data = ev.data
             if ev.kind == "mission" and data.get("root-uuid") == root:
-                progress.on_mission(str(data.get("status")), str(data.get("fail-reason", "")),
-                                    ev.at)
+                progress.on_mission(
+                    str(data.get("status")), str(data.get("fail-reason", "")), ev.at
+                )
             elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
                 progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
             live.update(progress.table())
@@ -218,8 +266,11 @@ def follow(
 def _send_enough(client: ServiceClient, progress: MissionProgress, now: float) -> None:
     for node_uuid in progress.due_for_enough(now):
         progress.enough_sent.add(node_uuid)
-        answer = client.request({"command": "signal-tst-node", "node-uuid": node_uuid,
-                                 "signal": "$enough"}, api="tst", timeout=10.0)
+        answer = client.request(
+            {"command": "signal-tst-node", "node-uuid": node_uuid, "signal": "$enough"},
+            api="tst",
+            timeout=10.0,
+        )
         if answer.get("response") != "ok":
             log.warning("$enough to %s: %s", node_uuid, answer.get("fail-reason"))
 
@@ -241,8 +292,15 @@ def run_mission(
         console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
         return None
     started = time.monotonic()
-    progress = follow(client, answer["plan"], speedup=speedup, console=console,
-                      timeout=timeout, tracks=tracks, enough=enough)
+    progress = follow(
+        client,
+        answer["plan"],
+        speedup=speedup,
+        console=console,
+        timeout=timeout,
+        tracks=tracks,
+        enough=enough,
+    )
     _print_summary(console, progress, time.monotonic() - started)
     if not progress.done:
         console.print(f"[red]gave up following after {timeout:g} s[/]")
@@ -287,8 +345,7 @@ def _demo(args: argparse.Namespace) -> int:
     speedup = args.speedup
     if speedup is None:
         # The auction's makespan (fast) is a good enough estimate to pick the speedup.
-        offline = plan_mission(scenario.tree(), units, strategy="auction",
-                               objective=args.objective)
+        offline = plan_mission(scenario.tree(), units, strategy="auction", objective=args.objective)
         speedup = max(1.0, round(float(offline.makespan or 0.0) / DEMO_TARGET_WALL_S, 1))
     if speedup <= 0:
         raise InputError(Problem("--speedup", "", "must be greater than 0"))
@@ -310,34 +367,57 @@ def _demo(args: argparse.Namespace) -> int:
         engine = TstEngine(settings, prefix=prefix)
         engine.start()
         stack.callback(engine.stop)
-        config = ServiceConfig(prefix=prefix, strategy=args.strategy, objective=args.objective,
-                               time_limit=args.time_limit, profiles=scenario.profiles())
+        config = ServiceConfig(
+            prefix=prefix,
+            strategy=args.strategy,
+            objective=args.objective,
+            time_limit=args.time_limit,
+            profiles=scenario.profiles(),
+        )
         service = DelegationService(settings, config)
         service.start()
         stack.callback(service.stop)
         names = [u.name for u in units]
         if not (engine.wait_for_units(names, 15.0) and service.wait_ready(names, timeout=15.0)):
             raise DelegationError("the simulated fleet and the engine did not come up within 15 s")
-        client = ServiceClient(settings, prefix=prefix, service=config.name,
-                               track_positions=True).start()
+        client = ServiceClient(
+            settings, prefix=prefix, service=config.name, track_positions=True
+        ).start()
         stack.callback(client.stop)
 
         tracks: dict[str, list[Any]] = {u.name: [u.position] for u in units}
-        command = {"tst": scenario.mission, "strategy": args.strategy,
-                   "objective": args.objective, "time-limit": args.time_limit}
-        progress = run_mission(client, command, console, speedup=speedup,
-                               timeout=args.timeout, tracks=tracks, enough=True)
+        command = {
+            "tst": scenario.mission,
+            "strategy": args.strategy,
+            "objective": args.objective,
+            "time-limit": args.time_limit,
+        }
+        progress = run_mission(
+            client,
+            command,
+            console,
+            speedup=speedup,
+            timeout=args.timeout,
+            tracks=tracks,
+            enough=True,
+        )
         if progress is None:
             return 1
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         plan = progress.plan
         (out / "plan.json").write_text(json.dumps(plan, indent=2, sort_keys=True))
-        path = render_map(plan, units, tracks, out / "map.png",
-                          title=f"{scenario.name}: {plan.get('strategy')} plan, "
-                          f"makespan {float(plan.get('makespan') or 0):.0f} s")
-        console.print(f"map: {path}   plan: {out / 'plan.json'}   "
-                      f"({time.monotonic() - t0:.1f} s wall in all)")
+        path = render_map(
+            plan,
+            units,
+            tracks,
+            out / "map.png",
+            title=f"{scenario.name}: {plan.get('strategy')} plan, "
+            f"makespan {float(plan.get('makespan') or 0):.0f} s",
+        )
+        console.print(
+            f"map: {path}   plan: {out / 'plan.json'}   ({time.monotonic() - t0:.1f} s wall in all)"
+        )
         return 0 if progress.succeeded else 1
 
 
@@ -349,14 +429,24 @@ def _serve(args: argparse.Namespace) -> int:
     from delegation.service import DelegationService, ServiceConfig
 
     settings = broker_settings(args) or BrokerSettings()
-    config = ServiceConfig(name=args.name, prefix=args.prefix, engine=args.engine,
-                           strategy=args.strategy, objective=args.objective,
-                           time_limit=args.time_limit, agent_type=args.agent_type, role=args.role,
-                           profiles=_read_profiles(args.profiles) if args.profiles else None)
+    config = ServiceConfig(
+        name=args.name,
+        prefix=args.prefix,
+        engine=args.engine,
+        strategy=args.strategy,
+        objective=args.objective,
+        time_limit=args.time_limit,
+        agent_type=args.agent_type,
+        role=args.role,
+        profiles=_read_profiles(args.profiles) if args.profiles else None,
+    )
     service = DelegationService(settings, config)
     service.start()
-    print(f"{config.name} serving on {settings.describe()} at {config.base_topic} "
-          f"(engine {config.engine}); Ctrl-C stops", flush=True)
+    print(
+        f"{config.name} serving on {settings.describe()} at {config.base_topic} "
+        f"(engine {config.engine}); Ctrl-C stops",
+        flush=True,
+    )
     stop = threading.Event()
     with suppress(ValueError):  # not the main thread (tests): Ctrl-C still works there
         signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -377,8 +467,9 @@ def _read_profiles(path: str) -> dict[str, dict[str, Any]]:
         return load_scenario(path).profiles()
     bad = [k for k, v in data.items() if not isinstance(v, dict)]
     if bad:
-        raise InputError(Problem(path, bad[0], "a profile must be an object (speeds, endurance, "
-                                               "home, ...)"))
+        raise InputError(
+            Problem(path, bad[0], "a profile must be an object (speeds, endurance, home, ...)")
+        )
     return data
 
 
@@ -415,8 +506,13 @@ def _read_mission(path: str) -> dict[str, Any]:
     elif "tst" in data and "command" in data:
         data = data["tst"]
     if not isinstance(data, dict) or "name" not in data:
-        raise InputError(Problem(path, "", "no TST found (expected a tree, a scenario or a "
-                                          "start-tst/delegate command)"))
+        raise InputError(
+            Problem(
+                path,
+                "",
+                "no TST found (expected a tree, a scenario or a start-tst/delegate command)",
+            )
+        )
     return data
 
 
@@ -427,15 +523,25 @@ def _submit(args: argparse.Namespace) -> int:
     from delegation.mqtt import BrokerSettings
 
     command: dict[str, Any] = {"tst": _read_mission(args.mission)}
-    for key, value in (("strategy", args.strategy), ("objective", args.objective),
-                       ("time-limit", args.time_limit)):
+    for key, value in (
+        ("strategy", args.strategy),
+        ("objective", args.objective),
+        ("time-limit", args.time_limit),
+    ):
         if value is not None:
             command[key] = value
     settings = broker_settings(args) or BrokerSettings()
-    with ServiceClient(settings, prefix=args.prefix, service=args.service,
-                       service_timeout=args.wait) as client:
-        progress = run_mission(client, command, Console(), speedup=args.speedup,
-                               timeout=args.timeout, enough=args.enough)
+    with ServiceClient(
+        settings, prefix=args.prefix, service=args.service, service_timeout=args.wait
+    ) as client:
+        progress = run_mission(
+            client,
+            command,
+            Console(),
+            speedup=args.speedup,
+            timeout=args.timeout,
+            enough=args.enough,
+        )
     return 0 if progress is not None and progress.succeeded else 1
 
 
@@ -463,8 +569,13 @@ def _agents(args: argparse.Namespace) -> int:
             registry.observe(msg.topic, message, time.time())
 
     client = MqttClient(settings, sink=sink)
-    for rest in ("heartbeat", "direct_execution_info", "sensor_info", "sensor/position",
-                 "sensor/battery_state"):
+    for rest in (
+        "heartbeat",
+        "direct_execution_info",
+        "sensor_info",
+        "sensor/position",
+        "sensor/battery_state",
+    ):
         client.subscribe(f"{args.prefix}/unit/+/+/+/{rest}")
     client.connect()
     try:
@@ -487,7 +598,9 @@ def _agents(args: argparse.Namespace) -> int:
         levels = r.get("levels", [])
         state = str(r.get("state", "")) if "direct execution" in levels else ", ".join(levels)
         table.add_row(
-            r["name"], str(r.get("type") or "?"), state,
+            r["name"],
+            str(r.get("type") or "?"),
+            state,
             f"{pos['latitude']:.5f}, {pos['longitude']:.5f}" if pos else "-",
             f"{now - seen:.1f} s ago" if isinstance(seen, int | float) else "-",
             ", ".join(r.get("tasks-available", [])) or "-",
