@@ -215,20 +215,26 @@ def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
     return scenario
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Load a scenario file (``.yaml``/``.yml`` or ``.json``; other suffixes are tried as YAML)."""
-    p = Path(path)
+def read_text(path: str | Path) -> str:
+    """A UTF-8 text file, or an ``InputError`` naming the file (unreadable, not UTF-8)."""
     source = str(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
     except UnicodeDecodeError as exc:
         raise InputError(
             Problem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
         ) from None
+
+
+def read_document(path: str | Path) -> Any:
+    """Decoded JSON (``.json``) or YAML (any other suffix), with errors that name file and line."""
+    p = Path(path)
+    source = str(path)
+    text = read_text(p)
     try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+        return json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
     except json.JSONDecodeError as exc:
         raise InputError(
             Problem(
@@ -240,7 +246,11 @@ def load_scenario(path: str | Path) -> Scenario:
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
         raise InputError(Problem(source, "", f"not valid YAML{where}: {problem}")) from None
-    return scenario_from_dict(data, source)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load a scenario file (``.yaml``/``.yml`` or ``.json``; other suffixes are tried as YAML)."""
+    return scenario_from_dict(read_document(path), str(path))
 
 
 # --------------------------------------------------------------------------- berlin52
@@ -249,14 +259,7 @@ def load_scenario(path: str | Path) -> Scenario:
 def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
     """The node coordinates of a TSPLIB ``EUC_2D`` file, in file order."""
     source = str(path)
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(
-            Problem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
-        ) from None
+    lines = read_text(path).splitlines()
     coords: list[tuple[float, float]] = []
     in_section = False
     for number, line in enumerate(lines, start=1):

@@ -478,21 +478,9 @@ def _read_profiles(path: str) -> dict[str, dict[str, Any]]:
 
 def _read_object(path: str) -> dict[str, Any]:
     """A JSON or YAML file holding an object."""
-    import yaml
+    from delegation.scenario import read_document
 
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(Problem(path, "", f"cannot read: {exc.strerror}")) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(
-            Problem(path, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
-        ) from None
-    try:
-        data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
-    except (ValueError, yaml.YAMLError) as exc:
-        raise InputError(Problem(path, "", f"not valid JSON/YAML: {exc}")) from None
+    data = read_document(path)
     if not isinstance(data, dict):
         raise InputError(Problem(path, "", "must hold a JSON/YAML object"))
     return data
