@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from delegation.errors import InputError, Problem
 from delegation.fleet import AGENT_TYPES, DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
+from delegation.messages.errors import loc_text
 from delegation.tst import CATALOGUE, TstNode, parse_and_validate
 
 log = logging.getLogger(__name__)
@@ -175,16 +176,6 @@ def _in_mission(exc: InputError, source: str) -> InputError:
     )
 
 
-def _loc(loc: tuple[int | str, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
 def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
     """Build and check a scenario: its fields, unique agent names, and the mission tree."""
     if not isinstance(data, dict):
@@ -202,7 +193,7 @@ def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
             elif err["type"] == "extra_forbidden":
                 msg = "unknown field"
             msg = msg.removeprefix("Value error, ")
-            problems.append(Problem(source, _loc(err["loc"]), msg))
+            problems.append(Problem(source, loc_text(err["loc"]) or "(top level)", msg))
         raise InputError(problems) from None
     seen: set[str] = set()
     for i, agent in enumerate(scenario.agents):
