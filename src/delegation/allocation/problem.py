@@ -21,18 +21,29 @@ if TYPE_CHECKING:
 
 
 class TablesLike(Protocol):
-    """What the problem needs from ``delegation.costs.CostTables`` (see CONTRACTS.md)."""
+    """What the problem needs from ``delegation.costs.CostTables`` (see CONTRACTS.md): kept as a
+    Protocol so tests can hand-make tables; read-only, so the frozen ``CostTables`` satisfies it."""
 
-    unit_xy: np.ndarray
-    home_xy: np.ndarray
-    start_xy: np.ndarray
-    end_xy: np.ndarray
-    speed: np.ndarray
-    work_time: np.ndarray
-    work_distance: np.ndarray
-    travels: np.ndarray
-    capable: np.ndarray
-    endurance: np.ndarray
+    @property
+    def unit_xy(self) -> np.ndarray: ...
+    @property
+    def home_xy(self) -> np.ndarray: ...
+    @property
+    def start_xy(self) -> np.ndarray: ...
+    @property
+    def end_xy(self) -> np.ndarray: ...
+    @property
+    def speed(self) -> np.ndarray: ...
+    @property
+    def work_time(self) -> np.ndarray: ...
+    @property
+    def work_distance(self) -> np.ndarray: ...
+    @property
+    def travels(self) -> np.ndarray: ...
+    @property
+    def capable(self) -> np.ndarray: ...
+    @property
+    def endurance(self) -> np.ndarray: ...
 
     def reason(self, u: int, t: int) -> str | None: ...
 
@@ -298,14 +309,14 @@ def build_problem(
     if tables is None:
         from delegation.costs import cost_tables
 
-        tables = cost_tables(list(units), [node for _, node in leaves])  # type: ignore[assignment]
+        tables = cost_tables(list(units), [node for _, node in leaves])
     names = [u.name for u in units]
     home_speed = np.array([float(u.speeds.get("standard", 1.0)) for u in units], dtype=float)
     return problem_from_arrays(
         structure,
         leaves,
         names,
-        tables=tables,  # type: ignore[arg-type]
+        tables=tables,
         home_speed=home_speed,
     )
 
