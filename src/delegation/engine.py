@@ -60,9 +60,6 @@ from delegation.tst.node import parse_tree
 
 log = logging.getLogger(__name__)
 
-#: How many answered com-uuids the engine remembers.
-COM_HISTORY = 2000
-
 
 class TstEngine(MqttUnit):
     """The TST engine unit. ``core_options`` are passed to `EngineCore` (timeouts, retries)."""
@@ -90,7 +87,7 @@ class TstEngine(MqttUnit):
         self.core = EngineCore(**core_options)
         self.bases: dict[str, str] = {}
         self.agent_uuid = ""
-        self._answers = AnswerCache(COM_HISTORY)
+        self._answers = AnswerCache()
         self._next_info = 0.0
         self._seen = threading.Condition()
 
@@ -127,11 +124,10 @@ class TstEngine(MqttUnit):
         if parsed is None:
             return
         if parsed.rest == "heartbeat":
-            if parsed.name not in self.bases:
+            if self.bases.get(parsed.name) != parsed.base:
                 with self._seen:
                     self.bases[parsed.name] = parsed.base
                     self._seen.notify_all()
-            self.bases[parsed.name] = parsed.base
             self._carry_out(self.core.unit_seen(parsed.name, now))
         elif parsed.rest == "tst/command" and parsed.base == self.base:
             self._command(message, now)

@@ -58,8 +58,6 @@ log = logging.getLogger(__name__)
 SIM_SIGNALS: tuple[str, ...] = ("$abort", "$enough", "$pause", "$continue")
 #: Tasks the example agent needs ``speed`` for (it reads ``params["speed"]`` unguarded).
 _EXAMPLE_SPEED_TASKS = frozenset({"move-to", "go-home", "move-path", "search-area"})
-#: How many answered com-uuids a unit remembers.
-COM_HISTORY = 2000
 #: Simulation step on the unit's thread (wall seconds).
 TICK_S = 0.05
 
@@ -95,7 +93,7 @@ class SimUnit(MqttUnit):
         self.base = unit_base_topic(unit.name, unit.agent_type, role, prefix)
         self.vehicle = SimVehicle(unit, example_agent=example_agent)
         self.agent_uuid = str(uuid.uuid4())
-        self._answers = AnswerCache(COM_HISTORY)
+        self._answers = AnswerCache()
         self._last_tick: float | None = None
         self._next_publish = 0.0
         self.commands_handled = 0
