@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -191,16 +191,23 @@ def _csv_value(value: Any) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-def write_csv(records: Sequence[RunRecord], path: str | Path) -> Path:
-    """One row per record, every field, floats at full precision (empty cell: unknown)."""
+def write_rows_csv(
+    fields: Sequence[str], rows: Iterable[Mapping[str, Any]], path: str | Path
+) -> Path:
+    """A header of ``fields``, then one line per row (the results and the scale sweep share it)."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
-        writer.writerow(RECORD_FIELDS)
-        for record in records:
-            writer.writerow([_csv_value(getattr(record, f)) for f in RECORD_FIELDS])
+        writer.writerow(fields)
+        for row in rows:
+            writer.writerow([_csv_value(row[f]) for f in fields])
     return out
+
+
+def write_csv(records: Sequence[RunRecord], path: str | Path) -> Path:
+    """One row per record, every field, floats at full precision (empty cell: unknown)."""
+    return write_rows_csv(RECORD_FIELDS, (r.to_dict() for r in records), path)
 
 
 def read_csv(path: str | Path) -> list[dict[str, Any]]:

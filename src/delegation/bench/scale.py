@@ -10,7 +10,6 @@ is given. Each plan runs in a child process stopped at the budget, so a sweep ta
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy as np
 
 from delegation.bench.generate import GeneratorOptions, generate_scenario
 from delegation.bench.isolate import call_isolated
+from delegation.bench.report import write_rows_csv
 from delegation.bench.runner import (
     ProgressFn,
     RunRecord,
@@ -227,23 +227,7 @@ def _relative(records: Sequence[ScaleRecord]) -> None:
 
 
 def write_scale_csv(records: Sequence[ScaleRecord], path: str | Path) -> Path:
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(SCALE_FIELDS)
-        for record in records:
-            row = record.to_dict()
-            writer.writerow([_cell(row[f]) for f in SCALE_FIELDS])
-    return out
-
-
-def _cell(value: Any) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, list):
-        return " | ".join(map(str, value))
-    return repr(value) if isinstance(value, float) else str(value)
+    return write_rows_csv(SCALE_FIELDS, (r.to_dict() for r in records), path)
 
 
 def scale_plot(
