@@ -94,28 +94,37 @@ _SPEED_INDEX = {k: i for i, k in enumerate(SPEED_KEYS)}
 # --------------------------------------------------------------------------- speeds, widths
 
 
+def _speed_choice(value: object, where: str) -> tuple[int, float]:
+    """(speed class index or -1, explicit m/s or NaN) of a ``speed`` parameter, or an
+    ``InputError`` starting with ``where``.
+
+    ``None`` means ``standard``; the seed's one-element list ``[7.0]`` is its element.
+    """
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if value is None:
+        return _SPEED_INDEX["standard"], math.nan
+    if isinstance(value, str):
+        if value not in _SPEED_INDEX:
+            raise InputError(f"{where}: {value!r} is not one of {', '.join(SPEED_KEYS)}")
+        return _SPEED_INDEX[value], math.nan
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        v = float(value)
+        if math.isfinite(v) and v > 0.0:
+            return -1, v
+    raise InputError(f"{where}: must be a speed class or m/s > 0, not {value!r}")
+
+
 def unit_speed(unit: UnitState, speed_param: object) -> float:
     """The unit's m/s for a task's ``speed`` parameter.
 
     ``None`` means ``standard``; a class name uses the unit's value; an explicit positive number
     (or the seed's one-element list ``[7.0]``) is taken as m/s, capped at the unit's ``fast``.
     """
-    value = speed_param
-    if isinstance(value, list) and len(value) == 1:
-        value = value[0]
-    if value is None:
-        return float(unit.speeds["standard"])
-    if isinstance(value, str):
-        if value not in _SPEED_INDEX:
-            raise InputError(f"speed {value!r} is not one of {', '.join(SPEED_KEYS)}")
-        return float(unit.speeds[value])
-    if isinstance(value, int | float) and not isinstance(value, bool):
-        v = float(value)
-        if math.isfinite(v) and v > 0.0:
-            return min(v, float(unit.speeds["fast"]))
-    raise InputError(
-        f"speed must be one of {', '.join(SPEED_KEYS)} or m/s > 0, not {speed_param!r}"
-    )
+    cls, explicit = _speed_choice(speed_param, "speed")
+    if cls >= 0:
+        return float(unit.speeds[SPEED_KEYS[cls]])
+    return min(explicit, float(unit.speeds["fast"]))
 
 
 def footprint_width(unit: UnitState) -> float:
@@ -395,24 +404,6 @@ def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(np.hypot(diff[..., 0], diff[..., 1]), dtype=float)
 
 
-def _speed_spec(node: TstNode) -> tuple[int, float]:
-    """(speed class index or -1, explicit m/s or NaN) of a task node."""
-    value = node.params.get("speed")
-    if isinstance(value, list) and len(value) == 1:
-        value = value[0]
-    if value is None:
-        return _SPEED_INDEX["standard"], math.nan
-    if isinstance(value, str):
-        if value not in _SPEED_INDEX:
-            raise InputError(
-                f"{node.name}: params.speed: {value!r} is not one of {', '.join(SPEED_KEYS)}"
-            )
-        return _SPEED_INDEX[value], math.nan
-    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
-        return -1, float(value)
-    raise InputError(f"{node.name}: params.speed: must be a speed class or m/s > 0, not {value!r}")
-
-
 def cost_tables(
     units: Sequence[UnitState],
     tasks: Sequence[TstNode],
@@ -458,7 +449,7 @@ def cost_tables(
     unit_speeds = np.array(
         [[float(u.speeds[k]) for k in SPEED_KEYS] for u in units_t], dtype=float
     ).reshape(n_u, 3)
-    specs = [_speed_spec(node) for node in tasks_t]
+    specs = [_speed_choice(n.params.get("speed"), f"{n.name}: params.speed") for n in tasks_t]
     cls = np.array([s[0] for s in specs], dtype=int).reshape(n_t)
     explicit = np.array([s[1] for s in specs], dtype=float).reshape(n_t)
     speed = unit_speeds[:, np.clip(cls, 0, 2)]
