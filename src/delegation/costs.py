@@ -346,21 +346,20 @@ class CostTables:
 
     def start_for(self, u: int, t: int) -> np.ndarray | None:
         """Where unit ``u`` starts task ``t`` (None: where it already is)."""
-        if not self.travels[t]:
-            return None
-        if self.to_home[t]:
-            home = self.home_xy[u]
-            return None if np.isnan(home).any() else home
-        return np.asarray(self.start_xy[t])
+        return self._point_for(u, t, self.start_xy)
 
     def end_for(self, u: int, t: int) -> np.ndarray | None:
         """Where unit ``u`` is after task ``t`` (None: where it was before)."""
+        return self._point_for(u, t, self.end_xy)
+
+    def _point_for(self, u: int, t: int, table: np.ndarray) -> np.ndarray | None:
+        """Row ``t`` of ``table``, the unit's home for ``go-home``, None for in-place tasks."""
         if not self.travels[t]:
             return None
         if self.to_home[t]:
             home = self.home_xy[u]
             return None if np.isnan(home).any() else home
-        return np.asarray(self.end_xy[t])
+        return np.asarray(table[t])
 
     def dist_unit_to_start(self) -> np.ndarray:
         """(U, T) metres from each unit's position to each task's start.
