@@ -16,7 +16,7 @@ from delegation.fleet import (
     split_unit_topic,
 )
 from delegation.geo import GeoPoint
-from delegation.messages import decode
+from delegation.messages import INFO, decode
 
 BASE = "waraps/unit/air/simulation/dji0"
 BOAT = "waraps/unit/surface/real/piraya0"
@@ -198,6 +198,8 @@ def test_base_topic_is_the_heartbeat_topic_minus_heartbeat() -> None:
     assert split_unit_topic("a/b/c/sensor/position") == ("a/b/c", "sensor/position")
     assert split_unit_topic("a/b/c/exec/feedback") == ("a/b/c", "exec/feedback")
     assert split_unit_topic("something/else") is None
+    for info in INFO:  # every info topic the messages know is read under its unit
+        assert split_unit_topic(f"a/b/c/{info}") == ("a/b/c", info)
 
 
 def test_position_updates_and_bare_sensor_values() -> None:

@@ -155,14 +155,10 @@ def make_unit(
 
 # --------------------------------------------------------------------------- the live registry
 
-#: Topic suffixes after a unit's base topic that the registry reads, with how many levels they add.
-_SUFFIX_LEVELS: dict[str, int] = {
-    "heartbeat": 1,
-    "sensor_info": 1,
-    "direct_execution_info": 1,
-    "tst_execution_info": 1,
-    "delegation_info": 1,
-}
+#: Info topics directly under a unit's base topic (``delegation.messages.INFO``'s keys).
+_INFO_LEVELS: frozenset[str] = frozenset(
+    {"heartbeat", "sensor_info", "direct_execution_info", "tst_execution_info", "delegation_info"}
+)
 #: Sensors that carry the battery's state of charge.
 _BATTERY_SENSORS: frozenset[str] = frozenset({"battery_state", "battery", "battery_level"})
 
@@ -171,7 +167,7 @@ def split_unit_topic(topic: str) -> tuple[str, str] | None:
     """(base topic, rest) for a topic under a unit, e.g. ``(waraps/unit/air/simulation/dji0,
     sensor/position)``; None for topics the registry does not read."""
     levels = topic.strip("/").split("/")
-    if len(levels) >= 2 and levels[-1] in _SUFFIX_LEVELS:
+    if len(levels) >= 2 and levels[-1] in _INFO_LEVELS:
         return "/".join(levels[:-1]), levels[-1]
     if len(levels) >= 3 and levels[-2] in ("sensor", "exec", "tst", "delegation"):
         return "/".join(levels[:-2]), "/".join(levels[-2:])
@@ -395,13 +391,6 @@ class FleetRegistry:
         if rec.name in self.profiles:
             merged.update(self.profiles[rec.name])
         return merged
-
-    def unit(self, name: str, now: float) -> UnitState | None:
-        """The planner's view of one unit, or None when unknown or without a position."""
-        rec = self._units.get(name.strip("/"))
-        if rec is None or rec.position is None:
-            return None
-        return self._state(rec, now)
 
     def _state(self, rec: _Record, now: float) -> UnitState:
         assert rec.position is not None
