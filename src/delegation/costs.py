@@ -55,7 +55,7 @@ from delegation.coverage import (
 )
 from delegation.errors import InputError
 from delegation.fleet import SPEED_KEYS, UnitState
-from delegation.geo import GeoPoint, LocalFrame
+from delegation.geo import GeoPoint, LocalFrame, pairwise_xy_distances
 from delegation.tst.node import TstNode
 from delegation.tst.validate import read_geopoint
 
@@ -366,7 +366,7 @@ class CostTables:
 
         0 for in-place tasks; for ``go-home`` the distance to the unit's home (0 when unknown).
         """
-        d = _pairwise(self.unit_xy, self.start_xy)
+        d = pairwise_xy_distances(self.unit_xy, self.start_xy)
         d[:, ~self.travels] = 0.0
         if self.to_home.any():
             home_d = np.hypot(*(self.home_xy - self.unit_xy).T)
@@ -381,7 +381,7 @@ class CostTables:
         ``go-home`` (the unit's position then depends on the unit or on what it did before), and
         column j is NaN when j is ``go-home``.
         """
-        d = _pairwise(self.end_xy, self.start_xy)
+        d = pairwise_xy_distances(self.end_xy, self.start_xy)
         d[:, ~self.travels] = 0.0
         d[~self.travels | self.to_home, :] = np.nan
         d[:, self.to_home] = np.nan
@@ -390,17 +390,12 @@ class CostTables:
     def dist_end_to_home(self) -> np.ndarray:
         """(T, U) metres from the end of task t to unit u's home; NaN where u has no home or the
         end is not a fixed point (in-place tasks); 0 for ``go-home``."""
-        d = _pairwise(self.end_xy, self.home_xy)
+        d = pairwise_xy_distances(self.end_xy, self.home_xy)
         no_home = np.isnan(self.home_xy).any(axis=1)
         d[self.to_home, :] = 0.0
         d[:, no_home] = np.nan
         d[~self.travels, :] = np.nan
         return d
-
-
-def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    diff = a[:, None, :] - b[None, :, :]
-    return np.asarray(np.hypot(diff[..., 0], diff[..., 1]), dtype=float)
 
 
 def cost_tables(
