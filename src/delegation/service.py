@@ -73,9 +73,9 @@ from delegation.messages import (
     WireModel,
     decode,
     encode,
-    json_value,
     new_com_uuid,
 )
+from delegation.messages.answers import com_uuid_of
 from delegation.missions import (
     CommandEntry,
     CommandLog,
@@ -260,16 +260,6 @@ def _infeasible_reason(plan: Any, tree: TstNode) -> str:
     return "cannot instantiate the tree: " + ("; ".join(parts) or "no feasible plan")
 
 
-def _peek_com_uuid(payload: bytes) -> str:
-    """The com-uuid of a command that failed to decode, if it has one (for ``response-to``)."""
-    try:
-        data = json_value(payload)
-    except MessageError:
-        return ""
-    value = data.get("com-uuid") if isinstance(data, dict) else None
-    return value if isinstance(value, str) else ""
-
-
 # --------------------------------------------------------------------------- the core
 
 
@@ -374,7 +364,7 @@ class ServiceCore:
             cmd: WireModel | None = decode(topic, payload)
         except MessageError as exc:
             cmd, error = None, exc
-        com_uuid = getattr(cmd, "com_uuid", None) if cmd is not None else _peek_com_uuid(payload)
+        com_uuid = getattr(cmd, "com_uuid", None) if cmd is not None else com_uuid_of(payload)
         key: CmdKey | None = (face, com_uuid) if com_uuid else None
         if key is not None:
             entry = self.commands.seen(key)
