@@ -130,13 +130,7 @@ def _flat_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[li
         assign[t] = u
         allowed[:, t] = False
         delta[:, t] = np.inf
-        g = alias_of[t]
-        if g >= 0:
-            members = problem.alias_groups[g]
-            others = np.ones(n_units, dtype=bool)
-            others[u] = False
-            allowed[np.ix_(others, members)] = False
-            delta[np.ix_(others, members)] = np.inf
+        _bind_alias(problem, alias_of, allowed, delta, u, t)
         recompute(u)
     return assign, routes
 
@@ -378,16 +372,24 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
         current = trial
         close(t)
         rejected[:] = False
-        g = alias_of[t]
-        if g >= 0:
-            members = problem.alias_groups[g]
-            others = np.ones(n_units, dtype=bool)
-            others[u] = False
-            allowed[np.ix_(others, members)] = False
-            delta[np.ix_(others, members)] = np.inf
+        _bind_alias(problem, alias_of, allowed, delta, u, t)
         recompute(u)
         dirty[u] = True
     return assign, routes
+
+
+def _bind_alias(
+    problem: Problem, alias_of: np.ndarray, allowed: np.ndarray, delta: np.ndarray, u: int, t: int
+) -> None:
+    """Task ``t`` went to unit ``u``: the rest of its alias group may go to ``u`` only."""
+    g = alias_of[t]
+    if g < 0:
+        return
+    members = problem.alias_groups[g]
+    others = np.ones(problem.n_units, dtype=bool)
+    others[u] = False
+    allowed[np.ix_(others, members)] = False
+    delta[np.ix_(others, members)] = np.inf
 
 
 def _places(serialised: Serialisation | None) -> dict[int, tuple[int, int]]:
