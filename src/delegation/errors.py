@@ -7,6 +7,13 @@ cannot be understood at all, and each carries the problems found so callers can 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
+
+
+def short_repr(value: Any) -> str:
+    """``repr`` cut to a readable length, for quoting a bad value in a problem's message."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 @dataclass(frozen=True, slots=True)

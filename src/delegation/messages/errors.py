@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from delegation.errors import MessageError, Problem
+from delegation.errors import MessageError, Problem, short_repr
 
 #: JSON nested deeper than this is refused. A tree at the parser's depth limit (64 levels) nests
 #: about 135 levels of JSON; pydantic refuses to serialise beyond about 250.
@@ -81,11 +81,6 @@ def loc_text(loc: tuple[int | str, ...]) -> str:
     return out
 
 
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def validation_problems(exc: ValidationError, where: str) -> list[Problem]:
     """One problem per pydantic error, naming the field by its wire (hyphenated) name."""
     problems: list[Problem] = []
@@ -100,6 +95,6 @@ def validation_problems(exc: ValidationError, where: str) -> list[Problem]:
         elif err["type"] == "extra_forbidden":
             message = "unknown field"
         else:
-            message = f"{err['msg']}, got {_short(err.get('input'))}"
+            message = f"{err['msg']}, got {short_repr(err.get('input'))}"
         problems.append(Problem(where, field, message))
     return problems

@@ -12,7 +12,7 @@ from typing import Any
 
 from shapely.geometry import LinearRing, Polygon
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, Problem, short_repr
 from delegation.geo import GeoPoint
 from delegation.tst.catalogue import CATALOGUE, SPEED_CLASSES, ParamType, TaskSpec
 from delegation.tst.node import TstNode, classify_execunit, map_tree, parse_tree, walk, where
@@ -30,12 +30,6 @@ def _is_number(v: Any) -> bool:
         return False
 
 
-def _short(value: Any) -> str:
-    """``repr`` cut to a readable length for messages."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
     """(field, message) pairs for a GeoPoint value; empty when it is valid."""
     if isinstance(value, list) and len(value) == 1:
@@ -48,12 +42,12 @@ def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
         if v is None:
             out.append((f"{field}.{key}", "missing"))
         elif not _is_number(v):
-            out.append((f"{field}.{key}", f"must be a number, not {_short(v)}"))
+            out.append((f"{field}.{key}", f"must be a number, not {short_repr(v)}"))
         elif not lo <= v <= hi:
             out.append((f"{field}.{key}", f"{v} is outside [{lo:g}, {hi:g}]"))
     alt = value.get("altitude")
     if alt is not None and not _is_number(alt):
-        out.append((f"{field}.altitude", f"must be a number, not {_short(alt)}"))
+        out.append((f"{field}.altitude", f"must be a number, not {short_repr(alt)}"))
     return out
 
 
@@ -80,23 +74,25 @@ def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[
             for p in _value_problems(ParamType.GEOPOINTS, v, f"{field}[{i}]")
         ]
     if spec_type is ParamType.FLOAT64:
-        return [] if _is_number(value) else [(field, f"must be a number, not {_short(value)}")]
+        return [] if _is_number(value) else [(field, f"must be a number, not {short_repr(value)}")]
     if spec_type is ParamType.INT32:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         if not isinstance(value, int) or isinstance(value, bool):
-            return [(field, f"must be an integer, not {_short(value)}")]
+            return [(field, f"must be an integer, not {short_repr(value)}")]
         if not INT32_MIN <= value <= INT32_MAX:
-            return [(field, f"{_short(value)} is outside the int32 range")]
+            return [(field, f"{short_repr(value)} is outside the int32 range")]
         return []
     if spec_type is ParamType.BOOL:
         return (
             []
             if isinstance(value, bool)
-            else [(field, f"must be true or false, not {_short(value)}")]
+            else [(field, f"must be true or false, not {short_repr(value)}")]
         )
     if spec_type is ParamType.STRING:
-        return [] if isinstance(value, str) else [(field, f"must be a string, not {_short(value)}")]
+        if isinstance(value, str):
+            return []
+        return [(field, f"must be a string, not {short_repr(value)}")]
     if spec_type is ParamType.STRINGS:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             return [(field, "must be a list of strings")]
@@ -114,10 +110,11 @@ def _speed_problems(value: Any, field: str) -> list[tuple[str, str]]:
     if isinstance(value, str):
         if value in SPEED_CLASSES:
             return []
-        return [(field, f"{_short(value)} is not one of {', '.join(SPEED_CLASSES)}")]
+        return [(field, f"{short_repr(value)} is not one of {', '.join(SPEED_CLASSES)}")]
     if _is_number(value) and value > 0:
         return []  # lenient: an explicit m/s, as in the seed's observe-position example
-    return [(field, f"must be one of {', '.join(SPEED_CLASSES)} (or m/s > 0), not {_short(value)}")]
+    classes = ", ".join(SPEED_CLASSES)
+    return [(field, f"must be one of {classes} (or m/s > 0), not {short_repr(value)}")]
 
 
 def _polygon_problems(points: list[Any], field: str) -> list[tuple[str, str]]:
