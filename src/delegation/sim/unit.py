@@ -40,7 +40,6 @@ from delegation.messages import (
     encode,
 )
 from delegation.messages.answers import AnswerCache, com_uuid_of
-from delegation.messages.base import WireModel
 from delegation.mqtt import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
@@ -220,14 +219,14 @@ class SimUnit(MqttUnit):
         heartbeat["levels"] = levels  # the model normalises spelling; publish ours as chosen
         if self.example_agent:
             heartbeat["agent-description"] = "L2_agent_example"
-        self._json(f"{self.base}/heartbeat", heartbeat)
+        self.publish(f"{self.base}/heartbeat", heartbeat)
         sensors = ["position", "speed", "course", "heading"]
         if not self.example_agent:
             sensors.append("battery_state")
-        self._model(
-            f"{self.base}/sensor_info",
-            SensorInfo(name=self.name, rate=self.rate, sensor_data_provided=sensors, stamp=stamp),
+        sensor_info = SensorInfo(
+            name=self.name, rate=self.rate, sensor_data_provided=sensors, stamp=stamp
         )
+        self.publish(f"{self.base}/sensor_info", encode(sensor_info), qos=QOS_PERIODIC)
         info = DirectExecutionInfo(
             name=self.name,
             rate=self.rate,
@@ -241,7 +240,7 @@ class SimUnit(MqttUnit):
             info.pop("tasks-executing", None)
         else:
             info["tasks-executing"] = info.get("tasks-executing", [])
-        self._json(f"{self.base}/direct_execution_info", info)
+        self.publish(f"{self.base}/direct_execution_info", info)
         pos = v.position
         if self.example_agent:
             position: dict[str, Any] = {
@@ -250,23 +249,17 @@ class SimUnit(MqttUnit):
                 "altitude": pos.altitude,
                 "type": "GeoPoint",
             }
-            self._json(f"{self.base}/sensor/position", position)
+            self.publish(f"{self.base}/sensor/position", position)
             for sensor, value in (("speed", v.speed), ("course", v.course), ("heading", v.heading)):
                 self.publish(f"{self.base}/sensor/{sensor}", json.dumps(value), qos=QOS_PERIODIC)
         else:
-            self._json(f"{self.base}/sensor/position", pos.to_wire())
+            self.publish(f"{self.base}/sensor/position", pos.to_wire())
             for sensor, value in (("speed", v.speed), ("course", v.course), ("heading", v.heading)):
-                self._json(f"{self.base}/sensor/{sensor}", {"value": value})
-            self._json(
+                self.publish(f"{self.base}/sensor/{sensor}", {"value": value})
+            self.publish(
                 f"{self.base}/sensor/battery_state",
                 {"percentage": round(v.battery, 6), "charging": False},
             )
-
-    def _json(self, topic: str, data: dict[str, Any]) -> None:
-        self.publish(topic, json.dumps(data, sort_keys=True), qos=QOS_PERIODIC)
-
-    def _model(self, topic: str, model: WireModel) -> None:
-        self.publish(topic, encode(model), qos=QOS_PERIODIC)
 
     # ---- the example agent's protocol, quirks included
 
@@ -301,7 +294,7 @@ class SimUnit(MqttUnit):
                 "response-to": com_uuid,
                 "task-uuid": task_uuid,
             }
-            self._json(f"{self.base}/exec/response", response)
+            self.publish(f"{self.base}/exec/response", response)
             self._example_feedback(task_uuid, "failed" if reason else "running")
         elif command == "signal-task":
             signal, task_uuid, com_uuid = (
@@ -318,7 +311,7 @@ class SimUnit(MqttUnit):
                     "response-to": com_uuid,
                     "task-uuid": running,
                 }
-                self._json(f"{self.base}/exec/response", reply)
+                self.publish(f"{self.base}/exec/response", reply)
                 self._example_feedback(running, event.status if event else "")
             else:
                 reply = {
@@ -328,11 +321,11 @@ class SimUnit(MqttUnit):
                     "response-to": com_uuid,
                     "task-uuid": running,
                 }
-                self._json(f"{self.base}/exec/response", reply)
+                self.publish(f"{self.base}/exec/response", reply)
                 self._example_feedback(running, "failed")
 
     def _example_feedback(self, task_uuid: str, status: str) -> None:
-        self._json(
+        self.publish(
             f"{self.base}/exec/feedback",
             {
                 "agent-uuid": self.agent_uuid,
