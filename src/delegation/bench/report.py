@@ -128,23 +128,30 @@ def _useful(columns: Sequence[Column], records: Sequence[RunRecord]) -> tuple[Co
     return tuple(c for c in columns if c.field not in drop)
 
 
-def results_tables(records: Sequence[RunRecord]) -> list[Table]:
-    """One compact ``rich`` table per scenario (numbers right-aligned, never cut)."""
+def compact_table(title: str) -> Table:
+    """A ``rich`` table for the terminal: no edge or padding, bold headers (bench's tables)."""
     from rich import box
 
+    return Table(
+        title=title,
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        padding=(0, 0),
+        pad_edge=False,
+        header_style="bold",
+    )
+
+
+def results_tables(records: Sequence[RunRecord]) -> list[Table]:
+    """One compact ``rich`` table per scenario (numbers right-aligned, never cut)."""
     columns = _useful(TERMINAL_COLUMNS, records)
     tables: list[Table] = []
     for source in dict.fromkeys(r.source for r in records):
         mine = [r for r in records if r.source == source]
         first = mine[0]
-        table = Table(
-            title=f"[bold]{first.scenario}[/bold]: {first.units} units, {first.tasks} tasks",
-            title_justify="left",
-            box=box.SIMPLE_HEAD,
-            show_edge=False,
-            padding=(0, 0),
-            pad_edge=False,
-            header_style="bold",
+        table = compact_table(
+            f"[bold]{first.scenario}[/bold]: {first.units} units, {first.tasks} tasks"
         )
         rows = table_rows(mine, columns)
         for i, column in enumerate(columns):

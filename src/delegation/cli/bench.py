@@ -319,9 +319,7 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
 
 
 def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
-    from rich import box
-    from rich.table import Table
-
+    from delegation.bench.report import compact_table
     from delegation.bench.scale import (
         DEFAULT_BUDGET,
         DEFAULT_TASKS,
@@ -352,13 +350,8 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             isolate=not args.in_process,
         )
     rows = summary_rows(records)
-    table = Table(
-        title=f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s",
-        title_justify="left",
-        box=box.SIMPLE_HEAD,
-        show_edge=False,
-        padding=(0, 0),
-        header_style="bold",
+    table = compact_table(
+        f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s"
     )
     headers = _SCALE_HEADERS
     cells = [_scale_cells(row) for row in rows]
