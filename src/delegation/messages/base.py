@@ -7,7 +7,6 @@ emit sorted keys and leave out ``None`` fields, as the seed's own examples do.
 
 from __future__ import annotations
 
-import json
 import uuid
 from typing import Any, ClassVar
 
@@ -51,7 +50,3 @@ class WireModel(BaseModel):
             if key in data and data[key] in ("", []):
                 del data[key]
         return data
-
-    def to_json(self) -> str:
-        """Canonical text: keys sorted like the seed, compact."""
-        return json.dumps(self.to_wire(), sort_keys=True, separators=(",", ":"), allow_nan=False)
