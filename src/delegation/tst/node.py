@@ -56,13 +56,8 @@ class TstNode:
     def execunit(self) -> Any:
         return self.common_params.get("execunit")
 
-    def with_common(self, **updates: Any) -> TstNode:
-        """A copy with ``common_params`` keys updated (use hyphenated keys via a dict)."""
-        common = dict(self.common_params)
-        common.update(updates)
-        return replace(self, common_params=common)
-
     def with_common_values(self, updates: dict[str, Any]) -> TstNode:
+        """A copy with ``common_params`` keys (hyphenated, e.g. ``node-uuid``) updated."""
         common = dict(self.common_params)
         common.update(updates)
         return replace(self, common_params=common)
