@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -203,10 +203,7 @@ def generate_scenario(options: GeneratorOptions | None = None, **overrides: Any)
 
 def generate_many(base: GeneratorOptions, count: int) -> list[dict[str, Any]]:
     """``count`` scenarios with seeds ``base.seed``, ``base.seed + 1``, ..."""
-    return [
-        generate_scenario(GeneratorOptions(**{**base.__dict__, "seed": base.seed + i}))
-        for i in range(count)
-    ]
+    return [generate_scenario(replace(base, seed=base.seed + i)) for i in range(count)]
 
 
 def save_scenarios(scenarios: Sequence[Mapping[str, Any]], directory: str | Path) -> list[Path]:

@@ -215,15 +215,14 @@ def _generator_options(args: argparse.Namespace, units: int, tasks: int, seed: i
 
 
 def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
-    from delegation.bench.generate import generate_scenario
+    from delegation.bench.generate import generate_many
 
     if args.count < 1:
         raise InputError(Problem("count", "", f"must be at least 1, not {args.count}"))
     out = []
     for units in args.units or [5]:
         for tasks in args.tasks or [20]:
-            for i in range(args.count):
-                out.append(generate_scenario(_generator_options(args, units, tasks, args.seed + i)))
+            out += generate_many(_generator_options(args, units, tasks, args.seed), args.count)
     return out
 
 
