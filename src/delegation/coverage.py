@@ -55,6 +55,11 @@ def _check_width(width: float) -> float:
     return w
 
 
+def _lane_count(height: float, width: float) -> int:
+    """Strips of height at most ``width`` across ``height`` (at least one; rounding-tolerant)."""
+    return max(1, math.ceil(height / width - 1e-9))
+
+
 def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit vectors (along, across): the long and short sides of the minimum rotated rectangle.
 
@@ -90,7 +95,7 @@ def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float
     qy = rel @ across
     y_lo, y_hi = float(qy.min()), float(qy.max())
     height = y_hi - y_lo
-    n = max(1, math.ceil(height / w - 1e-9))
+    n = _lane_count(height, w)
     if n > MAX_LANES:
         raise InputError(
             f"sweep width {w:g} m is too small for an area {height:.0f} m wide ({n} lanes)"
@@ -162,7 +167,7 @@ def coverage_estimate(polygon_xy: np.ndarray | Sequence[Sequence[float]], width:
     w = _check_width(width)
     _, across = sweep_axes(poly)
     qy = (poly - poly.mean(axis=0)) @ across
-    n = max(1, math.ceil((float(qy.max()) - float(qy.min())) / w - 1e-9))
+    n = _lane_count(float(qy.max()) - float(qy.min()), w)
     return float(Polygon(poly).area) / w + (n - 1) * w
 
 
