@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from delegation.errors import InputError, Problem
 from delegation.fleet import AGENT_TYPES, DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
+from delegation.messages.base import hyphenate
 from delegation.messages.errors import loc_text
 from delegation.tst import CATALOGUE, TstNode, parse_and_validate
 
@@ -42,15 +43,11 @@ __all__ = [
 ]
 
 
-def _hyphenate(name: str) -> str:
-    return name.replace("_", "-")
-
-
 class AgentSpec(BaseModel):
     """One unit of a scenario's fleet."""
 
     model_config = ConfigDict(
-        alias_generator=_hyphenate, populate_by_name=True, extra="forbid", frozen=True
+        alias_generator=hyphenate, populate_by_name=True, extra="forbid", frozen=True
     )
 
     name: str = Field(min_length=1)
@@ -300,15 +297,12 @@ def berlin52_scenario(
     points = [frame.geopoint(x - cx, y - cy) for x, y in coords]
     depot = points[0]
 
-    def wire(p: GeoPoint) -> dict[str, Any]:
-        return p.to_wire()
-
     agents = [
         {
             "name": f"u{k}",
             "type": "air",
-            "position": wire(depot),
-            "home": wire(depot),
+            "position": depot.to_wire(),
+            "home": depot.to_wire(),
             "speeds": {"slow": speed, "standard": speed, "fast": speed},
             "tasks": ["move-to"],
         }
@@ -318,7 +312,7 @@ def berlin52_scenario(
         {
             "name": "move-to",
             "common_params": {"execunit": "*", "node-uuid": f"{name}-{i + 1}"},
-            "params": {"speed": "standard", "waypoint": wire(p)},
+            "params": {"speed": "standard", "waypoint": p.to_wire()},
         }
         for i, p in enumerate(points)
         if i > 0
