@@ -131,10 +131,8 @@ class TstEngine(MqttUnit):
             self._carry_out(self.core.unit_seen(parsed.name, now))
         elif parsed.rest == "tst/command" and parsed.base == self.base:
             self._command(message, now)
-        elif parsed.rest == "exec/response":
-            self._exec_response(message, now)
-        elif parsed.rest == "exec/feedback":
-            self._exec_feedback(message, now)
+        elif parsed.rest in ("exec/response", "exec/feedback"):
+            self._from_unit(message, now)
 
     # ---- tst/command
 
@@ -194,11 +192,12 @@ class TstEngine(MqttUnit):
 
     # ---- from the units
 
-    def _exec_response(self, message: Message, now: float) -> None:
+    def _from_unit(self, message: Message, now: float) -> None:
+        """A unit's ``exec/response`` or ``exec/feedback``, handed to the core."""
         try:
             msg = decode(message.topic, message.payload)
         except MessageError as exc:
-            log.debug("%s: unreadable exec/response on %s: %s", self.name, message.topic, exc)
+            log.debug("%s: unreadable message on %s: %s", self.name, message.topic, exc)
             return
         if isinstance(msg, ExecResponse):
             self._carry_out(
@@ -210,14 +209,7 @@ class TstEngine(MqttUnit):
                     task_uuid=msg.task_uuid,
                 )
             )
-
-    def _exec_feedback(self, message: Message, now: float) -> None:
-        try:
-            msg = decode(message.topic, message.payload)
-        except MessageError as exc:
-            log.debug("%s: unreadable exec/feedback on %s: %s", self.name, message.topic, exc)
-            return
-        if isinstance(msg, ExecFeedback):
+        elif isinstance(msg, ExecFeedback):
             self._carry_out(self.core.on_feedback(msg.task_uuid, msg.status, now))
 
     # ---- actions
