@@ -39,21 +39,14 @@ class SensorReading(WireModel):
 
 
 def _number(value: Any) -> float | None:
-    if isinstance(value, bool):
+    """A finite float from a JSON number or numeric string, else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
         return None
-    if isinstance(value, int | float):
-        try:
-            number = float(value)  # huge integers overflow
-        except OverflowError:
-            return None
-        return number if math.isfinite(number) else None
-    if isinstance(value, str):
-        try:
-            number = float(value)
-        except ValueError:
-            return None
-        return number if math.isfinite(number) else None
-    return None
+    try:
+        number = float(value)
+    except (OverflowError, ValueError):  # huge integers overflow; strings may not be numbers
+        return None
+    return number if math.isfinite(number) else None
 
 
 def sensor_value(sensor_name: str, data: Any) -> SensorValue:
