@@ -131,6 +131,25 @@ def _round_trip(settings: BrokerSettings, prefix: str) -> MqttClient:
     return client
 
 
+def _publish_until_received(
+    sender: MqttClient, receiver: MqttClient, topic: str, payload: bytes, deadline: float
+) -> Message | None:
+    """Publish ``payload`` on ``topic`` (QoS 1) until ``receiver`` gets a message on it.
+
+    Messages on other topics are skipped: after a reconnect, a QoS 1 message of the first
+    round trip may be delivered again.
+    """
+    while time.monotonic() < deadline:
+        sender.publish(topic, payload, qos=1)
+        try:
+            got = receiver.messages.get(timeout=0.5)
+        except queue.Empty:
+            continue
+        if got.topic == topic:
+            return got
+    return None
+
+
 @pytest.mark.mqtt
 def test_connect_subscribe_publish(mqtt_settings: BrokerSettings, prefix: str) -> None:
     client = _round_trip(mqtt_settings, prefix)
@@ -185,17 +204,7 @@ def test_reconnect_resubscribes(mqtt_settings: BrokerSettings, prefix: str) -> N
         sender = MqttClient(mqtt_settings)
         sender.connect()
         try:
-            # A QoS 1 message of the first round trip may be delivered again after the
-            # reconnect; skip it and wait for the one sent now.
-            got = None
-            while got is None and time.monotonic() < deadline:
-                sender.publish(f"{prefix}/after", b"again", qos=1)
-                try:
-                    got = client.messages.get(timeout=0.5)
-                except queue.Empty:
-                    got = None
-                if got is not None and got.topic != f"{prefix}/after":
-                    got = None
+            got = _publish_until_received(sender, client, f"{prefix}/after", b"again", deadline)
             assert got is not None and got.topic == f"{prefix}/after"
         finally:
             sender.disconnect()
@@ -224,15 +233,7 @@ def test_reconnect_after_broker_restart(prefix: str) -> None:
         assert client.connect_count >= 2
         while not client.messages.empty():
             client.messages.get_nowait()
-        got = None
-        while got is None and time.monotonic() < deadline:
-            client.publish(f"{prefix}/back", b"1", qos=1)
-            try:
-                got = client.messages.get(timeout=0.5)
-            except queue.Empty:
-                got = None
-            if got is not None and got.topic != f"{prefix}/back":
-                got = None  # a redelivery of the first round trip, not the answer
+        got = _publish_until_received(client, client, f"{prefix}/back", b"1", deadline)
         assert got is not None and got.topic == f"{prefix}/back"
     finally:
         client.disconnect()
