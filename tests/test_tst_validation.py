@@ -14,6 +14,7 @@ from delegation.errors import InputError, Problem
 from delegation.tst import (
     MAX_DEPTH,
     MAX_NODES,
+    make_node,
     parse_and_validate,
     parse_tree,
     to_dict,
@@ -91,6 +92,17 @@ def test_defaults_and_uuids_are_added_without_touching_the_rest() -> None:
     assert out["children"][1]["common_params"]["node-uuid"] == "made"
     assert out["children"][1]["children"][1]["meta"] == {"note": "kept"}
     assert out["children"][1]["children"][1]["common-params"]["node-uuid"] == "n-path"
+
+
+def test_a_node_object_used_twice_is_filled_in_each_place() -> None:
+    # Trees are values: code may put one node object in two places (make_node(children=[c, c])).
+    step = make_node("move-to", params={"waypoint": gp()})
+    tree = with_uuids(with_defaults(make_node("seq", children=[step, step])), iter("abr").__next__)
+    assert tree.node_uuid == "r"
+    assert [(n.node_uuid, n.params["speed"]) for n in tree.children] == [
+        ("a", "standard"),
+        ("b", "standard"),
+    ]
 
 
 def test_unknown_task_names_node_and_field() -> None:

@@ -135,20 +135,24 @@ def leaves(root: TstNode) -> list[TstNode]:
 def map_tree(root: TstNode, fn: Callable[[TstNode, tuple[TstNode, ...]], TstNode]) -> TstNode:
     """Rebuild the tree bottom-up: ``fn(node, new_children)`` returns the new node.
 
-    Iterative post-order, so it is safe on the deepest trees the parser admits.
+    Iterative post-order, so it is safe on the deepest trees the parser admits. Nodes are values,
+    so one node object may stand in several places; each place gets its own ``fn`` call.
     """
-    done: dict[int, TstNode] = {}
+    # Results of finished subtrees, in tree order: a node's children are the last ones.
+    results: list[TstNode] = []
     stack: list[tuple[TstNode, bool]] = [(root, False)]
     while stack:
         node, expanded = stack.pop()
         if expanded:
-            new_children = tuple(done.pop(id(c)) for c in node.children)
-            done[id(node)] = fn(node, new_children)
+            first = len(results) - len(node.children)
+            new_children = tuple(results[first:])
+            del results[first:]
+            results.append(fn(node, new_children))
         else:
             stack.append((node, True))
             for child in reversed(node.children):
                 stack.append((child, False))
-    return done[id(root)]
+    return results[0]
 
 
 def with_uuids(root: TstNode, new_uuid: Callable[[], str] | None = None) -> TstNode:
