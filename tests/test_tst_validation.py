@@ -103,6 +103,7 @@ def test_a_node_object_used_twice_is_filled_in_each_place() -> None:
         ("a", "standard"),
         ("b", "standard"),
     ]
+    assert to_dict(make_node("seq", children=[step, step]))["children"] == [to_dict(step)] * 2
 
 
 def test_unknown_task_names_node_and_field() -> None:

@@ -11,7 +11,7 @@ import uuid as uuid_module
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from enum import Enum
-from typing import Any
+from typing import Any, TypeVar
 
 from delegation.errors import InputError, Problem
 
@@ -24,6 +24,8 @@ COMMON_KEYS: tuple[str, ...] = ("common_params", "common-params")
 
 MAX_DEPTH = 64
 MAX_NODES = 10_000
+
+R = TypeVar("R")
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,14 +134,15 @@ def leaves(root: TstNode) -> list[TstNode]:
     return [n for _, n in walk(root) if not n.is_control]
 
 
-def map_tree(root: TstNode, fn: Callable[[TstNode, tuple[TstNode, ...]], TstNode]) -> TstNode:
-    """Rebuild the tree bottom-up: ``fn(node, new_children)`` returns the new node.
+def map_tree(root: TstNode, fn: Callable[[TstNode, tuple[R, ...]], R]) -> R:
+    """Rebuild the tree bottom-up: ``fn(node, new_children)`` returns the new node (or, for a
+    fold such as ``to_dict``, whatever stands for the node, given what stands for its children).
 
     Iterative post-order, so it is safe on the deepest trees the parser admits. Nodes are values,
     so one node object may stand in several places; each place gets its own ``fn`` call.
     """
     # Results of finished subtrees, in tree order: a node's children are the last ones.
-    results: list[TstNode] = []
+    results: list[R] = []
     stack: list[tuple[TstNode, bool]] = [(root, False)]
     while stack:
         node, expanded = stack.pop()
@@ -336,19 +339,8 @@ def _node_dict(node: TstNode, children: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def to_dict(root: TstNode) -> dict[str, Any]:
-    """Serialise a tree to plain JSON data (iterative post-order)."""
-    done: dict[int, dict[str, Any]] = {}
-    stack: list[tuple[TstNode, bool]] = [(root, False)]
-    while stack:
-        node, expanded = stack.pop()
-        if expanded:
-            kids = [done.pop(id(c)) for c in node.children]
-            done[id(node)] = _node_dict(node, kids)
-        else:
-            stack.append((node, True))
-            for child in reversed(node.children):
-                stack.append((child, False))
-    return done[id(root)]
+    """Serialise a tree to plain JSON data (iteratively, see ``map_tree``)."""
+    return map_tree(root, lambda node, kids: _node_dict(node, list(kids)))
 
 
 def make_node(
