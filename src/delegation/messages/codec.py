@@ -12,7 +12,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from delegation.errors import MessageError, Problem
+from delegation.errors import MessageError, Problem, json_kind
 from delegation.geo import GeoPoint
 from delegation.messages.base import WireModel
 from delegation.messages.delegation_api import (
@@ -113,7 +113,7 @@ INFO_TYPES: dict[str, type[WireModel]] = {m.model_fields["type"].default: m for 
 def validate_model(model: type[M], data: Any, where: str) -> M:
     """``model.model_validate(data)``, with errors as a ``MessageError`` naming the fields."""
     if not isinstance(data, dict):
-        raise MessageError(Problem(where, "", f"must be a JSON object, not {_kind(data)}"))
+        raise MessageError(Problem(where, "", f"must be a JSON object, not {json_kind(data)}"))
     # Writers may leave com-uuid to its default (a fresh one); on the wire it is required, or the
     # answer could not name what it answers.
     problems: list[Problem] = []
@@ -130,23 +130,15 @@ def validate_model(model: type[M], data: Any, where: str) -> M:
     return message
 
 
-def _kind(value: Any) -> str:
-    if value is None:
-        return "null"
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean"}.get(
-        type(value), "a number"
-    )
-
-
 def parse_command(data: Any, api: str | None = None) -> WireModel:
     """A command from decoded JSON, by its ``command`` field; ``api`` (exec, tst, delegation)
     restricts the commands accepted; without it every API's commands are (``ping`` -> ``Ping``)."""
     where = f"{api}/command" if api else "command"
     if not isinstance(data, dict):
-        raise MessageError(Problem(where, "", f"must be a JSON object, not {_kind(data)}"))
+        raise MessageError(Problem(where, "", f"must be a JSON object, not {json_kind(data)}"))
     name = data.get("command")
     if not isinstance(name, str):
-        message = "missing" if name is None else f"must be a string, not {_kind(name)}"
+        message = "missing" if name is None else f"must be a string, not {json_kind(name)}"
         raise MessageError(Problem(where, "command", message))
     tables = [COMMANDS[api]] if api else list(COMMANDS.values())
     for table in tables:

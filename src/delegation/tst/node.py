@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, TypeVar
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, Problem, json_kind
 
 #: Control nodes: they order their children and run on the engine.
 CONTROL_NODES: frozenset[str] = frozenset({"seq", "conc"})
@@ -198,13 +198,14 @@ def parse_tree(data: Any) -> TstNode:
             )
         order.append((path, raw, depth, parent))
         if not isinstance(raw, dict):
-            problems.append(Problem(path, "", f"a node must be a JSON object, not {_kind(raw)}"))
+            kind = json_kind(raw)
+            problems.append(Problem(path, "", f"a node must be a JSON object, not {kind}"))
             continue
         children = raw.get("children", [])
         if children is None:
             children = []
         if not isinstance(children, list):
-            problems.append(Problem(path, "children", f"must be a list, not {_kind(children)}"))
+            problems.append(Problem(path, "children", f"must be a list, not {json_kind(children)}"))
             continue
         for i in range(len(children) - 1, -1, -1):
             stack.append((f"{path}/children[{i}]", children[i], depth + 1, path))
@@ -252,19 +253,6 @@ def _path_key(text: str) -> list[int]:
     return [int(part[:-1]) for part in head.split("[")[1:] if part[:-1].isdigit()]
 
 
-def _kind(value: Any) -> str:
-    if value is None:
-        return "null"
-    return {
-        dict: "an object",
-        list: "a list",
-        str: "a string",
-        bool: "a boolean",
-        int: "a number",
-        float: "a number",
-    }.get(type(value), type(value).__name__)
-
-
 def _build_node(
     path: str, raw: dict[str, Any], built: dict[str, TstNode]
 ) -> tuple[TstNode | None, list[Problem]]:
@@ -285,13 +273,13 @@ def _build_node(
     if common is None:
         common = {}
     if not isinstance(common, dict):
-        problems.append(Problem(path, common_key, f"must be an object, not {_kind(common)}"))
+        problems.append(Problem(path, common_key, f"must be an object, not {json_kind(common)}"))
         common = {}
     params = raw.get("params", {})
     if params is None:
         params = {}
     if not isinstance(params, dict):
-        problems.append(Problem(path, "params", f"must be an object, not {_kind(params)}"))
+        problems.append(Problem(path, "params", f"must be an object, not {json_kind(params)}"))
         params = {}
     raw_children = raw.get("children") or []
     children = tuple(
