@@ -169,7 +169,3 @@ class ServiceClient:
                 raise ServiceUnavailable(
                     f"{self.service} did not answer {body.get('command')!r} within {timeout:g} s"
                 )
-
-    def response_to(self, com_uuid: str) -> dict[str, Any] | None:
-        with self._cond:
-            return self._responses.get(com_uuid)

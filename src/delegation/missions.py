@@ -338,9 +338,6 @@ class CommandLog:
         entry.answer = list(answer)
         return True
 
-    def pending(self) -> list[CommandEntry]:
-        return [e for e in self._entries.values() if e.state is CommandState.PENDING]
-
     def _trim(self) -> None:
         while len(self._entries) > self.capacity:
             oldest_key = next(iter(self._entries))

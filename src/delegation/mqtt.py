@@ -453,9 +453,6 @@ class MqttClient:
         if info.rc not in (paho.MQTT_ERR_SUCCESS, paho.MQTT_ERR_NO_CONN):
             raise MqttError(f"publish to {topic} failed: {paho.error_string(info.rc)}")
 
-    def wait_connected(self, timeout: float) -> bool:
-        return self.connected.wait(timeout)
-
     # ---- paho callbacks (paho's thread: convert and enqueue only)
 
     def _on_socket_open(self, client: paho.Client, userdata: Any, sock: Any) -> None:
