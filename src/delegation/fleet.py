@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, Any
 
@@ -231,16 +231,14 @@ class _Record:
     last_seen: float | None = None
     position: GeoPoint | None = None
     battery: float | None = None
-    sensors: tuple[str, ...] = ()
     tasks_available: frozenset[str] = frozenset()
     tasks_executing: tuple[tuple[str, str], ...] = ()
     has_direct_execution: bool = False
     reboots: int = 0
-    extra_sensors: dict[str, Any] = field(default_factory=dict)
 
 
 class FleetRegistry:
-    """Live units built from heartbeat, sensor_info, direct_execution_info and sensor messages.
+    """Live units built from heartbeat, direct_execution_info and sensor messages.
 
     Pure: ``observe`` is fed decoded messages (``delegation.messages.decode``) with the time they
     arrived, ``snapshot`` is asked with the current time; nothing here reads the clock. Liveness
@@ -269,12 +267,12 @@ class FleetRegistry:
     def observe(self, topic: str, message: Any, now: float) -> None:
         """Take in one decoded message that arrived on ``topic`` at ``now``.
 
-        Reads ``HeartBeat``, ``SensorInfo``, ``DirectExecutionInfo`` and sensor values (a
+        Reads ``HeartBeat``, ``DirectExecutionInfo`` and the position and battery sensors (a
         ``SensorReading`` or the bare value from ``parse_sensor``); other messages only refresh
         ``last_seen``. Topics outside a unit are ignored.
         """
         # Imported here so that ``UnitState`` users do not load every message model.
-        from delegation.messages import DirectExecutionInfo, HeartBeat, SensorInfo, SensorReading
+        from delegation.messages import DirectExecutionInfo, HeartBeat, SensorReading
 
         parts = split_unit_topic(topic)
         if parts is None:
@@ -293,8 +291,6 @@ class FleetRegistry:
             rec.has_direct_execution = True
             rec.tasks_available = frozenset(t.name for t in message.tasks_available)
             rec.tasks_executing = tuple((t.task_name, t.task_uuid) for t in message.tasks_executing)
-        elif isinstance(message, SensorInfo):
-            rec.sensors = tuple(message.sensor_data_provided)
         elif rest.startswith("sensor/"):
             sensor = rest.split("/", 1)[1]
             value = message.value if isinstance(message, SensorReading) else message
@@ -334,8 +330,6 @@ class FleetRegistry:
             fraction = _battery_fraction(value)
             if fraction is not None:
                 rec.battery = fraction
-        else:
-            rec.extra_sensors[sensor] = value
 
     def forget(self, name: str) -> None:
         """Drop a unit (e.g. one that has been dead for long)."""
