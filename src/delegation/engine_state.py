@@ -497,6 +497,13 @@ class EngineCore:
             return
         actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
 
+    @staticmethod
+    def _deliver_pending_signal(node: ExecNode, actions: list[Action]) -> None:
+        """The unit has accepted the task: send the signal that arrived before it did."""
+        if node.pending_signal is not None:
+            signal, node.pending_signal = node.pending_signal, None
+            actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
+
     # ---- inputs from units
 
     def unit_seen(self, unit: str, now: float) -> list[Action]:
@@ -550,9 +557,8 @@ class EngineCore:
                 self._set(tree, node, NodeStatus.RUNNING, actions)
             if response == "finished":
                 self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
-            elif node.pending_signal is not None:
-                signal, node.pending_signal = node.pending_signal, None
-                actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
+            else:
+                self._deliver_pending_signal(node, actions)
             return actions
         reason = fail_reason or f"{response}"
         if reason == BUSY_REASON and now - node.waiting_since < self.busy_timeout:
@@ -603,9 +609,7 @@ class EngineCore:
             self._finish(tree, node, mapped, now, actions, reason)
         else:
             self._set(tree, node, mapped, actions)
-            if node.pending_signal is not None:
-                signal, node.pending_signal = node.pending_signal, None
-                actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
+            self._deliver_pending_signal(node, actions)
         return actions
 
     # ---- signals
