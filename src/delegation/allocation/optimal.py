@@ -32,6 +32,7 @@ import numpy as np
 
 from delegation.allocation.auction import assign_passive, auction
 from delegation.allocation.problem import Problem
+from delegation.allocation.routes import xy_distances
 from delegation.allocation.schedule import Schedule, better, evaluate
 from delegation.allocation.serialise import conc_paths, serialisation
 
@@ -149,12 +150,6 @@ def _exact_model(problem: Problem, tasks: list[int]) -> bool:
     if home.any() and not problem.has_home.all():
         return False
     return bool(problem.travels[idx].all())
-
-
-def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    dx = a[:, 0][:, None] - b[:, 0][None, :]
-    dy = a[:, 1][:, None] - b[:, 1][None, :]
-    return np.asarray(np.sqrt(dx * dx + dy * dy))
 
 
 # --------------------------------------------------------------------------- routing
@@ -322,14 +317,14 @@ def _routing_matrix(problem: Problem, u: int, idx: np.ndarray, scale: float) -> 
     start, end, travels = _points(problem, u, idx.tolist())
     origin = np.vstack([end, problem.unit_xy, np.zeros((n_units, 2))])  # where a node leaves from
     speed = problem.speed[u, idx]
-    into = _dist(origin, start) / speed[None, :]
+    into = xy_distances(origin, start) / speed[None, :]
     into[:, ~travels] = 0.0
     into += problem.work_time[u, idx][None, :]
     matrix = np.zeros((size, size))
     matrix[:, :n] = into
     has_home = problem.has_home
     home = np.where(has_home[:, None], problem.home_xy, 0.0)
-    back = _dist(origin, home) / np.where(has_home, problem.home_speed, 1.0)[None, :]
+    back = xy_distances(origin, home) / np.where(has_home, problem.home_speed, 1.0)[None, :]
     matrix[:, n + n_units :] = np.where(has_home[None, :], back, 0.0)
     np.fill_diagonal(matrix, 0.0)
     ticks = np.rint(matrix * scale).astype(np.int64)
@@ -350,7 +345,8 @@ def _candidates(problem: Problem, tasks: list[int], base: Schedule) -> np.ndarra
     keep = max(2, int(math.sqrt(CP_EXACT_ARCS * problem.n_units) / len(tasks)))
     with np.errstate(invalid="ignore"):
         start = np.where(problem.travels[idx, None], problem.start_xy[idx], 0.0)
-        reach = _dist(problem.unit_xy, start) / problem.speed[:, idx] + problem.work_time[:, idx]
+        travel = xy_distances(problem.unit_xy, start) / problem.speed[:, idx]
+        reach = travel + problem.work_time[:, idx]
     reach = np.where(allowed[:, idx], reach, np.inf)
     reach = np.nan_to_num(reach, nan=np.inf)
     cheapest = np.argsort(reach, axis=0, kind="stable")[:keep]  # (keep, C)
@@ -402,7 +398,7 @@ def _cpsat(
         speed = problem.speed[u, mine]
         work = problem.work_time[u, mine]
         first = np.hypot(*(start - problem.unit_xy[u]).T) / speed
-        between = _dist(end, start) / speed[None, :]
+        between = xy_distances(end, start) / speed[None, :]
         first[~travels] = 0.0
         between[:, ~travels] = 0.0
         first += work

@@ -44,11 +44,15 @@ def route_points(
     return prev_xy, next_xy, next_speed
 
 
-def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,M) distances between rows of a (N,2) and b (M,2); NaN rows give NaN."""
+def xy_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,M) distances between rows of a (N,2) and b (M,2); NaN rows give NaN.
+
+    ``geo.pairwise_xy_distances`` gives the same (to 1e-13 m) but via ``hypot`` over an (N,M,2)
+    difference, 3-4x slower: too slow for the auction's per-round insertion costs.
+    """
     dx = a[:, 0][:, None] - b[:, 0][None, :]
     dy = a[:, 1][:, None] - b[:, 1][None, :]
-    return np.sqrt(dx * dx + dy * dy)
+    return np.asarray(np.sqrt(dx * dx + dy * dy))
 
 
 def insertion_costs(
@@ -62,8 +66,8 @@ def insertion_costs(
     start, end, travels = problem.points_for(u, cand)
     has_next = np.isfinite(next_speed)
     safe_speed = np.where(has_next, next_speed, 1.0)
-    into = _dist(prev_xy, start) / speed[None, :]
-    out = np.where(has_next[:, None], _dist(next_xy, end) / safe_speed[:, None], 0.0)
+    into = xy_distances(prev_xy, start) / speed[None, :]
+    out = np.where(has_next[:, None], xy_distances(next_xy, end) / safe_speed[:, None], 0.0)
     old = np.where(has_next, np.hypot(*(next_xy - prev_xy).T) / safe_speed, 0.0)
     cost = into + out - old[:, None]
     cost = np.where(travels[None, :], cost, 0.0) + work[None, :]
