@@ -26,6 +26,7 @@ from delegation.mqtt import (
     Message,
     MqttClient,
     Wildcard,
+    base_from_heartbeat,
     parse_unit_topic,
 )
 
@@ -115,7 +116,7 @@ class ServiceClient:
             return
         if f["heartbeat"].matches(msg.topic):
             with self._cond:
-                self.base = msg.topic[: -len("/heartbeat")]
+                self.base = base_from_heartbeat(msg.topic)
                 self._cond.notify_all()
         elif f["response"].matches(msg.topic):
             to = data.get("response-to")
