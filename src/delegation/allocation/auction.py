@@ -23,7 +23,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import _home_leg, insertion_costs, keeps_subtrees_whole
+from delegation.allocation.routes import home_legs, insertion_costs, keeps_subtrees_whole
 from delegation.allocation.schedule import EPS, Schedule, evaluate
 from delegation.allocation.serialise import Serialisation, conc_paths
 
@@ -88,7 +88,7 @@ def _flat_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[li
     open_tasks = vehicle & problem.allowed.any(axis=0)
     if n_units == 0 or not open_tasks.any():
         return assign, routes
-    base = np.array([_home_leg(problem, u) for u in range(n_units)])
+    base = home_legs(problem)
     used = np.zeros(n_units)  # travel + work incl. way home; 0 while idle (flat: also finish time)
     delta = np.full((n_units, n_tasks), np.inf)
     pos = np.zeros((n_units, n_tasks), dtype=int)
@@ -162,7 +162,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
     has_pred: np.ndarray = np.asarray(before.any(axis=0))
     open_task = allowed.any(axis=0)
     pending = (before & open_task[:, None]).sum(axis=0)
-    base = np.array([_home_leg(problem, u) for u in range(n_units)])
+    base = home_legs(problem)
     costs: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
     delta = np.full((n_units, n_tasks), np.inf)
     pos = np.zeros((n_units, n_tasks), dtype=int)

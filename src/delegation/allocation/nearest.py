@@ -11,7 +11,7 @@ import numpy as np
 
 from delegation.allocation.auction import assign_passive
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import _home_leg, insertion_costs
+from delegation.allocation.routes import home_legs, insertion_costs
 from delegation.allocation.schedule import EPS, Schedule, evaluate
 
 
@@ -21,7 +21,7 @@ def nearest(problem: Problem, objective: str = "makespan") -> Schedule:
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
     routes: list[list[int]] = [[] for _ in range(n_units)]
-    used = np.array([_home_leg(problem, u) for u in range(n_units)])
+    used = home_legs(problem)
     vehicle = problem.vehicle
     alias_of = problem.alias_of()
     bound: dict[int, int] = {}

@@ -74,11 +74,12 @@ def insertion_costs(
     return np.asarray(cost)
 
 
-def _home_leg(problem: Problem, u: int) -> float:
-    if not problem.has_home[u]:
-        return 0.0
-    d = float(np.hypot(*(problem.home_xy[u] - problem.unit_xy[u])))
-    return d / float(problem.home_speed[u])
+def home_legs(problem: Problem) -> np.ndarray:
+    """(U,) seconds from each unit to its home (0 without one): a route's cost before any task."""
+    legs = np.zeros(problem.n_units)
+    h = problem.has_home
+    legs[h] = np.hypot(*(problem.home_xy[h] - problem.unit_xy[h]).T) / problem.home_speed[h]
+    return legs
 
 
 def keeps_subtrees_whole(problem: Problem, route: Sequence[int], cand: np.ndarray) -> np.ndarray:
