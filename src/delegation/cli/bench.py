@@ -331,6 +331,8 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
 
     budget = args.budget if args.budget is not None else DEFAULT_BUDGET
     out: Path = args.out or Path("bench-out")
+    units, tasks = args.units or DEFAULT_UNITS, args.tasks or DEFAULT_TASKS
+    generator = _generator_options(args, 1, 1, args.seed)
     if args.time_limit >= budget:
         err.print(
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
@@ -340,11 +342,11 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         records = run_scale(
             args.strategies,
             objectives=args.objectives or ["makespan"],
-            units=args.units or DEFAULT_UNITS,
-            tasks=args.tasks or DEFAULT_TASKS,
+            units=units,
+            tasks=tasks,
             budget=budget,
             time_limit=args.time_limit,
-            generator=_generator_options(args, 1, 1, args.seed),
+            generator=generator,
             progress=update,
             isolate=not args.in_process,
         )
@@ -372,10 +374,9 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     )
     written = [write_scale_csv(records, out / "scale.csv")]
     md = out / "scale.md"
-    generator = _generator_options(args, 1, 1, args.seed)
     setup = (
-        f"Grid: units {', '.join(map(str, args.units or DEFAULT_UNITS))} x tasks "
-        f"{', '.join(map(str, args.tasks or DEFAULT_TASKS))}; budget {budget:g} s per plan; "
+        f"Grid: units {', '.join(map(str, units))} x tasks "
+        f"{', '.join(map(str, tasks))}; budget {budget:g} s per plan; "
         f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
         f"structure {generator.structure}, radius {generator.radius:g} m)."
     )
