@@ -152,7 +152,6 @@ class Job:
     kind: Literal["plan", "bids"]
     key: CmdKey
     face: Face
-    com_uuid: str
     tree: TstNode
     units: tuple[UnitState, ...]
     strategy: str
@@ -164,6 +163,11 @@ class Job:
     received: float
     #: Seconds the planner thread spent on it (set there; for timings).
     compute_seconds: float = 0.0
+
+    @property
+    def com_uuid(self) -> str:
+        """The com-uuid of the command the job answers."""
+        return self.key[1]
 
 
 @dataclass(slots=True)
@@ -186,10 +190,14 @@ class EngineRequest:
     kind: Literal["start", "signal", "cancel"]
     key: CmdKey
     face: Face
-    caller_com_uuid: str
     deadline: float
     root_uuid: str = ""
     plan: dict[str, Any] | None = None
+
+    @property
+    def caller_com_uuid(self) -> str:
+        """The com-uuid of the caller's command, which the engine's answer completes."""
+        return self.key[1]
 
 
 @dataclass(frozen=True, slots=True)
@@ -541,7 +549,6 @@ class ServiceCore:
             kind=kind,
             key=key,
             face=face,
-            com_uuid=key[1],
             tree=tree,
             units=self.units(now),
             strategy=strategy,
@@ -594,7 +601,7 @@ class ServiceCore:
             return effects.extend(self._fail(job.face, job.key, job.com_uuid, problem))
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
-                                       plan=plan_json, caller=job.com_uuid))
+                                       plan=plan_json))
         self.timings.append(Timing(root_uuid, job.received, now, job.compute_seconds))
         return effects
 
@@ -609,7 +616,6 @@ class ServiceCore:
         now: float,
         root_uuid: str = "",
         plan: dict[str, Any] | None = None,
-        caller: str | None = None,
     ) -> Effects:
         base = self.engine_base(now)
         if base is None:
@@ -619,7 +625,6 @@ class ServiceCore:
             kind=kind,
             key=key,
             face=face,
-            caller_com_uuid=caller or key[1],
             deadline=now + self.config.engine_timeout,
             root_uuid=root_uuid,
             plan=plan,
