@@ -497,9 +497,8 @@ class ServiceCore:
         if mission.status is MissionStatus.PLANNED and not starting:
             out = self._respond("delegation", key,
                                 DelegationResponse(response="ok", response_to=key[1]))
-            ev = self.book.set_status(mission.root_uuid, MissionStatus.ABORTED, now,
-                                      "cancelled before it started")
-            return out.extend(self._lifecycle([ev] if ev else []))
+            return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
+                                               "cancelled before it started"))
         model = SignalTstTree(node_uuid=mission.root_uuid, signal="$abort",
                               sender=self.config.name)
         return self._to_engine("cancel", key, "delegation", model, now, mission.root_uuid)
@@ -596,8 +595,7 @@ class ServiceCore:
                 response="ok", response_to=job.com_uuid, plan=plan_json)))
         problem = self._engine_problem(now)
         if problem:
-            ev = self.book.set_status(root_uuid, MissionStatus.FAILED, now, problem)
-            effects.extend(self._lifecycle([ev] if ev else []))
+            effects.extend(self._set_status(root_uuid, MissionStatus.FAILED, now, problem))
             return effects.extend(self._fail(job.face, job.key, job.com_uuid, problem))
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
@@ -661,8 +659,7 @@ class ServiceCore:
         engine = self.config.engine
         if req.kind == "start":
             if resp.response == "started":
-                ev = self.book.set_status(req.root_uuid, MissionStatus.STARTED, now)
-                effects = self._lifecycle([ev] if ev else [])
+                effects = self._set_status(req.root_uuid, MissionStatus.STARTED, now)
                 if req.face == "tst":
                     answer: WireModel = TstResponse(response="started",
                                                     response_to=req.caller_com_uuid,
@@ -672,8 +669,7 @@ class ServiceCore:
                                                 response_to=req.caller_com_uuid, plan=req.plan)
                 return effects.extend(self._respond(req.face, req.key, answer))
             reason = f"engine {engine} refused the tree: {resp.fail_reason or resp.response}"
-            ev = self.book.set_status(req.root_uuid, MissionStatus.FAILED, now, reason)
-            effects = self._lifecycle([ev] if ev else [])
+            effects = self._set_status(req.root_uuid, MissionStatus.FAILED, now, reason)
             return effects.extend(self._fail(req.face, req.key, req.caller_com_uuid, reason))
         if req.kind == "cancel":
             if resp.response == "ok":
@@ -701,8 +697,7 @@ class ServiceCore:
             reason = (f"engine {self.config.engine} did not answer within "
                       f"{self.config.engine_timeout:g} s")
             if req.kind == "start":
-                ev = self.book.set_status(req.root_uuid, MissionStatus.FAILED, now, reason)
-                effects.extend(self._lifecycle([ev] if ev else []))
+                effects.extend(self._set_status(req.root_uuid, MissionStatus.FAILED, now, reason))
             effects.extend(self._fail(req.face, req.key, req.caller_com_uuid, reason))
         return effects
 
@@ -723,6 +718,13 @@ class ServiceCore:
             Outgoing(f"{base}/tst_execution_info", encode(tst_info), QOS_PERIODIC),
             Outgoing(f"{base}/delegation_info", encode(info), QOS_PERIODIC),
         ]
+
+    def _set_status(
+        self, root_uuid: str, status: MissionStatus, now: float, fail_reason: str = ""
+    ) -> Effects:
+        """Move a mission on (`MissionBook.set_status`) and publish the change, if any."""
+        event = self.book.set_status(root_uuid, status, now, fail_reason)
+        return self._lifecycle([event] if event else [])
 
     def _lifecycle(self, events: Iterable[LifecycleEvent]) -> Effects:
         out = [
