@@ -211,9 +211,7 @@ class MissionBook:
             return None
         if status not in FINAL_STATUSES and _RANK[status] <= _RANK[mission.status]:
             return None
-        if status is MissionStatus.STARTED and mission.started_at is None:
-            mission.started_at = now
-        if status is MissionStatus.RUNNING and mission.started_at is None:
+        if status in (MissionStatus.STARTED, MissionStatus.RUNNING) and mission.started_at is None:
             mission.started_at = now
         if status in FINAL_STATUSES:
             mission.ended_at = now
