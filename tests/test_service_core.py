@@ -333,3 +333,21 @@ def test_engine_refusal_and_infeasible_delegate(core: ServiceCore) -> None:
     assert answer["response"] == "failed" and answer["plan"]["feasible"] is False
     assert "root/children[2] (look-at-bearing lab)" in answer["fail-reason"]
     assert [u["node-uuid"] for u in answer["plan"]["unassigned"]] == ["lab"]
+
+
+def test_fleet_events_are_logged_and_do_not_pile_up(caplog) -> None:
+    import json
+    import logging
+
+    from delegation.service import ServiceCore
+
+    core = ServiceCore()
+    beat = {"agent-type": "air", "agent-uuid": "a1", "levels": ["sensor", "direct execution"],
+            "name": "dji9", "rate": 1.0, "stamp": 1.0, "type": "HeartBeat"}
+    topic = "waraps/unit/air/simulation/dji9/heartbeat"
+    with caplog.at_level(logging.INFO, logger="delegation.service"):
+        core.on_message(topic, json.dumps(beat).encode(), 1.0)
+        core.on_message(topic, json.dumps({**beat, "agent-uuid": "a2"}).encode(), 2.0)
+    assert "unit dji9 appeared" in caplog.text
+    assert "unit dji9 rebooted" in caplog.text
+    assert core.fleet.drain_events() == []

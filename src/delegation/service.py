@@ -339,6 +339,9 @@ class ServiceCore:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
             log.debug("fleet ignored %s: %s", topic, exc)
+        # Consume what the registry noticed (it would otherwise pile up in a long-running service).
+        for event in self.fleet.drain_events():
+            log.info("unit %s %s", event.name, event.kind.value)
 
     # ------------------------------------------------------------------ fleet views
 
