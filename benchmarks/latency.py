@@ -29,13 +29,15 @@ import time
 import uuid
 from typing import Any
 
-from delegation.broker import PrivateMosquitto
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages import HeartBeat, TstResponse, encode
-from delegation.mqtt import BrokerSettings, Message, MqttClient, unit_base_topic
+from delegation.runtime.broker import PrivateMosquitto
+from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, ServiceConfig
 from delegation.sim import SimFleet
+from delegation.topics import unit_base_topic
 
 PREFIX = "bench"
 ORIGIN = GeoPoint(latitude=57.7605, longitude=16.6815)

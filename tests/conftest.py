@@ -17,8 +17,15 @@ from typing import Any
 
 import pytest
 
-from delegation.broker import EmbeddedBroker, LocalBroker, PrivateMosquitto, mosquitto_binary
-from delegation.mqtt import BrokerSettings, Message, MqttClient, Wildcard
+from delegation.runtime.broker import (
+    EmbeddedBroker,
+    LocalBroker,
+    PrivateMosquitto,
+    mosquitto_binary,
+)
+from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.settings import BrokerSettings
+from delegation.topics import Wildcard
 
 
 def _broker_kinds() -> list[Any]:

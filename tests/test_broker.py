@@ -7,14 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from delegation.broker import (
+from delegation.runtime.broker import (
     BrokerError,
     EmbeddedBroker,
     PrivateMosquitto,
     free_port,
     mosquitto_binary,
 )
-from delegation.mqtt import MqttClient
+from delegation.runtime.mqtt import MqttClient
 
 
 def _listening_addresses(port: int) -> set[str]:

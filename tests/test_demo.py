@@ -14,7 +14,7 @@ from delegation.cli import main
 from delegation.cli.runtime import _read_mission, find_scenario
 from delegation.engine import TstEngine
 from delegation.errors import InputError
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import load_scenario
 from delegation.service import DelegationService, ServiceConfig
 from delegation.sim import SimFleet
@@ -133,7 +133,7 @@ def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerS
     import subprocess
     import sys
 
-    from delegation.client import ServiceClient
+    from delegation.runtime.client import ServiceClient
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "delegation", "serve", "--broker", mqtt_settings.host,

@@ -17,7 +17,7 @@ import pytest
 from delegation.engine import TstEngine
 from delegation.fleet import UnitState, make_unit
 from delegation.geo import LocalFrame
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, ServiceConfig
 from delegation.sim import SimFleet
 from delegation.tst.node import parse_tree, walk

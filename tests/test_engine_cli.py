@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from delegation.cli import main
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 
 START = {"latitude": 57.7605, "longitude": 16.6815, "altitude": 40.0}
 GOAL = {"latitude": 57.7610, "longitude": 16.6815, "altitude": 40.0}  # ~56 m north

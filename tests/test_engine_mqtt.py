@@ -11,7 +11,7 @@ import pytest
 from delegation.engine import TstEngine
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.sim import SimFleet
 
 pytestmark = pytest.mark.mqtt

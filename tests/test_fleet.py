@@ -13,10 +13,10 @@ from delegation.fleet import (
     FleetRegistry,
     UnitState,
     make_unit,
-    split_unit_topic,
 )
 from delegation.geo import GeoPoint
 from delegation.messages import INFO, decode
+from delegation.topics import split_unit_topic
 
 BASE = "waraps/unit/air/simulation/dji0"
 BOAT = "waraps/unit/surface/real/piraya0"

@@ -10,13 +10,11 @@ import uuid
 
 import pytest
 
-from delegation.broker import EmbeddedBroker, free_port
-from delegation.mqtt import (
-    BrokerSettings,
-    Message,
-    MqttClient,
-    MqttConnectError,
-    MqttUnit,
+from delegation.runtime.broker import EmbeddedBroker, free_port
+from delegation.runtime.mqtt import Message, MqttClient, MqttConnectError
+from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.unit import MqttUnit
+from delegation.topics import (
     Topic,
     Wildcard,
     base_from_heartbeat,

@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from delegation.broker import PrivateMosquitto, mosquitto_binary
-from delegation.mqtt import BrokerSettings, MqttClient, MqttConnectError
+from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
+from delegation.runtime.mqtt import MqttClient, MqttConnectError
+from delegation.runtime.settings import BrokerSettings
 
 pytestmark = [
     pytest.mark.mqtt,

@@ -16,7 +16,7 @@ import pytest
 
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, Job, ServiceConfig, run_job
 from delegation.sim import SimFleet
 

@@ -12,7 +12,7 @@ import pytest
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages import decode
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.sim import SimFleet, SimUnit
 
 pytestmark = pytest.mark.mqtt

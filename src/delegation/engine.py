@@ -45,13 +45,13 @@ from delegation.messages import (
     encode,
 )
 from delegation.messages.answers import AnswerCache, com_uuid_of
-from delegation.mqtt import (
+from delegation.runtime.mqtt import Message
+from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.unit import MqttUnit
+from delegation.topics import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
     QOS_PERIODIC,
-    BrokerSettings,
-    Message,
-    MqttUnit,
     parse_unit_topic,
     unit_base_topic,
     unit_filter,

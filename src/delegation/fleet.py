@@ -42,14 +42,12 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from delegation.geo import GeoPoint
+from delegation.topics import split_unit_topic, type_from_base
 
 if TYPE_CHECKING:
     from delegation.messages import HeartBeat
 
 log = logging.getLogger(__name__)
-
-#: The agent types of seed section 5.1.
-AGENT_TYPES: tuple[str, ...] = ("air", "ground", "surface", "subsurface")
 
 #: The speed classes every ``UnitState.speeds`` holds.
 SPEED_KEYS: tuple[str, str, str] = ("slow", "standard", "fast")
@@ -155,31 +153,8 @@ def make_unit(
 
 # --------------------------------------------------------------------------- the live registry
 
-#: Info topics directly under a unit's base topic (``delegation.messages.INFO``'s keys).
-_INFO_LEVELS: frozenset[str] = frozenset(
-    {"heartbeat", "sensor_info", "direct_execution_info", "tst_execution_info", "delegation_info"}
-)
 #: Sensors that carry the battery's state of charge.
 _BATTERY_SENSORS: frozenset[str] = frozenset({"battery_state", "battery", "battery_level"})
-
-
-def split_unit_topic(topic: str) -> tuple[str, str] | None:
-    """(base topic, rest) for a topic under a unit, e.g. ``(waraps/unit/air/simulation/dji0,
-    sensor/position)``; None for topics the registry does not read."""
-    levels = topic.strip("/").split("/")
-    if len(levels) >= 2 and levels[-1] in _INFO_LEVELS:
-        return "/".join(levels[:-1]), levels[-1]
-    if len(levels) >= 3 and levels[-2] in ("sensor", "exec", "tst", "delegation"):
-        return "/".join(levels[:-2]), "/".join(levels[-2:])
-    return None
-
-
-def _type_from_base(base: str) -> str | None:
-    """The agent type in ``{prefix}/unit/{type}/{role}/{name}``, if the topic follows the scheme."""
-    levels = base.split("/")
-    if len(levels) >= 4 and levels[-4] == "unit" and levels[-3] in AGENT_TYPES:
-        return levels[-3]
-    return None
 
 
 def _battery_fraction(value: Any) -> float | None:
@@ -296,7 +271,7 @@ class FleetRegistry:
             value = message.value if isinstance(message, SensorReading) else message
             self._sensor(rec, sensor, value)
         if rec.agent_type is None:
-            rec.agent_type = _type_from_base(base)
+            rec.agent_type = type_from_base(base)
 
     def _heartbeat(self, rec: _Record, base: str, hb: HeartBeat, now: float) -> None:
         if rec.last_heartbeat is None:

@@ -25,10 +25,11 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from delegation.errors import InputError, Problem
-from delegation.fleet import AGENT_TYPES, DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
+from delegation.fleet import DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages.base import hyphenate
 from delegation.messages.errors import loc_text
+from delegation.topics import AGENT_TYPES
 from delegation.tst import CATALOGUE, TstNode, parse_and_validate
 
 log = logging.getLogger(__name__)

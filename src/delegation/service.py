@@ -86,13 +86,13 @@ from delegation.missions import (
     MissionStatus,
     node_infos,
 )
-from delegation.mqtt import (
+from delegation.runtime.mqtt import Message
+from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.unit import MqttUnit
+from delegation.topics import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
     QOS_PERIODIC,
-    BrokerSettings,
-    Message,
-    MqttUnit,
     parse_unit_topic,
     unit_base_topic,
 )

@@ -24,9 +24,9 @@ from delegation.errors import DelegationError, InputError, Problem
 if TYPE_CHECKING:
     from rich.console import Console
 
-    from delegation.client import ServiceClient
-    from delegation.mqtt import BrokerSettings
     from delegation.progress import MissionProgress
+    from delegation.runtime.client import ServiceClient
+    from delegation.runtime.settings import BrokerSettings
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
     """Flags over environment; None when neither names a broker."""
-    from delegation.mqtt import BrokerSettings
+    from delegation.runtime.settings import BrokerSettings
 
     env = BrokerSettings.from_env()
     host = args.broker or (env.host if env else None)
@@ -330,10 +330,10 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from delegation.allocation import plan_mission
-    from delegation.broker import EmbeddedBroker
-    from delegation.client import ServiceClient
     from delegation.engine import TstEngine
     from delegation.mapplot import render_map
+    from delegation.runtime.broker import EmbeddedBroker
+    from delegation.runtime.client import ServiceClient
     from delegation.scenario import load_scenario
     from delegation.service import DelegationService, ServiceConfig
     from delegation.sim import SimFleet
@@ -425,7 +425,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from delegation.mqtt import BrokerSettings
+    from delegation.runtime.settings import BrokerSettings
     from delegation.service import DelegationService, ServiceConfig
 
     settings = broker_settings(args) or BrokerSettings()
@@ -507,8 +507,8 @@ def _read_mission(path: str) -> dict[str, Any]:
 def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from delegation.client import ServiceClient
-    from delegation.mqtt import BrokerSettings
+    from delegation.runtime.client import ServiceClient
+    from delegation.runtime.settings import BrokerSettings
 
     command: dict[str, Any] = {"tst": _read_mission(args.mission)}
     for key, value in (
@@ -542,7 +542,8 @@ def _agents(args: argparse.Namespace) -> int:
 
     from delegation.fleet import FleetRegistry
     from delegation.messages import decode
-    from delegation.mqtt import BrokerSettings, MqttClient
+    from delegation.runtime.mqtt import MqttClient
+    from delegation.runtime.settings import BrokerSettings
 
     settings = broker_settings(args) or BrokerSettings()
     registry = FleetRegistry()

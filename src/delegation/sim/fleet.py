@@ -6,9 +6,10 @@ import logging
 from collections.abc import Iterator, Sequence
 
 from delegation.fleet import UnitState
-from delegation.mqtt import DEFAULT_PREFIX, BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.sim.unit import SimUnit
+from delegation.topics import DEFAULT_PREFIX
 
 log = logging.getLogger(__name__)
 

@@ -40,16 +40,11 @@ from delegation.messages import (
     encode,
 )
 from delegation.messages.answers import AnswerCache, com_uuid_of
-from delegation.mqtt import (
-    DEFAULT_PREFIX,
-    QOS_COMMAND,
-    QOS_PERIODIC,
-    BrokerSettings,
-    Message,
-    MqttUnit,
-    unit_base_topic,
-)
+from delegation.runtime.mqtt import Message
+from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.unit import MqttUnit
 from delegation.sim.vehicle import SimVehicle, TaskEvent
+from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, QOS_PERIODIC, unit_base_topic
 
 log = logging.getLogger(__name__)
 

@@ -19,12 +19,11 @@ from typing import Any
 from delegation.errors import DelegationError
 from delegation.geo import GeoPoint
 from delegation.messages import json_value, new_com_uuid, parse_sensor
-from delegation.mqtt import (
+from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.settings import BrokerSettings
+from delegation.topics import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
-    BrokerSettings,
-    Message,
-    MqttClient,
     Wildcard,
     base_from_heartbeat,
     parse_unit_topic,

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from delegation.errors import DelegationError
-from delegation.mqtt import BrokerSettings
+from delegation.runtime.settings import BrokerSettings
 
 log = logging.getLogger(__name__)
 

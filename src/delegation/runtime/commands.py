@@ -1,0 +1,106 @@
+"""Commands remembered per com-uuid, so a re-sent command is answered again and never run twice.
+
+The seed's protocol: unreliable links are handled by re-sending a command with the same com-uuid
+until a response arrives. Every unit that answers commands (the delegation service, the TST
+engine, the simulated units) keeps one `CommandLog`. A command is first ``pending`` (being worked
+on: planning, or waiting for the engine), then ``done`` with the exact messages that answered it.
+Pure: no clock (``now`` is passed in), no threads.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from delegation.runtime.core import Outgoing
+
+#: How many commands a unit remembers (oldest answered ones forgotten first): a re-send arrives
+#: seconds later, not after ten thousand other commands.
+DEFAULT_CAPACITY = 10_000
+
+#: A command's key: (the face it arrived on, its com-uuid). One com-uuid may be used on two faces.
+CommandKey = tuple[str, str]
+
+
+def com_uuid_of(payload: bytes) -> str | None:
+    """The ``com-uuid`` of a raw command, if it is JSON with a non-empty string one (no other
+    validation: a command too broken to decode is still answered by its com-uuid)."""
+    try:
+        raw = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    value = raw.get("com-uuid") if isinstance(raw, dict) else None
+    return value if isinstance(value, str) and value else None
+
+
+class CommandState(StrEnum):
+    PENDING = "pending"
+    """Received and being worked on (planning, or waiting for the engine)."""
+    DONE = "done"
+    """Answered; the answer is kept to be sent again on a re-send."""
+
+
+@dataclass(slots=True)
+class CommandEntry:
+    """One command seen on one face, by ``com-uuid``."""
+
+    key: CommandKey
+    received: float
+    state: CommandState = CommandState.PENDING
+    answer: list[Outgoing] = field(default_factory=list)
+    resends: int = 0
+
+
+class CommandLog:
+    """Commands by (face, com-uuid): ``seen`` on arrival, ``begin`` a new one, ``finish`` with the
+    answer. Bounded by ``capacity``; a command still pending is never forgotten."""
+
+    def __init__(self, capacity: int = DEFAULT_CAPACITY) -> None:
+        self.capacity = capacity
+        self._entries: OrderedDict[CommandKey, CommandEntry] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def seen(self, key: CommandKey) -> CommandEntry | None:
+        """The entry of a command already received (counting this re-send), or None if new."""
+        entry = self._entries.get(key)
+        if entry is not None:
+            entry.resends += 1
+        return entry
+
+    def get(self, key: CommandKey) -> CommandEntry | None:
+        """The entry of a command, without counting a re-send."""
+        return self._entries.get(key)
+
+    def begin(self, key: CommandKey, now: float) -> CommandEntry:
+        """Record a new command as pending."""
+        entry = CommandEntry(key, now)
+        self._entries[key] = entry
+        self._trim()
+        return entry
+
+    def finish(self, key: CommandKey, answer: Sequence[Outgoing]) -> bool:
+        """Record the answer; False if the command was already answered (nothing to send)."""
+        entry = self._entries.get(key)
+        if entry is None:
+            entry = self.begin(key, 0.0)
+        if entry.state is CommandState.DONE:
+            return False
+        entry.state = CommandState.DONE
+        entry.answer = list(answer)
+        return True
+
+    def _trim(self) -> None:
+        while len(self._entries) > self.capacity:
+            oldest_key = next(iter(self._entries))
+            if self._entries[oldest_key].state is CommandState.PENDING:
+                # Never forget a command still being worked on; move it to the back.
+                self._entries.move_to_end(oldest_key)
+                if all(e.state is CommandState.PENDING for e in self._entries.values()):
+                    return
+                continue
+            del self._entries[oldest_key]

@@ -1,0 +1,76 @@
+"""Broker settings: where the broker is and how to log in (the ``WARAPS_*`` environment)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Protocol = Literal["auto", "5", "3.1.1"]
+
+
+def _env_flag(value: str | None) -> bool:
+    return (value or "").strip().lower() in ("1", "true", "yes", "on")
+
+
+class BrokerSettings(BaseModel):
+    """Where the broker is and how to log in (WARA-PS example agents' ``WARAPS_*`` names).
+
+    ``protocol="auto"`` connects with MQTT v5 and falls back to 3.1.1 only when the broker answers
+    "unsupported protocol version" (amqtt 0.12 speaks 3.1.1 only); the choice is logged.
+    """
+
+    model_config = ConfigDict(frozen=True)
+
+    host: str = "127.0.0.1"
+    port: int = Field(default=1883, ge=1, le=65535)
+    tls: bool = False
+    username: str = ""
+    password: str = Field(default="", repr=False)
+    protocol: Protocol = "auto"
+    keepalive: int = Field(default=30, ge=5)
+    #: CA bundle to verify the broker's certificate with; None: the system's trusted CAs.
+    ca_certs: str | None = None
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> BrokerSettings | None:
+        """Settings from ``WARAPS_BROKER`` and friends; None when no broker is configured."""
+        env = os.environ if environ is None else environ
+        host = (env.get("WARAPS_BROKER") or "").strip()
+        if not host:
+            return None
+        return cls.from_values(
+            host=host,
+            port=env.get("WARAPS_PORT"),
+            tls=_env_flag(env.get("WARAPS_TLS_CONNECTION")),
+            username=env.get("WARAPS_USERNAME", ""),
+            password=env.get("WARAPS_PASSWORD", ""),
+        )
+
+    @classmethod
+    def from_values(
+        cls,
+        host: str,
+        port: int | str | None = None,
+        tls: bool = False,
+        username: str | None = "",
+        password: str | None = "",
+        protocol: Protocol = "auto",
+    ) -> BrokerSettings:
+        """Settings from CLI-like values: an empty or zero port means the default for ``tls``."""
+        port_value = int(port) if port not in (None, "", "0", 0) else (8883 if tls else 1883)
+        return cls(
+            host=host,
+            port=port_value,
+            tls=tls,
+            username=username or "",
+            password=password or "",
+            protocol=protocol,
+        )
+
+    def describe(self) -> str:
+        """host:port for logs (never the password)."""
+        scheme = "mqtts" if self.tls else "mqtt"
+        return f"{scheme}://{self.host}:{self.port}"

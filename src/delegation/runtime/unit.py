@@ -1,0 +1,350 @@
+"""Units on a broker: `MqttUnit` (one client, one loop thread) and `CoreUnit`, which runs any
+pure core (`delegation.runtime.core.Core`) on it.
+
+The framework owns the lifecycle (`start`/`stop`); subclasses fill in small hooks. Every hook runs
+on the unit's thread, so a core needs no locks: other threads read it only through
+`CoreUnit.inspect` and `CoreUnit.wait_until`, which hold the lock the loop holds while it runs the
+core.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterable
+from typing import Any, Generic, TypeVar
+
+from pydantic import BaseModel
+
+from delegation.runtime.core import Core, Effects, JobCore, JobDone, Outgoing
+from delegation.runtime.mqtt import Message, MqttClient, MqttConnectError, MqttError
+from delegation.runtime.settings import BrokerSettings
+from delegation.topics import QOS_COMMAND, QOS_PERIODIC
+
+log = logging.getLogger(__name__)
+
+class _Stop:
+    """Sentinel that ends a unit's loop."""
+
+
+class MqttUnit:
+    """Base of an MQTT unit that runs its own loop thread.
+
+    The framework owns the lifecycle (`start`/`stop`); subclasses fill in hooks:
+    `subscriptions()` (filters to subscribe), `handle(message)` (one received message),
+    `tick(now)` (every ``tick_interval`` seconds of ``clock``), `on_start()`/`on_stop()`.
+    Every hook runs on the unit's thread, so a subclass needs no locks of its own for state it
+    touches only there.
+    """
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        name: str,
+        *,
+        tick_interval: float | None = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+        client_id: str | None = None,
+    ) -> None:
+        self.settings = settings
+        self.name = name
+        self.tick_interval = tick_interval
+        self.clock = clock
+        self._inbox: queue.Queue[object] = queue.Queue()
+        self.client = MqttClient(
+            settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put
+        )
+        self._thread: threading.Thread | None = None
+        self._started = threading.Event()
+        self._stopped = threading.Event()
+        self.errors = 0
+
+    # ---- hooks
+
+    def subscriptions(self) -> Iterable[str]:
+        return ()
+
+    def handle(self, message: Message) -> None:
+        """One received message (on the unit's thread)."""
+
+    def handle_event(self, event: object) -> None:
+        """One item put in the inbox with `call_soon` that is not a `Message` (unit's thread)."""
+        log.warning("%s: unexpected inbox item %r", self.name, type(event).__name__)
+
+    def tick(self, now: float) -> None:
+        """Periodic work (on the unit's thread)."""
+
+    def on_start(self) -> None:
+        """Called on the unit's thread before the first message or tick."""
+
+    def on_stop(self) -> None:
+        """Called on the unit's thread after the last message (still connected)."""
+
+    # ---- lifecycle
+
+    def start(self, timeout: float = 10.0) -> None:
+        """Connect, subscribe, start the loop thread; return once it runs."""
+        if self._thread is not None:
+            raise MqttError(f"{self.name} is already started")
+        for pattern in self.subscriptions():
+            self.client.subscribe(pattern)
+        self.client.connect(timeout=timeout)
+        if not self._wait_subscribed(timeout):
+            self.client.disconnect()
+            raise MqttConnectError(f"{self.name}: subscriptions not acknowledged within {timeout}s")
+        self._stopped.clear()
+        self._thread = threading.Thread(target=self._run, name=f"unit-{self.name}", daemon=True)
+        self._thread.start()
+        self._started.wait(timeout)
+
+    def _wait_subscribed(self, timeout: float) -> bool:
+        """Round-trip a message through the broker so the SUBSCRIBEs are surely processed."""
+        patterns = list(self.client.subscriptions)
+        if not patterns:
+            return True
+        # Brokers process a client's packets in order: a probe published to a private topic we
+        # subscribe to last comes back only once the subscriptions before it are in place.
+        probe = f"delegation-probe/{self.client.client_id}"
+        got = threading.Event()
+        original = self.client._sink
+
+        def sink(msg: Message) -> None:
+            if msg.topic == probe:
+                got.set()
+            else:
+                original(msg)
+
+        self.client._sink = sink
+        try:
+            self.client.subscribe(probe, QOS_COMMAND)
+            deadline = time.monotonic() + timeout
+            while not got.is_set() and time.monotonic() < deadline:
+                with contextlib.suppress(MqttError):
+                    self.client.publish(probe, b"", qos=QOS_COMMAND)
+                got.wait(0.25)
+            return got.is_set()
+        finally:
+            self.client.unsubscribe(probe)
+            self.client._sink = original
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the loop (after on_stop) and disconnect; idempotent."""
+        thread = self._thread
+        if thread is not None:
+            self._inbox.put(_Stop())
+            thread.join(timeout)
+            if thread.is_alive():
+                log.warning("%s: loop thread did not stop within %.1fs", self.name, timeout)
+            self._thread = None
+        self.client.disconnect()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def __enter__(self) -> MqttUnit:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ---- helpers for subclasses
+
+    def publish(
+        self,
+        topic: str,
+        payload: bytes | str | BaseModel | dict[str, Any],
+        qos: int = QOS_PERIODIC,
+        retain: bool = False,
+    ) -> None:
+        """Publish bytes, text, a JSON-able dict, or a pydantic model (by alias, no None)."""
+        if isinstance(payload, BaseModel):
+            data: bytes | str = payload.model_dump_json(by_alias=True, exclude_none=True)
+        elif isinstance(payload, dict):
+            data = json.dumps(payload, sort_keys=True)
+        else:
+            data = payload
+        try:
+            self.client.publish(topic, data, qos=qos, retain=retain)
+        except MqttError as exc:
+            log.warning("%s: %s", self.name, exc)
+
+    def call_soon(self, item: object) -> None:
+        """Feed an item to the loop: a `Message` as if it had arrived, or a typed event (such as a
+        finished job) that `handle_event` takes."""
+        self._inbox.put(item)
+
+    # ---- the loop
+
+    def _run(self) -> None:
+        try:
+            self._guard(self.on_start)
+        finally:
+            self._started.set()
+        next_tick = self.clock()
+        while True:
+            wait: float | None = None
+            if self.tick_interval is not None:
+                now = self.clock()
+                if now >= next_tick:
+                    self._guard(lambda n=now: self.tick(n))  # type: ignore[misc]
+                    next_tick = max(next_tick + self.tick_interval, now)
+                wait = max(0.0, next_tick - self.clock())
+            try:
+                item = self._inbox.get(timeout=wait)
+            except queue.Empty:
+                continue
+            if isinstance(item, _Stop):
+                break
+            if isinstance(item, Message):
+                self._guard(lambda m=item: self.handle(m))  # type: ignore[misc]
+            else:
+                self._guard(lambda e=item: self.handle_event(e))  # type: ignore[misc]
+        self._guard(self.on_stop)
+        self._stopped.set()
+
+    def _guard(self, fn: Callable[[], None]) -> None:
+        """Run a hook; an exception is logged and counted, never kills the loop."""
+        try:
+            fn()
+        except Exception:
+            self.errors += 1
+            log.exception("%s: error in %s", self.name, getattr(fn, "__name__", "hook"))
+
+
+# --------------------------------------------------------------------------- a core on a broker
+
+C = TypeVar("C", bound=Core)
+T = TypeVar("T")
+
+
+class CoreUnit(MqttUnit, Generic[C]):
+    """Runs a pure core on a broker: messages, ticks and finished jobs go to the core on the
+    unit's thread; its `Effects` are published, its jobs run on one worker thread in order.
+
+    ``clock`` gives the core's ``now`` (monotonic by default); ``wall`` gives epoch seconds for
+    the ``stamp`` of status messages. Status goes out as soon as the unit is subscribed (so peers
+    started earlier see it at once) and then every ``core.status_period`` seconds.
+    """
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        core: C,
+        *,
+        worker: Callable[[Any], Any] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
+        tick_interval: float = 0.1,
+        client_id: str | None = None,
+    ) -> None:
+        super().__init__(
+            settings, core.name, tick_interval=tick_interval, clock=clock, client_id=client_id
+        )
+        self.core = core
+        self.wall = wall
+        self._worker = worker
+        self._jobs: queue.Queue[Any] = queue.Queue()
+        self._worker_thread: threading.Thread | None = None
+        self._state = threading.Condition()
+        self._next_status = 0.0
+
+    # ---- reading the core from other threads
+
+    def inspect(self, read: Callable[[C], T]) -> T:
+        """``read(core)`` while the loop is not running the core (a consistent view)."""
+        with self._state:
+            return read(self.core)
+
+    def wait_until(self, predicate: Callable[[C], bool], timeout: float) -> bool:
+        """Block until ``predicate(core)`` holds (checked after every message, tick and job);
+        False at the deadline."""
+        with self._state:
+            return self._state.wait_for(lambda: predicate(self.core), timeout)
+
+    # ---- MqttUnit hooks
+
+    def subscriptions(self) -> Iterable[str]:
+        return self.core.subscriptions()
+
+    def on_start(self) -> None:
+        if self._worker is not None:
+            self._worker_thread = threading.Thread(
+                target=self._work, name=f"{self.name}-worker", daemon=True
+            )
+            self._worker_thread.start()
+        self._publish_status(self.clock())
+
+    def on_stop(self) -> None:
+        if self._worker_thread is not None:
+            self._jobs.put(_Stop())
+            self._worker_thread.join(10.0)
+            if self._worker_thread.is_alive():
+                log.warning("%s: a job was still running at stop; it is abandoned", self.name)
+            self._worker_thread = None
+
+    def handle(self, message: Message) -> None:
+        self._run_core(lambda: self.core.on_message(message.topic, message.payload, self.clock()))
+
+    def handle_event(self, event: object) -> None:
+        if isinstance(event, JobDone) and isinstance(self.core, JobCore):
+            core = self.core
+            self._run_core(lambda: core.on_job_done(event, self.clock()))
+        else:
+            super().handle_event(event)
+
+    def tick(self, now: float) -> None:
+        self._run_core(lambda: self.core.on_tick(now))
+        if now >= self._next_status:
+            self._publish_status(now)
+
+    # ---- helpers
+
+    def _run_core(self, step: Callable[[], Effects]) -> None:
+        with self._state:
+            try:
+                effects = step()
+            finally:
+                self._state.notify_all()
+        self.apply(effects)
+
+    def apply(self, effects: Effects) -> None:
+        """Publish the messages and queue the jobs of ``effects``."""
+        for out in effects.publish:
+            self.send(out)
+        for job in effects.jobs:
+            if self._worker is None:
+                log.error("%s: a job but no worker to run it: %r", self.name, job)
+            else:
+                self._jobs.put(job)
+
+    def send(self, out: Outgoing) -> None:
+        self.publish(out.topic, out.payload, qos=out.qos)
+
+    def _publish_status(self, now: float) -> None:
+        with self._state:
+            messages = self.core.status(now, self.wall())
+        self._next_status = now + self.core.status_period
+        for out in messages:
+            self.send(out)
+
+    def _work(self) -> None:
+        """The worker thread: run jobs in order, hand each result back as a `JobDone`."""
+        assert self._worker is not None
+        while True:
+            job = self._jobs.get()
+            if isinstance(job, _Stop):
+                return
+            began = time.perf_counter()
+            try:
+                result = self._worker(job)
+            except Exception as exc:  # a bug in a job must not stop the worker: hand it back
+                log.exception("%s: job %r failed", self.name, job)
+                result = exc
+            self.call_soon(JobDone(job, result, time.perf_counter() - began))
