@@ -14,11 +14,8 @@ from enum import StrEnum
 from typing import Any
 
 from delegation.errors import InputError, Problem
-from delegation.messages import TERMINAL_NODE_STATUSES, MissionStatus
+from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.tst.node import TstNode, walk
-
-#: Mission statuses after which a mission never changes again.
-FINAL_STATUSES = frozenset({MissionStatus.SUCCEEDED, MissionStatus.FAILED, MissionStatus.ABORTED})
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
 _RANK = {MissionStatus.PLANNED: 0, MissionStatus.STARTED: 1, MissionStatus.RUNNING: 2}
@@ -31,8 +28,6 @@ _ROOT_FINAL: dict[str, MissionStatus] = {
     "revoked": MissionStatus.ABORTED,
 }
 
-#: Node statuses (seed 14.5) after which a node no longer changes.
-NODE_FINAL: frozenset[str] = TERMINAL_NODE_STATUSES
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +71,7 @@ class Mission:
     @property
     def ended(self) -> bool:
         """True once the mission succeeded, failed or was aborted."""
-        return self.status in FINAL_STATUSES
+        return self.status in FINAL_MISSION_STATUSES
 
     @property
     def name(self) -> str:
@@ -209,11 +204,11 @@ class MissionBook:
         mission = self._missions.get(root_uuid)
         if mission is None or mission.ended or mission.status is status:
             return None
-        if status not in FINAL_STATUSES and _RANK[status] <= _RANK[mission.status]:
+        if status not in FINAL_MISSION_STATUSES and _RANK[status] <= _RANK[mission.status]:
             return None
         if status in (MissionStatus.STARTED, MissionStatus.RUNNING) and mission.started_at is None:
             mission.started_at = now
-        if status in FINAL_STATUSES:
+        if status in FINAL_MISSION_STATUSES:
             mission.ended_at = now
         mission.status = status
         mission.fail_reason = fail_reason
@@ -229,11 +224,11 @@ class MissionBook:
         mission = self.of_node(node_uuid)
         if mission is None:
             return None, []
-        if mission.node_status.get(node_uuid) not in NODE_FINAL:
+        if mission.node_status.get(node_uuid) not in TERMINAL_NODE_STATUSES:
             mission.node_status[node_uuid] = status
         if status == "running":
             mission.node_started.setdefault(node_uuid, now)
-        elif status in NODE_FINAL:
+        elif status in TERMINAL_NODE_STATUSES:
             mission.node_ended.setdefault(node_uuid, now)
         events: list[LifecycleEvent] = []
         is_root = root_flag or node_uuid == mission.root_uuid

@@ -15,12 +15,11 @@ from typing import Any
 from rich.table import Table
 
 from delegation.errors import InputError
-from delegation.messages import TERMINAL_NODE_STATUSES
-from delegation.missions import FINAL_STATUSES
+from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES
 from delegation.tst.node import TstNode, parse_tree, walk
 
 _FINAL_NODE = TERMINAL_NODE_STATUSES
-_FINAL_MISSION = FINAL_STATUSES
+_FINAL_MISSION = FINAL_MISSION_STATUSES
 _STYLE = {
     "succeeded": "green",
     "failed": "red",

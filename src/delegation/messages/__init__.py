@@ -24,6 +24,7 @@ from delegation.messages.codec import (
     validate_model,
 )
 from delegation.messages.delegation_api import (
+    FINAL_MISSION_STATUSES,
     CancelMission,
     Delegate,
     DelegationFeedback,
@@ -41,6 +42,7 @@ from delegation.messages.direct import (
     ExecResponse,
     Ping,
     QueryStatus,
+    Signal,
     SignalExecutor,
     SignalTask,
     StartTask,
@@ -82,6 +84,7 @@ __all__ = [
     "DELEGATION_COMMANDS",
     "EXEC_COMMANDS",
     "FEEDBACK",
+    "FINAL_MISSION_STATUSES",
     "INFO",
     "INFO_TYPES",
     "LEVELS",
@@ -113,6 +116,7 @@ __all__ = [
     "SensorInfo",
     "SensorReading",
     "SensorValue",
+    "Signal",
     "SignalExecutor",
     "SignalTask",
     "SignalTstNode",

@@ -25,6 +25,12 @@ class MissionStatus(StrEnum):
     ABORTED = "aborted"
 
 
+#: Mission statuses after which a mission never changes again.
+FINAL_MISSION_STATUSES: frozenset[MissionStatus] = frozenset(
+    {MissionStatus.SUCCEEDED, MissionStatus.FAILED, MissionStatus.ABORTED}
+)
+
+
 class Delegate(WireModel):
     """``delegate``: plan a tree (and with ``start`` also run it)."""
 

@@ -25,8 +25,22 @@ class TaskStatus(StrEnum):
     ENOUGH = "enough"
 
 
-#: The built-in signals (seed 12.2.2); other names are task specific.
-SIGNALS: tuple[str, ...] = ("$enough", "$pause", "$continue", "$abort")
+class Signal(StrEnum):
+    """The built-in signals (seed 12.2.2) to a task, a tree node or a unit; other names are task
+    specific."""
+
+    ENOUGH = "$enough"
+    """Stop as soon as it makes sense, and count it as success (open-ended tasks)."""
+    PAUSE = "$pause"
+    """Hold still; nothing new starts until ``$continue``."""
+    CONTINUE = "$continue"
+    """Go on after a ``$pause``."""
+    ABORT = "$abort"
+    """Stop now: running tasks end ``aborted``, what has not started is revoked."""
+
+
+#: The built-in signals' names, in `Signal`'s order.
+SIGNALS: tuple[str, ...] = tuple(s.value for s in Signal)
 
 
 class Ping(WireModel):

@@ -29,7 +29,7 @@ class NodeStatus(StrEnum):
 
 
 #: Statuses after which a node never changes again.
-TERMINAL_NODE_STATUSES: frozenset[str] = frozenset(
+TERMINAL_NODE_STATUSES: frozenset[NodeStatus] = frozenset(
     {NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED, NodeStatus.REVOKED}
 )
 
