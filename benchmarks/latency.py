@@ -31,12 +31,12 @@ from typing import Any
 
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
+from delegation.local import LocalSystem
 from delegation.messages import HeartBeat, TstResponse, encode
 from delegation.runtime.broker import PrivateMosquitto
 from delegation.runtime.mqtt import Message, MqttClient
 from delegation.runtime.settings import BrokerSettings
-from delegation.service import DelegationService, ServiceConfig
-from delegation.sim import SimFleet
+from delegation.service import ServiceConfig
 from delegation.topics import unit_base_topic
 
 PREFIX = "bench"
@@ -156,9 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     broker = PrivateMosquitto().start()
     settings = broker.settings()
     units = make_units(args.units, rng)
-    fleet = SimFleet(settings, units, prefix=PREFIX, rates={u.name: 2.0 for u in units})
     engine = StandInEngine(settings)
-    service = DelegationService(settings, ServiceConfig(prefix=PREFIX, strategy=args.strategy))
+    system = LocalSystem(units, settings=settings, engine=False,
+                         config=ServiceConfig(prefix=PREFIX, strategy=args.strategy),
+                         rates={u.name: 2.0 for u in units}, ready_timeout=20)
     responses: dict[str, float] = {}
     cond = threading.Condition()
 
@@ -170,12 +171,13 @@ def main(argv: list[str] | None = None) -> int:
             cond.notify_all()
 
     bench = MqttClient(settings, "bench-client", sink=sink)
-    base = service.config.base_topic
+    base = system.config.base_topic
     bench.subscribe(f"{base}/+/response")
     try:
-        fleet.start()
-        engine.start()
-        service.start()
+        engine.start()  # the stand-in first: the service sees its first heartbeat at once
+        system.start()
+        service = system.service
+        assert service is not None
         bench.connect()
         if not service.wait_ready([u.name for u in units], timeout=20):
             print("service did not see the fleet and the engine", file=sys.stderr)
@@ -243,9 +245,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     finally:
         bench.disconnect()
-        service.stop()
+        system.stop()
         engine.stop()
-        fleet.stop()
         broker.stop()
 
 

@@ -6,18 +6,15 @@ import json
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from delegation.cli import main
 from delegation.cli.runtime import _read_mission, find_scenario
-from delegation.engine import TstEngine
 from delegation.errors import InputError
+from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import load_scenario
-from delegation.service import DelegationService, ServiceConfig
-from delegation.sim import SimFleet
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -70,22 +67,9 @@ def test_mission_files_of_every_kind(tmp_path: Path) -> None:
 def running(mqtt_settings: BrokerSettings, prefix: str) -> Iterator[list[str]]:
     """The demo scenario's fleet, engine and service on the test broker; yields CLI flags."""
     scenario = load_scenario(find_scenario("demo"))
-    fleet = SimFleet.from_scenario(mqtt_settings, scenario, prefix=prefix, speedup=30.0)
-    engine = TstEngine(mqtt_settings, prefix=prefix)
-    service = DelegationService(mqtt_settings, ServiceConfig(prefix=prefix,
-                                                             profiles=scenario.profiles()))
-    started: list[Any] = []
-    try:
-        for unit in (fleet, engine, service):
-            unit.start()
-            started.append(unit)
-        names = [a.name for a in scenario.agents]
-        assert engine.wait_for_units(names, 15) and service.wait_ready(names, timeout=15)
+    with LocalSystem.from_scenario(scenario, settings=mqtt_settings, prefix=prefix, speedup=30.0):
         yield ["--broker", mqtt_settings.host, "--port", str(mqtt_settings.port),
                "--prefix", prefix]
-    finally:
-        for unit in reversed(started):
-            unit.stop()
 
 
 @pytest.mark.mqtt

@@ -17,6 +17,7 @@ import pytest
 from delegation.engine import TstEngine
 from delegation.fleet import UnitState, make_unit
 from delegation.geo import LocalFrame
+from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, ServiceConfig
 from delegation.sim import SimFleet
@@ -78,29 +79,15 @@ class Runtime:
 def start_runtime(settings: BrokerSettings, prefix: str, units: list[UnitState],
                   collector: Callable[..., Any], speedup: float,
                   example_agent: bool = False) -> Iterator[Runtime]:
-    fleet = SimFleet(settings, units, prefix=prefix, speedup=speedup,
-                     rates={u.name: 5.0 for u in units}, example_agent=example_agent)
-    engine = TstEngine(settings, prefix=prefix)
-    service = DelegationService(settings, ServiceConfig(prefix=prefix))
-    base = service.config.base_topic
-    engine_base = engine.base
-    watch = collector(f"{base}/#", f"{engine_base}/tst/command", f"{prefix}/unit/+/+/+/exec/#")
-    fleet.start()
-    try:
-        engine.start()
-        try:
-            service.start()
-            try:
-                names = [u.name for u in units]
-                assert engine.wait_for_units(names, 15)
-                assert service.wait_ready(names, timeout=15)
-                yield Runtime(service, engine, fleet, watch, base, engine_base, prefix)
-            finally:
-                service.stop()
-        finally:
-            engine.stop()
-    finally:
-        fleet.stop()
+    config = ServiceConfig(prefix=prefix)
+    watch = collector(f"{config.base_topic}/#", f"{prefix}/unit/+/+/op0/tst/command",
+                      f"{prefix}/unit/+/+/+/exec/#")
+    with LocalSystem(units, settings=settings, config=config, speedup=speedup,
+                     rates={u.name: 5.0 for u in units}, example_agent=example_agent) as system:
+        assert system.service is not None and system.engine is not None
+        assert system.fleet is not None
+        yield Runtime(system.service, system.engine, system.fleet, watch, config.base_topic,
+                      system.engine.base, prefix)
 
 
 def fleet_units() -> list[UnitState]:

@@ -11,6 +11,7 @@ import pytest
 from delegation.engine import TstEngine
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
+from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.sim import SimFleet
 
@@ -54,16 +55,12 @@ def system(
             make_unit("dji0", "air", START, TASKS, speeds={"fast": 10.0}),
             make_unit("dji1", "air", FRAME.geopoint(50, 0, 40), TASKS, speeds={"fast": 10.0}),
         ]
-        fleet = SimFleet(
-            mqtt_settings, units, prefix=prefix, speedup=speedup, example_agent=example_agent
-        )
-        fleet.start()
-        started.append(fleet)
-        engine = TstEngine(mqtt_settings, prefix=prefix)
-        engine.start()
-        started.append(engine)
-        assert engine.wait_for_units(["dji0", "dji1"], 10.0)
-        return engine, fleet
+        system = LocalSystem(units, settings=mqtt_settings, prefix=prefix, speedup=speedup,
+                             example_agent=example_agent, service=False, ready_timeout=10.0)
+        system.start()
+        started.append(system)
+        assert system.engine is not None and system.fleet is not None
+        return system.engine, system.fleet
 
     yield make
     for thing in reversed(started):

@@ -16,9 +16,9 @@ import pytest
 
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
+from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, Job, ServiceConfig, run_job
-from delegation.sim import SimFleet
 
 pytestmark = pytest.mark.mqtt
 
@@ -37,18 +37,10 @@ def stack(mqtt_settings: BrokerSettings, prefix: str) -> Iterator[DelegationServ
         make_unit("dji1", "air", FRAME.geopoint(200, 0, 30), ["move-to", "move-path"]),
         make_unit("usv0", "surface", FRAME.geopoint(0, -200, 0), ["move-to"]),
     ]
-    fleet = SimFleet(mqtt_settings, units, prefix=prefix, rates={u.name: 5.0 for u in units})
-    service = DelegationService(mqtt_settings, ServiceConfig(prefix=prefix))
-    fleet.start()
-    try:
-        service.start()
-        try:
-            assert service.wait_ready(["dji0", "dji1", "usv0"], timeout=15, engine=False)
-            yield service
-        finally:
-            service.stop()
-    finally:
-        fleet.stop()
+    with LocalSystem(units, settings=mqtt_settings, prefix=prefix, engine=False,
+                     rates={u.name: 5.0 for u in units}) as system:
+        assert system.service is not None
+        yield system.service
 
 
 Send = Callable[..., dict[str, Any]]

@@ -330,13 +330,11 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from delegation.allocation import plan_mission
-    from delegation.engine import TstEngine
+    from delegation.local import LocalSystem
     from delegation.mapplot import render_map
-    from delegation.runtime.broker import EmbeddedBroker
     from delegation.runtime.client import ServiceClient
     from delegation.scenario import load_scenario
-    from delegation.service import DelegationService, ServiceConfig
-    from delegation.sim import SimFleet
+    from delegation.service import ServiceConfig
 
     console = Console()
     t0 = time.monotonic()
@@ -352,36 +350,25 @@ def _demo(args: argparse.Namespace) -> int:
     console.print(f"[bold]{scenario.name}[/]: {len(units)} units, speedup {speedup:g}")
 
     with ExitStack() as stack:
-        settings = broker_settings(args)
-        if settings is None:
-            broker = EmbeddedBroker().start()
-            stack.callback(broker.stop)
-            settings = broker.settings()
-            console.print(f"embedded broker on {settings.describe()}")
-        prefix = args.prefix
         # Positions often enough for a smooth flown track at this speedup (<= 10 Hz per unit).
         rates = {a.name: min(10.0, max(a.rate or 1.0, speedup / 2.0)) for a in scenario.agents}
-        fleet = SimFleet(settings, units, prefix=prefix, speedup=speedup, rates=rates)
-        fleet.start()
-        stack.callback(fleet.stop)
-        engine = TstEngine(settings, prefix=prefix)
-        engine.start()
-        stack.callback(engine.stop)
         config = ServiceConfig(
-            prefix=prefix,
+            prefix=args.prefix,
             strategy=args.strategy,
             objective=args.objective,
             time_limit=args.time_limit,
             profiles=scenario.profiles(),
         )
-        service = DelegationService(settings, config)
-        service.start()
-        stack.callback(service.stop)
-        names = [u.name for u in units]
-        if not (engine.wait_for_units(names, 15.0) and service.wait_ready(names, timeout=15.0)):
-            raise DelegationError("the simulated fleet and the engine did not come up within 15 s")
+        system = LocalSystem(
+            units, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
+        )
+        stack.enter_context(system)
+        settings = system.settings
+        assert settings is not None
+        if system.broker is not None:
+            console.print(f"embedded broker on {settings.describe()}")
         client = ServiceClient(
-            settings, prefix=prefix, service=config.name, track_positions=True
+            settings, prefix=config.prefix, service=config.name, track_positions=True
         ).start()
         stack.callback(client.stop)
 
