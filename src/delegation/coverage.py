@@ -2,19 +2,29 @@
 
 The sweep runs along the long axis of the polygon's minimum rotated rectangle (shapely), so the
 number of turns is smallest. The short side ``H`` is split into ``n = ceil(H / w)`` strips of equal
-height ``H / n <= w`` and one lane runs through the middle of each strip, from polygon edge to
-polygon edge; consecutive lanes are joined by straight connectors at alternating ends. For a
-rectangle that is exactly ``A / w + (n - 1) * w`` for ``A`` the area (DESIGN 4); for other convex
-polygons it stays within a few per cent of that estimate.
+height ``H / n <= w`` and one lane runs through the middle of each strip. Every lane is clipped to
+the polygon with shapely (one vectorised ``intersection``), so each lane segment lies inside the
+area; a lane that a concave area splits (the arms of a U) becomes several segments.
 
-Lanes end where their centre line meets the boundary, so the path never leaves the polygon; at
-slanted ends the corners between lanes are left to the camera's along-track footprint. Counting only
-the band ``w/2`` either side of the path, a triangle is 99.9 % covered with 19 lanes, 99 % with 5,
+The segments are grouped into cells (a boustrophedon cell decomposition: a segment continues the
+cell of the previous lane's segment when each is the other's only overlap). Each cell is flown as
+a boustrophedon, consecutive lanes joined by straight connectors at alternating ends; the cells are
+flown one after another, each from the cell and end nearest to where the path is, joined by
+straight transitions. A convex polygon is a single cell: for a rectangle the path is exactly
+``A / w + (n - 1) * w`` for ``A`` the area (DESIGN 4), for other convex polygons within a few per
+cent of that estimate. For a concave polygon the path is usually longer than the estimate by
+its transitions.
+
+What stays inside the area: every lane segment. Connectors and transitions are straight lines; in
+a convex polygon they stay inside it, but over a concave area they may cross outside it (from one
+arm of a U to the other, or around a notch), as the vehicle flies to the next cell. At slanted
+ends the corners between lanes are left to the camera's along-track footprint. Counting only the
+band ``w/2`` either side of the path, a triangle is 99.9 % covered with 19 lanes, 99 % with 5,
 96 % with 2 (tests check >= 99 % from about 10 lanes on).
 
 The path is real: the simulator flies it and the maps draw it, and ``coverage_length`` is its
-length, not an estimate. Lanes are found with numpy (every lane against every polygon edge at
-once), so widths of a metre over kilometre-sized areas stay fast.
+length, not an estimate. Lanes are clipped in one vectorised shapely call, so widths of a metre
+over kilometre-sized areas stay fast (about 0.1 s for 10 000 lanes).
 """
 
 from __future__ import annotations
@@ -83,10 +93,9 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return along, across
 
 
-def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
-    """The lanes of the sweep: an (n, 2, 2) array of [start, end] points, all pointing ``along``,
-    ordered across the polygon from one side to the other."""
-    poly = _clean_polygon(polygon_xy)
+def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """The lanes clipped to the polygon: (segments (m, 2, 2) in the world frame, each segment's lane
+    index (m,)), ordered by lane and, within a lane, along the sweep; every segment points along."""
     w = _check_width(width)
     along, across = sweep_axes(poly)
     origin = poly.mean(axis=0)
@@ -102,26 +111,98 @@ def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float
         )
     ys = y_lo + (np.arange(n) + 0.5) * (height / n)
 
-    # Every lane against every edge: where the lane's line crosses the edge, if it does.
-    x0, y0 = qx, qy
-    x1, y1 = np.roll(qx, -1), np.roll(qy, -1)
-    dy = y1 - y0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ys[:, None] - y0[None, :]) / dy[None, :]
-    hits = (dy[None, :] != 0.0) & (t >= 0.0) & (t <= 1.0)
-    xs = np.where(hits, x0[None, :] + t * (x1 - x0)[None, :], np.nan)
-    found = hits.any(axis=1)
-    if not found.all():  # only numerically possible for a lane on a degenerate polygon
-        xs, ys = xs[found], ys[found]
-    if len(ys) == 0:
-        lo, hi = float(qx.min()), float(qx.max())
-        xs = np.array([[lo, hi]])
-        ys = np.array([(y_lo + y_hi) / 2.0])
-    x_start = np.nanmin(xs, axis=1)
-    x_end = np.nanmax(xs, axis=1)
-    starts = origin + x_start[:, None] * along + ys[:, None] * across
-    ends = origin + x_end[:, None] * along + ys[:, None] * across
-    return np.stack([starts, ends], axis=1)
+    # Clip every lane (a horizontal line in the sweep frame, a little longer than the area) to the
+    # area in one vectorised shapely call; a lane the area splits comes back in several pieces.
+    area: shapely.Geometry = Polygon(np.column_stack([qx, qy]))
+    if not shapely.is_valid(area):
+        area = shapely.make_valid(area)
+    x_lo, x_hi = float(qx.min()), float(qx.max())
+    pad = max(1.0, x_hi - x_lo)
+    coords = np.empty((n, 2, 2))
+    coords[:, 0, 0], coords[:, 1, 0] = x_lo - pad, x_hi + pad
+    coords[:, :, 1] = ys[:, None]
+    pieces, lane = shapely.get_parts(
+        shapely.intersection(shapely.linestrings(coords), area), return_index=True
+    )
+    keep = (shapely.get_type_id(pieces) == 1) & (shapely.length(pieces) > 0.0)  # no touch points
+    pieces, lane = pieces[keep], lane[keep]
+    if len(pieces) == 0:  # a degenerate (zero-area) polygon: one lane along it
+        x0s, x1s = np.array([x_lo]), np.array([x_hi])
+        lane, seg_y = np.array([0]), np.array([(y_lo + y_hi) / 2.0])
+    else:
+        # A clipped horizontal line is a straight piece: its extent along is its bounds.
+        bounds = shapely.bounds(pieces)
+        x0s, x1s = bounds[:, 0], bounds[:, 2]
+        order = np.lexsort((x0s, lane))
+        x0s, x1s, lane = x0s[order], x1s[order], lane[order]
+        # Pieces that touch (a lane running along a boundary edge) are one segment.
+        joined = np.zeros(len(lane), dtype=bool)
+        joined[1:] = (lane[1:] == lane[:-1]) & (x0s[1:] <= x1s[:-1] + 1e-9 * pad)
+        first = np.flatnonzero(~joined)
+        x0s = x0s[first]
+        x1s = np.maximum.reduceat(x1s, first)
+        lane = lane[first]
+        seg_y = ys[lane]
+    starts = origin + x0s[:, None] * along + seg_y[:, None] * across
+    ends = origin + x1s[:, None] * along + seg_y[:, None] * across
+    return np.stack([starts, ends], axis=1), lane
+
+
+def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
+    """The lanes of the sweep clipped to the polygon: an (m, 2, 2) array of [start, end] points,
+    all pointing ``along``, ordered across the polygon from one side to the other and, where the
+    polygon splits a lane into several segments (concave areas), along the lane.
+
+    For a convex polygon ``m`` is the lane count ``n``, one segment per lane."""
+    return _segments(_clean_polygon(polygon_xy), width)[0]
+
+
+def sweep_cells(
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float
+) -> list[np.ndarray]:
+    """The lane segments grouped into cells, each an (k, 2, 2) array flown as one boustrophedon.
+
+    A segment continues the cell of a segment in the previous lane when each is the other's only
+    overlapping segment in that lane (a boustrophedon cell decomposition: cells split and merge
+    where the area does), or when both lanes are a single segment (so a convex polygon is one
+    cell, flown exactly as before). Cells are listed in the order their first lanes come.
+    """
+    segments, lane = _segments(_clean_polygon(polygon_xy), width)
+    if len(segments) == 0:
+        return []
+    bounds = np.unique(lane, return_index=True)[1]
+    per_lane = np.split(np.arange(len(lane)), bounds[1:])
+    if all(len(ix) == 1 for ix in per_lane):
+        return [segments]
+    along = segments[:, 1] - segments[:, 0]
+    # Positions along the sweep of each segment's ends (any common origin will do).
+    direction = along[np.argmax(np.hypot(*along.T))]
+    direction = direction / max(float(np.hypot(*direction)), 1e-300)
+    x0 = segments[:, 0] @ direction
+    x1 = segments[:, 1] @ direction
+
+    cell_of = np.full(len(segments), -1)
+    cells: list[list[int]] = []
+    previous: np.ndarray = np.zeros(0, dtype=int)
+    for current in per_lane:
+        if len(previous) and lane[current[0]] != lane[previous[0]] + 1:
+            previous = np.zeros(0, dtype=int)  # a lane with nothing in it breaks every cell
+        # overlap[i, j]: segment i of this lane overlaps segment j of the previous lane
+        overlap = np.minimum(x1[current][:, None], x1[previous][None, :]) > np.maximum(
+            x0[current][:, None], x0[previous][None, :]
+        )
+        single = len(current) == 1 and len(previous) == 1
+        for i, s in enumerate(current):
+            js = np.flatnonzero(overlap[i])
+            if single or (len(js) == 1 and overlap[:, js[0]].sum() == 1):
+                p = previous[0] if single else previous[js[0]]
+                cell_of[s] = cell_of[p]
+                cells[cell_of[s]].append(int(s))
+            else:
+                cell_of[s] = len(cells)
+                cells.append([int(s)])
+        previous = current
+    return [segments[ix] for ix in cells]
 
 
 def serpentine(lanes: np.ndarray, variant: int = 0) -> np.ndarray:
@@ -134,18 +215,55 @@ def serpentine(lanes: np.ndarray, variant: int = 0) -> np.ndarray:
     n = len(order)
     backwards = (np.arange(n) % 2 == 1) ^ bool(variant & 2)
     flown = np.where(backwards[:, None, None], order[:, ::-1, :], order)
-    path = flown.reshape(-1, 2)
-    # Drop repeated points (a lane of zero length at a vertex).
+    return _drop_repeats(flown.reshape(-1, 2))
+
+
+def _drop_repeats(path: np.ndarray) -> np.ndarray:
+    """Drop repeated points (a lane of zero length at a vertex, a cell starting where one ended)."""
     keep = np.ones(len(path), dtype=bool)
     keep[1:] = np.any(np.abs(np.diff(path, axis=0)) > 1e-9, axis=1)
     return np.asarray(path[keep])
 
 
+def _variant_starts(cell: np.ndarray) -> np.ndarray:
+    """Where ``serpentine(cell, v)`` starts, for v = 0..3: (4, 2)."""
+    return np.stack([cell[0, 0], cell[-1, 0], cell[0, 1], cell[-1, 1]])
+
+
+def _fly_cells(
+    cells: list[np.ndarray], variant: int, start: np.ndarray | None = None
+) -> np.ndarray:
+    """One path through all cells: each cell a boustrophedon, straight transitions between them.
+
+    Without ``start`` the first cell is the first (bit 0 of ``variant`` clear) or the last (set) in
+    the lanes' order, flown in ``variant``; with it, the cell and variant starting nearest to
+    ``start``. Then, greedily, the cell and variant whose start is nearest to where the path is.
+    """
+    if not cells:
+        return np.zeros((0, 2))
+    left = list(range(len(cells)))
+    parts: list[np.ndarray] = []
+    if start is None:
+        first = left.pop(-1 if variant & 1 else 0)
+        parts.append(serpentine(cells[first], variant))
+    while left:
+        here = parts[-1][-1] if parts else start
+        assert here is not None
+        starts = np.stack([_variant_starts(cells[c]) for c in left])  # (cells, 4, 2)
+        gaps = np.hypot(*(starts - here).transpose(2, 0, 1))
+        i, v = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+        parts.append(serpentine(cells[left.pop(int(i))], int(v)))
+    return _drop_repeats(np.concatenate(parts, axis=0))
+
+
 def coverage_path(
     polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float, variant: int = 0
 ) -> np.ndarray:
-    """The boustrophedon path (K, 2) covering the polygon with sweep width ``width`` (m)."""
-    return serpentine(sweep_lanes(polygon_xy, width), variant)
+    """The boustrophedon path (K, 2) covering the polygon with sweep width ``width`` (m).
+
+    ``variant`` (0..3) is ``serpentine``'s, applied to the first cell.
+    """
+    return _fly_cells(sweep_cells(polygon_xy, width), variant)
 
 
 def path_length(path_xy: np.ndarray) -> float:
@@ -162,7 +280,12 @@ def coverage_length(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: f
 
 
 def coverage_estimate(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> float:
-    """The closed-form estimate ``A / w + (n - 1) * w`` (DESIGN 4), for checks and quick bounds."""
+    """The closed-form estimate ``A / w + (n - 1) * w`` (DESIGN 4), for checks and quick bounds.
+
+    ``A`` is the polygon's own area (not its convex hull's) and ``n`` the lane count of
+    ``sweep_lanes``. It matches ``coverage_length`` within a few per cent for convex polygons; for
+    a concave one the path also has transitions between its cells and is usually longer.
+    """
     poly = _clean_polygon(polygon_xy)
     w = _check_width(width)
     _, across = sweep_axes(poly)
@@ -185,18 +308,16 @@ def circle_polygon(
 def multi_coverage_path(polygons: Sequence[np.ndarray], width: float) -> np.ndarray:
     """One path over several polygons in the given order (``search-areas``).
 
-    The first polygon is flown in the canonical variant; each later one in the variant whose start
-    is nearest to where the previous one ended; straight connectors between them.
+    The first polygon is flown as ``coverage_path`` flies it; each later one starting from the
+    cell and variant nearest to where the previous one ended; straight connectors between them.
     """
     parts: list[np.ndarray] = []
     for poly in polygons:
-        lanes = sweep_lanes(poly, width)
+        cells = sweep_cells(poly, width)
         if not parts:
-            parts.append(serpentine(lanes, 0))
-            continue
-        last = parts[-1][-1]
-        options = [serpentine(lanes, v) for v in range(4)]
-        parts.append(min(options, key=lambda p: float(np.hypot(*(p[0] - last)))))
+            parts.append(_fly_cells(cells, 0))
+        else:
+            parts.append(_fly_cells(cells, 0, start=parts[-1][-1]))
     if not parts:
         return np.zeros((0, 2))
     return np.concatenate(parts, axis=0)

@@ -1,0 +1,137 @@
+"""Coverage sweeps of concave areas: lanes are clipped to the area, never flown across a gap.
+
+Pure geometry: no clock, no network.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from delegation.coverage import (
+    coverage_estimate,
+    coverage_length,
+    coverage_path,
+    multi_coverage_path,
+    path_length,
+    sweep_cells,
+    sweep_lanes,
+)
+
+#: A U open to the north: 300 m wide, 200 m tall, arms 100 m wide, the gap 100 m deep. The long
+#: axis is east-west, so the lanes in the northern half cross the gap between the arms.
+U_SHAPE = np.array(
+    [
+        [0.0, 0.0],
+        [300.0, 0.0],
+        [300.0, 200.0],
+        [200.0, 200.0],
+        [200.0, 100.0],
+        [100.0, 100.0],
+        [100.0, 200.0],
+        [0.0, 200.0],
+    ]
+)
+
+WIDTHS = [7.0, 10.0, 17.0, 33.0]
+
+
+def rotate(poly: np.ndarray, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    r = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return np.asarray(poly @ r.T + np.array([1234.0, -567.0]))
+
+
+def covered_fraction(path: np.ndarray, shape: Polygon, width: float) -> float:
+    band = LineString(path).buffer(width / 2.0 * 1.0001, cap_style="flat")
+    return float(band.intersection(shape).area / shape.area)
+
+
+@pytest.mark.parametrize("degrees", [0.0, 23.0, 90.0])
+@pytest.mark.parametrize("width", WIDTHS)
+def test_every_lane_segment_lies_within_the_u(width: float, degrees: float) -> None:
+    poly = rotate(U_SHAPE, degrees)
+    lanes = sweep_lanes(poly, width)
+    inside = Polygon(poly).buffer(1e-6)
+    assert shapely.within(shapely.linestrings(lanes), inside).all()
+    # The lanes in the arms are split in two: more segments than lanes.
+    assert len(lanes) > np.ceil(200.0 / width - 1e-9)
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_the_u_is_covered_and_every_lane_is_in_the_path(width: float) -> None:
+    shape = Polygon(U_SHAPE)
+    path = coverage_path(U_SHAPE, width)
+    assert covered_fraction(path, shape, width) > 0.99
+    # The path flies every segment (its two ends are consecutive points of the path).
+    legs = {(tuple(np.round(a, 6)), tuple(np.round(b, 6))) for a, b in itertools.pairwise(path)}
+    for a, b in sweep_lanes(U_SHAPE, width):
+        ka, kb = tuple(np.round(a, 6)), tuple(np.round(b, 6))
+        assert (ka, kb) in legs or (kb, ka) in legs
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_the_u_is_three_cells_and_the_gap_is_crossed_once(width: float) -> None:
+    cells = sweep_cells(U_SHAPE, width)
+    assert len(cells) == 3  # the base and the two arms
+    path = coverage_path(U_SHAPE, width)
+    # Legs over the gap (outside the area) are transitions; with the cells flown one after the
+    # other the gap is crossed at most once, not on every split lane.
+    gap = Polygon([(100.0, 100.0), (200.0, 100.0), (200.0, 200.0), (100.0, 200.0)])
+    legs = shapely.linestrings(np.stack([path[:-1], path[1:]], axis=1))
+    crossings = shapely.length(shapely.intersection(legs, gap.buffer(-1.0))) > 0.0
+    assert crossings.sum() <= 1
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_path_length_is_the_built_path_and_at_least_the_estimate(width: float) -> None:
+    path = coverage_path(U_SHAPE, width)
+    assert coverage_length(U_SHAPE, width) == pytest.approx(path_length(path), rel=1e-12)
+    # The closed form uses the U's own area (not its convex hull's): the transitions between
+    # cells come on top of it.
+    assert Polygon(U_SHAPE).area == pytest.approx(50_000.0)
+    assert path_length(path) >= coverage_estimate(U_SHAPE, width)
+    # ... and it is shorter than sweeping the U's bounding rectangle (no lane crosses the gap).
+    rect = np.array([[0.0, 0.0], [300.0, 0.0], [300.0, 200.0], [0.0, 200.0]])
+    assert path_length(path) < coverage_length(rect, width)
+
+
+def test_all_four_variants_fly_the_same_lanes() -> None:
+    lengths = [path_length(coverage_path(U_SHAPE, 10.0, v)) for v in range(4)]
+    starts = {tuple(coverage_path(U_SHAPE, 10.0, v)[0]) for v in range(4)}
+    assert len(starts) == 4
+    assert max(lengths) < 1.2 * min(lengths)
+
+
+def test_multi_area_path_over_a_u_and_a_square() -> None:
+    square = np.array([[400.0, 0.0], [500.0, 0.0], [500.0, 100.0], [400.0, 100.0]])
+    path = multi_coverage_path([U_SHAPE, square], 10.0)
+    alone = coverage_length(U_SHAPE, 10.0) + coverage_length(square, 10.0)
+    assert path_length(path) > alone
+    assert path[0] == pytest.approx(coverage_path(U_SHAPE, 10.0)[0])
+    assert covered_fraction(path, Polygon(U_SHAPE).union(Polygon(square)), 10.0) > 0.99
+
+
+def test_a_convex_case_is_unchanged() -> None:
+    rect = np.array([[0.0, 0.0], [1000.0, 0.0], [1000.0, 200.0], [0.0, 200.0]])
+    poly = rotate(rect, 30.0)
+    lanes = sweep_lanes(poly, 40.0)
+    assert len(lanes) == 5
+    assert len(sweep_cells(poly, 40.0)) == 1
+    path = coverage_path(poly, 40.0)
+    assert len(path) == 10  # five lanes, flown alternately, joined at their ends
+    assert path[2] == pytest.approx(lanes[1][1])
+    assert path_length(path) == pytest.approx(5 * 1000.0 + 4 * 40.0)
+    assert path_length(path) == pytest.approx(coverage_estimate(poly, 40.0))
+
+
+def test_a_lane_along_an_inner_edge_is_one_segment() -> None:
+    # 7 strips of 200/7 m: the fourth lane runs exactly along the bottom of the gap (y = 100).
+    lanes = sweep_lanes(U_SHAPE, 33.0)
+    on_edge = lanes[np.isclose(lanes[:, 0, 1], 100.0)]
+    assert len(on_edge) == 1
+    assert np.hypot(*(on_edge[0, 1] - on_edge[0, 0])) == pytest.approx(300.0)
