@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+from hypothesis import settings as hypothesis_settings
 
 from delegation.runtime.broker import (
     EmbeddedBroker,
@@ -26,6 +27,14 @@ from delegation.runtime.broker import (
 from delegation.runtime.mqtt import Message, MqttClient
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import Wildcard
+
+# Property tests are derandomised in CI (``CI`` set, as CI runs do): the same examples every run, so
+# a red CI is reproducible and never a roll of the dice. Locally they explore (``dev`` profile).
+hypothesis_settings.register_profile("ci", derandomize=True, print_blob=True)
+hypothesis_settings.register_profile("dev")
+hypothesis_settings.load_profile(
+    os.environ.get("HYPOTHESIS_PROFILE") or ("ci" if os.environ.get("CI") else "dev")
+)
 
 
 def _broker_kinds() -> list[Any]:

@@ -64,6 +64,9 @@ class ServiceClient:
         self.events: queue.Queue[Event] = queue.Queue()
         self.base: str | None = None
         self._cond = threading.Condition()
+        # Answers are kept only for the com-uuids this client is waiting for (every client sees
+        # every answer on the service's response topics): bounded by the requests in flight.
+        self._waiting: set[str] = set()
         self._responses: dict[str, dict[str, Any]] = {}
         self._svc = f"{prefix}/unit/+/+/{service}"
         self._filters = {
@@ -121,14 +124,21 @@ class ServiceClient:
             to = data.get("response-to")
             if isinstance(to, str):
                 with self._cond:
-                    self._responses.setdefault(to, data)
-                    self._cond.notify_all()
+                    if to in self._waiting:
+                        self._responses.setdefault(to, data)
+                        self._cond.notify_all()
         elif f["tst-feedback"].matches(msg.topic):
             self.events.put(Event("tst-feedback", self.service, data, now))
         elif f["mission"].matches(msg.topic):
             self.events.put(Event("mission", self.service, data, now))
 
     # ---- requests
+
+    @property
+    def answers_held(self) -> int:
+        """Answers received and not yet taken by their request (0 when idle)."""
+        with self._cond:
+            return len(self._responses)
 
     def wait_service(self, timeout: float = 10.0) -> str:
         """The service's base topic, learned from its heartbeat."""
@@ -159,13 +169,21 @@ class ServiceClient:
         payload = json.dumps(body).encode("utf-8")
         topic = f"{base}/{api}/command"
         deadline = time.monotonic() + timeout
-        while True:
-            self.client.publish(topic, payload, qos=QOS_COMMAND)
-            wait = min(resend_every, deadline - time.monotonic())
+        with self._cond:
+            self._waiting.add(com)
+        try:
+            while True:
+                self.client.publish(topic, payload, qos=QOS_COMMAND)
+                wait = min(resend_every, deadline - time.monotonic())
+                with self._cond:
+                    if self._cond.wait_for(lambda: com in self._responses, max(0.0, wait)):
+                        return self._responses[com]
+                if time.monotonic() >= deadline:
+                    raise ServiceUnavailable(
+                        f"{self.service} did not answer {body.get('command')!r} "
+                        f"within {timeout:g} s"
+                    )
+        finally:
             with self._cond:
-                if self._cond.wait_for(lambda: com in self._responses, max(0.0, wait)):
-                    return self._responses[com]
-            if time.monotonic() >= deadline:
-                raise ServiceUnavailable(
-                    f"{self.service} did not answer {body.get('command')!r} within {timeout:g} s"
-                )
+                self._waiting.discard(com)
+                self._responses.pop(com, None)
