@@ -1,7 +1,8 @@
 """PNG plots of bench results: the objective per strategy, and each strategy's routes.
 
 Figures are bare ``matplotlib.figure.Figure`` objects on the Agg canvas (no pyplot state), so
-plotting works headless and off the main thread. Route maps reuse ``delegation.mapplot.render_map``.
+plotting works headless and off the main thread. Route maps reuse
+``delegation.render.mapplot.render_map``.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def write_plots(
 
     Maps are skipped for scenarios with more than ``max_map_tasks`` tasks (unreadable anyway).
     """
-    from delegation.mapplot import render_map
+    from delegation.render.mapplot import render_map
 
     out = Path(directory)
     written: list[Path] = []

@@ -24,7 +24,7 @@ from delegation.errors import DelegationError, InputError, Problem
 if TYPE_CHECKING:
     from rich.console import Console
 
-    from delegation.progress import MissionProgress
+    from delegation.render.progress import MissionProgress
     from delegation.runtime.client import ServiceClient
     from delegation.runtime.settings import BrokerSettings
 
@@ -232,7 +232,7 @@ def follow(
 
     from rich.live import Live
 
-    from delegation.progress import MissionProgress
+    from delegation.render.progress import MissionProgress
 
     progress = MissionProgress(plan, speedup=speedup)
     root = progress.root_uuid
@@ -331,7 +331,7 @@ def _demo(args: argparse.Namespace) -> int:
 
     from delegation.allocation import plan_mission
     from delegation.local import LocalSystem
-    from delegation.mapplot import render_map
+    from delegation.render.mapplot import render_map
     from delegation.runtime.client import ServiceClient
     from delegation.scenario import load_scenario
     from delegation.service import ServiceConfig

@@ -1,0 +1,1 @@
+"""What people look at: route maps (PNG, matplotlib) and live mission tables (rich)."""
