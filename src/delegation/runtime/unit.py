@@ -330,7 +330,10 @@ class CoreUnit(MqttUnit, Generic[C]):
     def _publish_status(self, now: float) -> None:
         with self._state:
             messages = self.core.status(now, self.wall())
-        self._next_status = now + self.core.status_period
+        # Keep the period's phase (no drift from tick granularity), but never fall behind.
+        period = self.core.status_period
+        first = self._next_status == 0.0
+        self._next_status = now + period if first else max(self._next_status + period, now)
         for out in messages:
             self.send(out)
 
