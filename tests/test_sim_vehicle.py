@@ -9,6 +9,7 @@ import pytest
 from delegation.costs import task_path
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame, distance_m, path_length_m
+from delegation.sim.example_agent import EXAMPLE_AGENT_POLICY
 from delegation.sim.vehicle import (
     ALREADY_RUNNING,
     BATTERY_EMPTY,
@@ -16,6 +17,7 @@ from delegation.sim.vehicle import (
     NOT_SUPPORTED,
     SimVehicle,
     TaskEvent,
+    VehiclePolicy,
 )
 from delegation.tst.node import TstNode
 
@@ -41,7 +43,7 @@ def vehicle(example: bool = False, **kw) -> SimVehicle:
     unit = make_unit(
         "dji0", "air", START, TASKS, speeds={"slow": 2.0, "standard": 5.0, "fast": 10.0}, **kw
     )
-    return SimVehicle(unit, example_agent=example)
+    return SimVehicle(unit, EXAMPLE_AGENT_POLICY if example else VehiclePolicy())
 
 
 def run_until(v: SimVehicle, seconds: float, dt: float = 0.1) -> list[TaskEvent]:

@@ -1,8 +1,8 @@
 """A simulated vehicle without MQTT and without a clock: tasks, motion, battery.
 
 `SimVehicle` is driven by `step(dt)` with simulated seconds, so its kinematics are tested
-directly; `delegation.sim.unit.SimUnit` puts it on MQTT and feeds it ``dt`` from an injectable
-clock times a speed-up factor.
+directly; `delegation.sim.core.SimUnitCore` feeds it ``dt`` (the time passed times a speed-up
+factor) and turns its events into WARA-PS messages.
 
 Work follows the cost model (`delegation.costs`), so simulated missions take as long as the planner
 says: a task flies the points of `costs.task_path` (a move-to's waypoint, a move-path's waypoints,
@@ -61,6 +61,18 @@ class TaskState(StrEnum):
 ENDED = frozenset({TaskState.FINISHED, TaskState.ENOUGH, TaskState.FAILED, TaskState.ABORTED})
 
 
+@dataclass(frozen=True, slots=True)
+class VehiclePolicy:
+    """How a vehicle's task handling departs from ours (the example agent's is in
+    `delegation.sim.example_agent`)."""
+
+    one_task_at_a_time: bool = False
+    """Refuse any task while any task runs (ours refuse only a second vehicle task: a camera task
+    runs alongside a flight)."""
+    enough_status: TaskState = TaskState.FINISHED
+    """The state a task ends in on ``$enough``."""
+
+
 @dataclass
 class SimTask:
     """One task on the vehicle: where it still has to go, and how long it then stays."""
@@ -91,7 +103,7 @@ class SimVehicle:
     """A unit's body and its running tasks. Pure: time only advances through `step`."""
 
     unit: UnitState
-    example_agent: bool = False
+    policy: VehiclePolicy = field(default_factory=VehiclePolicy)
     frame: LocalFrame = field(init=False)
     east: float = field(init=False, default=0.0)
     north: float = field(init=False, default=0.0)
@@ -145,7 +157,7 @@ class SimVehicle:
         if name not in self.unit.tasks:
             return NOT_SUPPORTED
         vehicle = is_vehicle_task(name)
-        if self.example_agent and self.tasks:
+        if self.policy.one_task_at_a_time and self.tasks:
             return ALREADY_RUNNING
         if vehicle and self.busy:
             return ALREADY_RUNNING
@@ -202,9 +214,7 @@ class SimVehicle:
         if signal == "$abort":
             return None, self._end(task, TaskState.ABORTED)
         if signal == "$enough":
-            return None, self._end(
-                task, TaskState.ENOUGH if self.example_agent else TaskState.FINISHED
-            )
+            return None, self._end(task, self.policy.enough_status)
         if signal == "$pause":
             task.state = TaskState.PAUSED
             self.speed = 0.0
