@@ -1,7 +1,7 @@
 """The service core, message by message, without a broker: every decision it makes.
 
 The core is fed raw bytes on topics plus ``now`` and returns what it would publish and plan; the
-planning jobs are run here with the real planner (``run_job``), as the planner thread would.
+planning jobs are run here with the real planner (``run_job``), as the unit's worker would.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from delegation.messages import (
     TstResponse,
     encode,
 )
+from delegation.runtime.core import JobDone
 from delegation.service import Effects, Outgoing, ServiceConfig, ServiceCore, run_job
 from delegation.tst.node import parse_tree, walk
 
@@ -82,7 +83,7 @@ def on(effects: Effects, topic_end: str) -> list[dict[str, Any]]:
 def run_jobs(core: ServiceCore, effects: Effects, now: float) -> Effects:
     out = Effects(publish=list(effects.publish))
     for job in effects.jobs:
-        out.extend(core.on_job_done(job, run_job(job), now))
+        out.extend(core.on_job_done(JobDone(job, run_job(job)), now))
     return out
 
 
@@ -306,7 +307,7 @@ def test_no_engine_or_silent_engine_fails_clearly() -> None:
 
 
 def test_status_messages(core: ServiceCore) -> None:
-    out: list[Outgoing] = core.status_messages(123.0)
+    out: list[Outgoing] = core.status(123.0, 123.0)
     topics = {o.topic.rsplit("/", 1)[1]: json.loads(o.payload) for o in out}
     assert topics["heartbeat"]["levels"] == ["tst execution", "delegation"]
     assert topics["heartbeat"]["name"] == "delegator0"

@@ -1,18 +1,17 @@
-"""Mission book-keeping and command idempotency (pure state, no broker)."""
+"""Mission book-keeping and command idempotency (pure state, no broker).
+
+The command log is `delegation.runtime.commands.CommandLog` (the one store every unit uses); its
+tests stay here, next to the service that first needed it."""
 
 from __future__ import annotations
 
 import pytest
 
 from delegation.errors import InputError
-from delegation.missions import (
-    CommandLog,
-    CommandState,
-    Mission,
-    MissionBook,
-    MissionStatus,
-    node_infos,
-)
+from delegation.messages import MissionStatus
+from delegation.runtime.commands import CommandLog, CommandState
+from delegation.runtime.core import Outgoing
+from delegation.service.missions import Mission, MissionBook, node_infos
 from delegation.tst.node import make_node
 
 
@@ -105,10 +104,10 @@ def test_command_log_answers_once_and_remembers() -> None:
     log.begin(key, 0.0)
     entry = log.seen(key)
     assert entry is not None and entry.state is CommandState.PENDING and entry.resends == 1
-    assert log.finish(key, [("t", b"answer")])
-    assert not log.finish(key, [("t", b"other")])  # answered once
+    assert log.finish(key, [Outgoing("t", b"answer")])
+    assert not log.finish(key, [Outgoing("t", b"other")])  # answered once
     again = log.seen(key)
-    assert again is not None and again.answer == [("t", b"answer")]
+    assert again is not None and again.answer == [Outgoing("t", b"answer")]
 
 
 def test_command_log_is_bounded_but_keeps_pending() -> None:

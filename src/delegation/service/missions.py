@@ -1,16 +1,15 @@
-"""Mission book-keeping and command idempotency for the delegation service (pure state).
+"""Mission book-keeping for the delegation service (pure state).
 
-The service's MQTT thread feeds these values with decoded messages and ``now``; nothing here reads
-the clock, touches the network or locks. Both stores are plain in-memory maps today, shaped so that
-they can later be persisted (DESIGN 5): every mutation goes through a small method.
+The service core feeds these values with decoded messages and ``now``; nothing here reads the
+clock, touches the network or locks. The book is a plain in-memory map today, shaped so that it
+can later be persisted (DESIGN 5): every mutation goes through a small method. Command
+idempotency is `delegation.runtime.commands.CommandLog`, shared by every unit.
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any
 
 from delegation.errors import InputError, Problem
@@ -27,7 +26,6 @@ _ROOT_FINAL: dict[str, MissionStatus] = {
     "aborted": MissionStatus.ABORTED,
     "revoked": MissionStatus.ABORTED,
 }
-
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,79 +263,3 @@ def failed_nodes_reason(mission: Mission) -> str:
         if info.is_task and mission.node_status.get(uid) == "failed"
     ]
     return "; ".join(parts)
-
-
-# --------------------------------------------------------------------------- idempotency
-
-
-class CommandState(StrEnum):
-    PENDING = "pending"
-    """Received and being worked on (planning, or waiting for the engine)."""
-    DONE = "done"
-    """Answered; the answer is kept to be sent again on a re-send."""
-
-
-@dataclass(slots=True)
-class CommandEntry:
-    """One command seen on one face, by ``com-uuid``."""
-
-    key: tuple[str, str]
-    received: float
-    state: CommandState = CommandState.PENDING
-    answer: list[tuple[str, bytes]] = field(default_factory=list)  # (topic, payload) as sent
-    resends: int = 0
-
-
-class CommandLog:
-    """Commands by (face, com-uuid), so a re-send is answered again and never run twice.
-
-    Bounded: the oldest answered commands are forgotten beyond ``capacity`` (a re-send arrives
-    seconds later, not after ten thousand other commands).
-    """
-
-    def __init__(self, capacity: int = 10_000) -> None:
-        self.capacity = capacity
-        self._entries: OrderedDict[tuple[str, str], CommandEntry] = OrderedDict()
-
-    def __len__(self) -> int:
-        return len(self._entries)
-
-    def seen(self, key: tuple[str, str]) -> CommandEntry | None:
-        """The entry of a command already received (counting this re-send), or None if new."""
-        entry = self._entries.get(key)
-        if entry is not None:
-            entry.resends += 1
-        return entry
-
-    def get(self, key: tuple[str, str]) -> CommandEntry | None:
-        """The entry of a command, without counting a re-send."""
-        return self._entries.get(key)
-
-    def begin(self, key: tuple[str, str], now: float) -> CommandEntry:
-        """Record a new command as pending."""
-        entry = CommandEntry(key, now)
-        self._entries[key] = entry
-        self._trim()
-        return entry
-
-    def finish(self, key: tuple[str, str], answer: list[tuple[str, bytes]]) -> bool:
-        """Record the answer; False if the command was already answered (nothing to send)."""
-        entry = self._entries.get(key)
-        if entry is None:
-            entry = self.begin(key, 0.0)
-        if entry.state is CommandState.DONE:
-            return False
-        entry.state = CommandState.DONE
-        entry.answer = list(answer)
-        return True
-
-    def _trim(self) -> None:
-        while len(self._entries) > self.capacity:
-            oldest_key = next(iter(self._entries))
-            if self._entries[oldest_key].state is CommandState.PENDING:
-                # Never forget a command still being worked on; move it to the back.
-                self._entries.move_to_end(oldest_key)
-                if all(e.state is CommandState.PENDING for e in self._entries.values()):
-                    return
-                continue
-            del self._entries[oldest_key]

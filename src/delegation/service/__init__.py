@@ -1,0 +1,44 @@
+"""The delegation service: an MQTT unit that turns partial trees into running missions.
+
+* `core` — `ServiceCore`: every decision, pure (messages, ticks, finished jobs and ``now`` in;
+  `Effects` out). Tested message by message without a broker.
+* `engine_link` — the commands the core sends the engine and the waiting for their answers.
+* `jobs` — planning jobs and their typed results (`run_job` runs on the unit's worker).
+* `missions` — the mission book.
+* `unit` — `DelegationService`: the core on a broker (`CoreUnit`), and `serve`.
+"""
+
+from __future__ import annotations
+
+from delegation.runtime.core import Effects, Outgoing
+from delegation.service.config import ServiceConfig
+from delegation.service.core import ServiceCore, Timing
+from delegation.service.jobs import (
+    BidsDone,
+    Job,
+    JobFailed,
+    JobResult,
+    PlanDone,
+    PlanOptions,
+    compute_bids,
+    run_job,
+)
+from delegation.service.unit import DelegationService, serve
+
+__all__ = [
+    "BidsDone",
+    "DelegationService",
+    "Effects",
+    "Job",
+    "JobFailed",
+    "JobResult",
+    "Outgoing",
+    "PlanDone",
+    "PlanOptions",
+    "ServiceConfig",
+    "ServiceCore",
+    "Timing",
+    "compute_bids",
+    "run_job",
+    "serve",
+]

@@ -1,0 +1,169 @@
+"""Planning jobs: what the core hands to the planner worker, and the typed result it gets back.
+
+A job is a value (the validated tree, the fleet snapshot, the options), so the worker needs
+nothing from the core; `run_job` never raises, so a planner bug becomes a ``failed`` answer
+instead of a dead worker.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, plan_mission
+from delegation.costs import cost_tables
+from delegation.errors import InputError, Problem
+from delegation.fleet import UnitState
+from delegation.runtime.commands import CommandKey
+from delegation.service.faces import Face
+from delegation.tst.node import TstNode, leaves, walk, where
+from delegation.tst.validate import with_defaults
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanOptions:
+    """How to plan: strategy, objective and the planner's time limit (s)."""
+
+    strategy: str
+    objective: str
+    time_limit: float
+
+
+def plan_options(
+    strategy: str | None,
+    objective: str | None,
+    time_limit: float | None,
+    *,
+    defaults: PlanOptions,
+    max_time_limit: float,
+) -> PlanOptions:
+    """The options a command asked for (``defaults`` where it did not); ``InputError`` naming a
+    bad one, so the command is answered at once instead of after a trip to the planner."""
+    strategy = strategy or defaults.strategy
+    objective = objective or defaults.objective
+    if strategy not in STRATEGIES:
+        raise InputError(Problem("command", "strategy",
+                                 f"unknown strategy {strategy!r}; expected one of "
+                                 f"{', '.join(STRATEGIES)}"))
+    if objective not in OBJECTIVES:
+        raise InputError(Problem("command", "objective",
+                                 f"unknown objective {objective!r}; expected one of "
+                                 f"{', '.join(OBJECTIVES)}"))
+    if time_limit is not None and time_limit > max_time_limit:
+        raise InputError(Problem("command", "time-limit",
+                                 f"{time_limit:g} s is above this service's maximum of "
+                                 f"{max_time_limit:g} s"))
+    return PlanOptions(strategy, objective, time_limit or defaults.time_limit)
+
+
+@dataclass(frozen=True, slots=True)
+class Job:
+    """Work for the planner: a plan (``delegate``, ``start-tst``) or bids (``get-bids``)."""
+
+    id: int
+    kind: Literal["plan", "bids"]
+    key: CommandKey
+    face: Face
+    #: Validated, with a node-uuid on every node.
+    tree: TstNode
+    units: tuple[UnitState, ...]
+    options: PlanOptions
+    engine: str
+    start: bool
+    source: str
+    #: When the command arrived (core clock), for `Timing`.
+    received: float
+
+    @property
+    def com_uuid(self) -> str:
+        """The com-uuid of the command the job answers."""
+        return self.key[1]
+
+
+@dataclass(frozen=True, slots=True)
+class PlanDone:
+    """A plan was made (feasible or not)."""
+
+    plan: Plan
+
+
+@dataclass(frozen=True, slots=True)
+class BidsDone:
+    """Bids were computed (see `compute_bids`)."""
+
+    bids: list[dict[str, Any]]
+
+
+@dataclass(frozen=True, slots=True)
+class JobFailed:
+    """The planner refused the input or broke; ``reason`` is the answer's fail-reason."""
+
+    reason: str
+
+
+JobResult = PlanDone | BidsDone | JobFailed
+
+
+def run_job(job: Job) -> JobResult:
+    """Run one job (on the planner worker). Never raises."""
+    try:
+        if job.kind == "bids":
+            return BidsDone(compute_bids(job.tree, job.units))
+        return PlanDone(plan_mission(
+            job.tree,
+            job.units,
+            strategy=job.options.strategy,
+            objective=job.options.objective,
+            time_limit=job.options.time_limit,
+            engine_unit=job.engine,
+        ))
+    except InputError as exc:
+        return JobFailed(exc.fail_reason)
+    except Exception as exc:  # a planner bug must not kill the service: answer it
+        log.exception("planning job %s failed", job.id)
+        return internal_error(exc)
+
+
+def internal_error(exc: object) -> JobFailed:
+    """The answer to a job that raised (or returned something else than a `JobResult`)."""
+    problem = Problem("planner", "", f"internal error: {type(exc).__name__}: {exc}")
+    return JobFailed(InputError(problem).fail_reason)
+
+
+# moves to allocation.bids at merge
+def compute_bids(tree: TstNode, units: Sequence[UnitState]) -> list[dict[str, Any]]:
+    """Every task node x unit: estimated travel, work and distance, or why the unit cannot bid."""
+    tasks = leaves(with_defaults(tree))
+    if not tasks or not units:
+        return []
+    tables = cost_tables(units, tasks)
+    to_start = tables.dist_unit_to_start()
+    bids: list[dict[str, Any]] = []
+    for t, task in enumerate(tables.tasks):
+        for u, unit in enumerate(tables.units):
+            base = {"node-uuid": task.node_uuid, "name": task.name, "unit": f"/{unit.name}"}
+            if not tables.capable[u, t]:
+                bids.append({**base, "reason": tables.reason(u, t) or "cannot take this task"})
+                continue
+            travel = float(to_start[u, t])  # 0 for tasks done in place
+            bids.append({
+                **base,
+                "travel-time": round(travel / float(tables.speed[u, t]), 3),
+                "work-time": round(float(tables.work_time[u, t]), 3),
+                "distance": round(travel + float(tables.work_distance[u, t]), 3),
+                "open-ended": bool(tables.open_ended[t]),
+            })
+    return bids
+
+
+def infeasible_reason(plan: Plan, tree: TstNode) -> str:
+    """A fail-reason naming every node the plan could not give a unit (path, name, uuid) and
+    why."""
+    paths = {node.node_uuid: where(path, node) for path, node in walk(tree) if node.node_uuid}
+    parts = [f"{paths.get(u.node_uuid, f'{u.name} {u.node_uuid}')}: {u.reason}"
+             for u in plan.unassigned]
+    return "cannot instantiate the tree: " + ("; ".join(parts) or "no feasible plan")
