@@ -25,8 +25,14 @@ def test_client_keeps_only_the_answers_it_waits_for(
     fake = collector(f"{me.base}/delegation/command")
     with ServiceClient(mqtt_settings, prefix=prefix, service_timeout=5.0) as client:
         hb = heartbeat(me, ["delegation"], 0.0)
-        fake.publish(hb.topic, hb.payload)
-        client.wait_service(5.0)
+        for _ in range(50):  # until the client's subscriptions are surely active
+            fake.publish(hb.topic, hb.payload)
+            try:
+                client.wait_service(0.1)
+                break
+            except ServiceUnavailable:
+                continue
+        client.wait_service(0.0)
         for i in range(50):  # answers to other clients' commands
             fake.publish(f"{me.base}/delegation/response",
                          {"response-to": f"someone-else-{i}", "response": "ok"})

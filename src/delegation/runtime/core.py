@@ -41,13 +41,14 @@ class Outgoing:
     def of(
         cls, topic: str, payload: WireModel | Mapping[str, Any] | bytes, qos: int = QOS_COMMAND
     ) -> Outgoing:
-        """Encode a model (canonically, `messages.encode`), a JSON object (sorted) or bytes."""
+        """Encode a model (canonically, `messages.encode`), a JSON object (sorted, compact like
+        `encode`) or bytes."""
         if isinstance(payload, WireModel):
             data = encode(payload)
         elif isinstance(payload, bytes):
             data = payload
         else:
-            data = json.dumps(payload, sort_keys=True).encode()
+            data = json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()
         return cls(topic, data, qos)
 
 
