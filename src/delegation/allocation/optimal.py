@@ -260,7 +260,7 @@ def _routing_phase(
         index = manager.NodeToIndex(k)
         allowed = np.nonzero(problem.allowed[:, t])[0].tolist()
         if len(allowed) < n_units:
-            routing.SetAllowedVehiclesForIndex(allowed, index)
+            _allow_vehicles(routing, index, allowed, n_units)
         routing.AddDisjunction([index], penalty)
     # Tasks with the same alias go to the same unit.
     pos = {t: k for k, t in enumerate(tasks)}
@@ -308,6 +308,22 @@ def _routing_phase(
             order.append(tasks[manager.IndexToNode(index)])
         orders.append(order)
     return orders, note
+
+
+def _allow_vehicles(routing: Any, index: int, allowed: list[int], n_units: int) -> None:
+    """Only the units ``allowed`` may visit ``index``.
+
+    ``RoutingModel.SetAllowedVehiclesForIndex`` takes an ``absl::Span<const int>``, which the
+    Python binding of OR-Tools 9.15 cannot build from any Python value (``TypeError``); there the
+    unit variable of the node loses the other units instead (same constraint, found by
+    propagation rather than by the routing filters).
+    """
+    try:
+        routing.SetAllowedVehiclesForIndex(allowed, index)
+    except TypeError:
+        kept = set(allowed)
+        barred = [u for u in range(n_units) if u not in kept]
+        routing.VehicleVar(index).RemoveValues(barred)
 
 
 def _routing_matrix(problem: Problem, u: int, idx: np.ndarray, scale: float) -> list[list[int]]:
