@@ -24,7 +24,7 @@ import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import home_legs, insertion_costs, keeps_subtrees_whole
-from delegation.allocation.schedule import EPS, Schedule, evaluate
+from delegation.allocation.schedule import EPS, IssueKind, Schedule, evaluate
 from delegation.allocation.serialise import Serialisation, conc_paths
 
 log = logging.getLogger(__name__)
@@ -352,7 +352,7 @@ def _general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list
                 if trial.valid:
                     found = (spot, trial)
                     break
-                if any("endurance" in text for text in trial.problems):
+                if any(issue.kind is IssueKind.ENDURANCE for issue in trial.issues):
                     break  # other positions add more travel: they do not fit either
             if found is None:
                 rejected[u, t] = True
