@@ -23,6 +23,7 @@ import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.serialise import Serialisation, serialisation
+from delegation.allocation.strategies import Objective
 
 #: Relative slack when comparing times against endurance (float noise, not a real margin).
 EPS = 1e-9
@@ -80,11 +81,13 @@ class Schedule:
     def n_unassigned(self) -> int:
         return int((self.assign < 0).sum())
 
-    def key(self, objective: str) -> tuple[float, float, float]:
+    def key(self, objective: Objective | str) -> tuple[float, float, float]:
         """Sort key: fewer unassigned tasks first, then the objective, then the other measure."""
-        if objective == "total":
-            return (float(self.n_unassigned), self.total_time, self.makespan)
-        return (float(self.n_unassigned), self.makespan, self.total_time)
+        match Objective(objective):
+            case Objective.MAKESPAN:
+                return (float(self.n_unassigned), self.makespan, self.total_time)
+            case Objective.TOTAL:
+                return (float(self.n_unassigned), self.total_time, self.makespan)
 
 
 @dataclass(frozen=True)
@@ -432,7 +435,7 @@ def _unit_totals(
     return out
 
 
-def better(a: Schedule, b: Schedule, objective: str, rel: float = 1e-9) -> bool:
+def better(a: Schedule, b: Schedule, objective: Objective | str, rel: float = 1e-9) -> bool:
     """True when ``a`` is strictly better than ``b`` (beyond float noise)."""
     ka, kb = a.key(objective), b.key(objective)
     for x, y in zip(ka, kb, strict=True):

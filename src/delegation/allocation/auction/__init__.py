@@ -27,6 +27,7 @@ from delegation.allocation.auction.flat import flat_auction
 from delegation.allocation.auction.general import POSITION_TRIES, SHARE_FACTOR, general_auction
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule, evaluate
+from delegation.allocation.strategies import Objective
 
 log = logging.getLogger(__name__)
 
@@ -74,11 +75,13 @@ def unassigned_reason(problem: Problem, t: int) -> str:
     return "no capable unit has enough endurance left to add it to its route"
 
 
-def auction(problem: Problem, objective: str = "makespan") -> Schedule:
-    """Plan with the sequential auction; see the module docstring."""
+def auction(problem: Problem, objective: Objective | str = Objective.MAKESPAN) -> Schedule:
+    """Plan with the sequential auction; see the module docstring. ``ValueError`` for an unknown
+    objective."""
+    goal = Objective(objective)
     if problem.plain:
-        assign, orders = flat_auction(problem, objective)
+        assign, orders = flat_auction(problem, goal)
     else:
-        assign, orders = general_auction(problem, objective)
+        assign, orders = general_auction(problem, goal)
     assign_passive(problem, assign)
     return evaluate(problem, assign, orders)

@@ -11,9 +11,12 @@ import numpy as np
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import home_legs, insertion_costs
 from delegation.allocation.schedule import EPS
+from delegation.allocation.strategies import Objective
 
 
-def flat_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[list[int]]]:
+def flat_auction(
+    problem: Problem, objective: Objective
+) -> tuple[np.ndarray, list[list[int]]]:
     """Assignment and per-unit routes of the vehicle tasks."""
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
@@ -47,12 +50,13 @@ def flat_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[lis
     makespan = 0.0
     for _ in range(int(open_tasks.sum())):
         current = np.where([bool(r) for r in routes], used, base)[:, None]
-        if objective == "total":
-            primary = delta
-            secondary = current + delta
-        else:
-            primary = np.maximum(current + delta, makespan)
-            secondary = delta
+        match objective:
+            case Objective.MAKESPAN:
+                primary = np.maximum(current + delta, makespan)
+                secondary = delta
+            case Objective.TOTAL:
+                primary = delta
+                secondary = current + delta
         best = primary.min()
         if not np.isfinite(best):
             break

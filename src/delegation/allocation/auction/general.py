@@ -25,6 +25,7 @@ from delegation.allocation.problem import Problem
 from delegation.allocation.routes import home_legs, insertion_costs, keeps_subtrees_whole
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate
 from delegation.allocation.serialise import Serialisation, conc_paths
+from delegation.allocation.strategies import Objective
 
 #: Route positions the general auction simulates for one bid before giving the bid up.
 POSITION_TRIES = 3
@@ -35,7 +36,9 @@ SHARE_FACTOR = 2.0
 _Chosen = tuple[tuple[float, ...], int, int, int, Schedule]
 
 
-def general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[list[int]]]:
+def general_auction(
+    problem: Problem, objective: Objective
+) -> tuple[np.ndarray, list[list[int]]]:
     """Assignment and per-unit routes of the vehicle tasks; see the module docstring."""
     return _GeneralAuction(problem, objective).run()
 
@@ -43,7 +46,7 @@ def general_auction(problem: Problem, objective: str) -> tuple[np.ndarray, list[
 class _GeneralAuction:
     """The auction's state: bids per (unit, task), the routes so far and their simulation."""
 
-    def __init__(self, problem: Problem, objective: str) -> None:
+    def __init__(self, problem: Problem, objective: Objective) -> None:
         n_units, n_tasks = problem.n_units, problem.n_tasks
         self.problem, self.objective = problem, objective
         self.n_units, self.n_tasks = n_units, n_tasks
@@ -171,13 +174,16 @@ class _GeneralAuction:
         finish = np.where([bool(r) for r in self.routes], current.unit_finish, self.base)[:, None]
         bid = np.where(self.rejected[:, cols], np.inf, self.delta[:, cols])
         estimate = np.maximum(finish, act[None, cols]) + bid
-        if self.objective == "makespan":  # for total it would only break ties between bids
-            estimate = np.maximum(estimate, self.joined_estimate(cols, bid, current))
-        if self.objective == "total":
-            primary, secondary = bid, estimate
-        else:
-            primary = np.where(np.isfinite(bid), np.maximum(estimate, current.makespan), np.inf)
-            secondary = estimate
+        match self.objective:
+            case Objective.MAKESPAN:
+                # (for total the joined estimate would only break ties between bids)
+                estimate = np.maximum(estimate, self.joined_estimate(cols, bid, current))
+                primary = np.where(
+                    np.isfinite(bid), np.maximum(estimate, current.makespan), np.inf
+                )
+                secondary = estimate
+            case Objective.TOTAL:
+                primary, secondary = bid, estimate
         return primary.ravel(), secondary.ravel()
 
     def joined_estimate(self, cols: np.ndarray, bid: np.ndarray, state: Schedule) -> np.ndarray:

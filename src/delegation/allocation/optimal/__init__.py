@@ -40,6 +40,7 @@ from delegation.allocation.optimal.routing import (
 from delegation.allocation.optimal.shared import TICKS
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule, better
+from delegation.allocation.strategies import Objective
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +75,7 @@ class OptimalResult:
 
 def optimise(
     problem: Problem,
-    objective: str = "makespan",
+    objective: Objective | str = Objective.MAKESPAN,
     time_limit: float = 5.0,
     *,
     use_all_units: bool = False,
@@ -83,8 +84,10 @@ def optimise(
 
     ``use_all_units`` (benchmarks only: the published mTSP min-sum values require it) makes every
     unit take at least one task; the auction's plan then counts only if it does so too.
+    ``ValueError`` for an unknown objective.
     """
     began = time.perf_counter()
+    objective = Objective(objective)
     base = auction(problem, objective)
     tasks = [t for t in range(problem.n_tasks) if problem.tasks[t].vehicle and base.assign[t] >= 0]
     result = OptimalResult(base)

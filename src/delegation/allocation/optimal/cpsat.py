@@ -35,6 +35,7 @@ from delegation.allocation.problem import Problem
 from delegation.allocation.routes import xy_distances
 from delegation.allocation.schedule import Schedule, better
 from delegation.allocation.serialise import conc_paths
+from delegation.allocation.strategies import Objective
 
 if TYPE_CHECKING:
     from ortools.sat.python import cp_model
@@ -48,7 +49,7 @@ CpSatResult = tuple[Schedule | None, float | None, str]
 
 def solve_cpsat(
     problem: Problem,
-    objective: str,
+    objective: Objective,
     base: Schedule,
     tasks: list[int],
     limit: float,
@@ -137,7 +138,7 @@ class _CpSatModel:
     """The CP-SAT model of one problem; each method adds one family of constraints."""
 
     def __init__(
-        self, problem: Problem, objective: str, base: Schedule, tasks: list[int],
+        self, problem: Problem, objective: Objective, base: Schedule, tasks: list[int],
         mask: np.ndarray, use_all_units: bool,
     ) -> None:
         from ortools.sat.python import cp_model
@@ -178,11 +179,12 @@ class _CpSatModel:
         for c in self.costs.values():
             worst = max(worst, float(max(c.first.max(), c.between.max(initial=0.0)))
                         + float(c.home.max()))
-        if self.objective == "makespan":
-            horizon_s = self.base.makespan * (1 + 1e-6) + 1e-6
-        else:
-            horizon_s = (worst * (len(self.tasks) + 1) + sum(self.passive_dur.values())
-                         + 1.0)
+        match self.objective:
+            case Objective.MAKESPAN:
+                horizon_s = self.base.makespan * (1 + 1e-6) + 1e-6
+            case Objective.TOTAL:
+                horizon_s = (worst * (len(self.tasks) + 1) + sum(self.passive_dur.values())
+                             + 1.0)
         scale = TICKS / max(horizon_s, 1e-9)
         return scale, math.ceil(horizon_s * scale) + len(self.tasks) + 2
 
@@ -405,10 +407,11 @@ class _CpSatModel:
         solver.parameters.random_seed = 1
         # Level 2 (the default) spends ~0.5 s on symmetry search even for tiny models (measured).
         solver.parameters.symmetry_level = 1
-        if self.objective == "makespan":
-            result = self._solve_makespan(solver, deadline)
-        else:
-            result = self._solve_total(solver, deadline)
+        match self.objective:
+            case Objective.MAKESPAN:
+                result = self._solve_makespan(solver, deadline)
+            case Objective.TOTAL:
+                result = self._solve_total(solver, deadline)
         found, bound, note = result
         if found is None:
             return result

@@ -19,6 +19,7 @@ from delegation.allocation.optimal.shared import TICKS, finish, points
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import xy_distances
 from delegation.allocation.schedule import Schedule, better
+from delegation.allocation.strategies import Objective
 
 #: Routing is not tried when its transit matrices would hold more entries than this.
 ROUTING_MAX_ENTRIES = 30_000_000
@@ -31,7 +32,7 @@ class _Setup:
     """What every routing run of one problem shares: the tasks, the units' transit matrices."""
 
     problem: Problem
-    objective: str
+    objective: Objective
     tasks: list[int]  # vehicle tasks: node k is task tasks[k]
     classes: dict[bytes, list[int]]  # units with the same costs share one transit matrix
     matrices: dict[bytes, list[list[int]]]  # per class: ticks from node i to node j
@@ -50,7 +51,7 @@ class _Phase:
 
 def solve_routing(
     problem: Problem,
-    objective: str,
+    objective: Objective,
     base: Schedule,
     tasks: list[int],
     limit: float,
@@ -69,7 +70,11 @@ def solve_routing(
     # Makespan: a short run that weighs the longest route lightly (the total guides the search
     # to good tours), then one that weighs it heavily, from the best so far. Measured on berlin52
     # (3 units, 10 s): 3072 vs 3154 for one heavy run alone.
-    phases = ROUTING_MAKESPAN_PHASES if objective == "makespan" else ((0, 1.0),)
+    match objective:
+        case Objective.MAKESPAN:
+            phases = ROUTING_MAKESPAN_PHASES
+        case Objective.TOTAL:
+            phases = ((0, 1.0),)
     for k, (weight, share) in enumerate(phases):
         left = limit - (time.perf_counter() - began)
         budget = left if k == len(phases) - 1 else limit * share
@@ -87,7 +92,7 @@ def solve_routing(
 
 
 def _setup(
-    problem: Problem, objective: str, base: Schedule, tasks: list[int], use_all_units: bool
+    problem: Problem, objective: Objective, base: Schedule, tasks: list[int], use_all_units: bool
 ) -> _Setup | str:
     """The units' classes and transit matrices, or why the model would be too large."""
     n, n_units = len(tasks), problem.n_units
@@ -127,7 +132,7 @@ def _routing_phase(setup: _Setup, phase: _Phase) -> tuple[list[list[int]] | None
     _tasks_and_units(setup, manager, routing, phase.span_weight)
     pos = {t: k for k, t in enumerate(tasks)}
     label = f"routing solver ({setup.objective}" + (
-        f", span weight {phase.span_weight}" if setup.objective == "makespan" else ""
+        f", span weight {phase.span_weight}" if setup.objective is Objective.MAKESPAN else ""
     ) + f", {phase.limit:.1f} s"
     solution, note = _search(routing, phase, pos, label)
     if solution is None:
@@ -163,7 +168,7 @@ def _costs_and_battery(setup: _Setup, routing: Any, span_weight: int) -> None:
     time_dim = routing.GetDimensionOrDie("time")
     for u in range(n_units):
         routing.SetArcCostEvaluatorOfVehicle(evaluators[u], u)
-    if setup.objective == "makespan":
+    if setup.objective is Objective.MAKESPAN:
         time_dim.SetGlobalSpanCostCoefficient(span_weight)
 
 
