@@ -21,6 +21,7 @@ from delegation.allocation.strategies import (
 )
 
 if TYPE_CHECKING:
+    from delegation.allocation.bids import compute_bids
     from delegation.allocation.invariants import check_invariants
     from delegation.allocation.plan import Assignment, Plan, Unassigned
     from delegation.allocation.planner import make_plan, plan_mission
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
     from delegation.allocation.schedule import IssueKind, Schedule, ScheduleIssue, evaluate
 
 _LAZY = {
+    "compute_bids": "bids",
     "check_invariants": "invariants",
     "Assignment": "plan",
     "Plan": "plan",
@@ -67,6 +69,7 @@ __all__ = [
     "Unassigned",
     "build_problem",
     "check_invariants",
+    "compute_bids",
     "evaluate",
     "make_plan",
     "plan_mission",
