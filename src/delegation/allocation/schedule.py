@@ -298,15 +298,7 @@ def _simulate(
     vehicle, ux, uy, sx, sy = static.vehicle, static.ux, static.uy, static.sx, static.sy
     ex, ey, travels, to_home = static.ex, static.ey, static.travels, static.to_home
     has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
-    # Per task, the numbers of its unit (0 where unassigned): plain floats for the loop below.
-    safe = np.where(assign >= 0, assign, 0)
-    cols = np.arange(n_tasks)
-    if problem.n_units:
-        speed_t = problem.speed[safe, cols].tolist()
-        work_tt = problem.work_time[safe, cols].tolist()
-        work_dt = problem.work_distance[safe, cols].tolist()
-    else:
-        speed_t = work_tt = work_dt = [0.0] * n_tasks
+    speed_t, work_tt, work_dt = _numbers_of_units(problem, assign)
     assigned_to = assign.tolist()
     nan = math.nan
     run = _Run([nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks,
@@ -372,6 +364,20 @@ def _simulate(
                 stack.append(j)
     run.done = done
     return run
+
+
+def _numbers_of_units(
+    problem: Problem, assign: np.ndarray
+) -> tuple[list[float], list[float], list[float]]:
+    """Per task, the speed, work time and work distance of its unit (0 where unassigned):
+    plain floats for the simulation loop."""
+    if not problem.n_units:
+        zeros = [0.0] * problem.n_tasks
+        return zeros, zeros, zeros
+    safe = np.where(assign >= 0, assign, 0)
+    cols = np.arange(problem.n_tasks)
+    return (problem.speed[safe, cols].tolist(), problem.work_time[safe, cols].tolist(),
+            problem.work_distance[safe, cols].tolist())
 
 
 @dataclass
