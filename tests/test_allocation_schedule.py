@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from delegation.allocation.problem import Problem, flatten_tree, problem_from_arrays
-from delegation.allocation.schedule import evaluate
+from delegation.allocation.schedule import IssueKind, evaluate
 from delegation.tst import parse_tree
 
 
@@ -149,7 +149,8 @@ def test_deadlock_between_units_is_reported() -> None:
     p = make(tree, Tables(unit_xy=[[0, 0], [0, 0]], start_xy=[[10, 0]] * 4))
     s = evaluate(p, [1, 0, 0, 1], [[1, 2], [3, 0]])
     assert not s.valid
-    assert any("deadlock" in text for text in s.problems)
+    deadlocks = [i for i in s.issues if i.kind is IssueKind.DEADLOCK]
+    assert len(deadlocks) == 1 and "deadlock" in str(deadlocks[0])
 
 
 def test_battery_is_checked() -> None:
@@ -157,7 +158,8 @@ def test_battery_is_checked() -> None:
              Tables(unit_xy=[[0, 0]], start_xy=[[100, 0], [100, 100]], endurance=[15.0]))
     s = evaluate(p, [0, 0], [[0, 1]])
     assert not s.valid
-    assert "endurance" in s.problems[0]
+    assert s.issues[0].kind is IssueKind.ENDURANCE
+    assert "endurance" in s.issues[0].text
     assert evaluate(p, [0, -1], [[0]]).valid  # one task alone fits
 
 
@@ -173,8 +175,11 @@ def test_unassigned_tasks_take_no_time() -> None:
 def test_wrong_orders_are_reported() -> None:
     p = make({"name": "conc", "children": [task(), task()]},
              Tables(unit_xy=[[0, 0], [1, 1]], start_xy=[[100, 0], [200, 0]]))
-    assert not evaluate(p, [0, 0], [[0]]).valid  # task 1 assigned but in no order
-    assert not evaluate(p, [0, 1], [[0, 1], []]).valid  # task 1 listed on the wrong unit
+    missing = evaluate(p, [0, 0], [[0]])  # task 1 assigned but in no order
+    wrong = evaluate(p, [0, 1], [[0, 1], []])  # task 1 listed on the wrong unit
+    for s in (missing, wrong):
+        assert not s.valid
+        assert {i.kind for i in s.issues} == {IssueKind.ORDER}
 
 
 # --------------------------------------------------------------------------- whole subtrees
@@ -248,8 +253,8 @@ def test_allocations_that_cannot_run_as_whole_subtrees_are_invalid() -> None:
     # u0: a1 then b1 (A before B); u1: b2 then a2 (B before A): the units disagree.
     s = evaluate(p, [0, 1, 0, 1], [[0, 2], [3, 1]])
     assert not s.valid
-    assert any("disagree" in text for text in s.problems)
+    assert any(i.kind is IssueKind.SERIALISATION and "disagree" in i.text for i in s.issues)
     # u0: a1, b1, a2: it would leave A and come back to it.
     s = evaluate(p, [0, 0, 0, 1], [[0, 2, 1], [3]])
     assert not s.valid
-    assert any("come back" in text for text in s.problems)
+    assert any(i.kind is IssueKind.SERIALISATION and "come back" in i.text for i in s.issues)

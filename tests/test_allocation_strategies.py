@@ -15,7 +15,15 @@ from allocation_helpers import (
     random_instance,
     unit,
 )
-from delegation.allocation import check_invariants, make_plan, plan_mission
+from delegation.allocation import (
+    OBJECTIVES,
+    STRATEGIES,
+    Objective,
+    StrategyResult,
+    check_invariants,
+    make_plan,
+    plan_mission,
+)
 from delegation.allocation.auction import auction
 from delegation.allocation.nearest import nearest
 from delegation.allocation.optimal import optimise
@@ -181,6 +189,29 @@ def test_unknown_strategy_or_objective_is_a_clear_input_error() -> None:
         plan_mission(tree, units, objective="fastest")
     with pytest.raises(InputError, match="time-limit"):
         plan_mission(tree, units, strategy="optimal", time_limit=0)
+
+
+def test_an_unknown_objective_is_never_taken_for_makespan() -> None:
+    p = problem_for(*random_instance(0, "seq", n_tasks=3))
+    for strategy in (auction, nearest, lambda p, o: optimise(p, o, 0.5)):
+        with pytest.raises(ValueError, match="fastest"):
+            strategy(p, "fastest")
+    s = auction(p, "total")
+    with pytest.raises(ValueError, match="fastest"):
+        s.key("fastest")
+    assert s.key(Objective.TOTAL) == s.key("total") == (0.0, s.total_time, s.makespan)
+
+
+def test_every_registered_strategy_has_the_one_signature() -> None:
+    p = problem_for(*random_instance(1, "mixed", n_tasks=5))
+    assert list(STRATEGIES) == ["nearest", "auction", "optimal"]
+    assert list(OBJECTIVES) == ["makespan", "total"]
+    for name, strategy in STRATEGIES.items():
+        for objective in OBJECTIVES:
+            result = strategy(p, objective, 1.0)
+            assert isinstance(result, StrategyResult), name
+            assert result.schedule.valid and result.schedule.n_unassigned == 0
+    assert STRATEGIES["optimal"](p, Objective.MAKESPAN, 1.0).bound is not None
 
 
 def test_tasks_no_unit_can_take_are_unassigned_and_the_rest_planned() -> None:

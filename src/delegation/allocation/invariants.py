@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +21,7 @@ from delegation.allocation.plan import Assignment, Plan
 from delegation.tst import ExecUnitKind, TstNode, classify_execunit, is_vehicle_task, leaves, walk
 
 if TYPE_CHECKING:
+    from delegation.costs import CostTables
     from delegation.fleet import UnitState
 
 TOL = 1e-6
@@ -58,26 +61,83 @@ def _unsafe_pairs(tst: TstNode, assigned: dict[str, Assignment]) -> list[str]:
     return out
 
 
+@dataclass
+class _Subject:
+    """What the checks look at: the plan, the caller's tree and units, and what derives from
+    them (computed once, when a check first asks)."""
+
+    plan: Plan
+    tree: TstNode
+    units: Sequence[UnitState]
+
+    @cached_property
+    def inst_leaves(self) -> list[TstNode]:
+        return leaves(self.plan.tst)
+
+    @cached_property
+    def assigned(self) -> dict[str, Assignment]:
+        return {a.node_uuid: a for a in self.plan.assignments}
+
+    @cached_property
+    def per_unit(self) -> dict[str, list[Assignment]]:
+        """Each unit's vehicle-task assignments, by start."""
+        out: dict[str, list[Assignment]] = {}
+        for a in self.plan.assignments:
+            if is_vehicle_task(a.name):
+                out.setdefault(a.execunit.strip("/"), []).append(a)
+        for items in out.values():
+            items.sort(key=lambda a: (a.start, a.end))
+        return out
+
+    @cached_property
+    def routes(self) -> dict[str, list[Assignment]]:
+        """Each unit's route from the plan; its assignments by start where the route does not
+        list exactly its vehicle tasks."""
+        out: dict[str, list[Assignment]] = {}
+        for name, items in self.per_unit.items():
+            route = self.listed(name)
+            out[name] = route if _same_tasks(route, items) else items
+        return out
+
+    def listed(self, name: str) -> list[Assignment]:
+        """The plan's route of unit ``name``: its vehicle tasks' assignments."""
+        return [self.assigned[a.node_uuid] for a in self.plan.routes.get(name, [])
+                if a.node_uuid in self.assigned and is_vehicle_task(a.name)]
+
+    @cached_property
+    def tables(self) -> CostTables:
+        from delegation.costs import cost_tables
+
+        return cost_tables(list(self.units), self.inst_leaves)
+
+
+def _same_tasks(route: list[Assignment], items: list[Assignment]) -> bool:
+    return sorted(a.node_uuid for a in route) == sorted(a.node_uuid for a in items)
+
+
 def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> list[str]:
     """Every broken invariant as a sentence; ``[]`` when the plan is sound."""
-    from delegation.costs import cost_tables
+    subject = _Subject(plan, tree, units)
+    return [text for check in CHECKS for text in check(subject)]
 
-    out: list[str] = []
-    by_name = {u.name: u for u in units}
-    inst_leaves = leaves(plan.tst)
-    leaf_by_uuid = {leaf.node_uuid: leaf for leaf in inst_leaves}
 
-    # The instantiated tree keeps the caller's tasks and uuids.
-    original = leaves(tree)
-    if len(original) != len(inst_leaves):
-        out.append(f"tree has {len(original)} tasks but the plan's tree {len(inst_leaves)}")
-    inst_uuids = {n.node_uuid for _, n in walk(plan.tst)}
-    for _, node in walk(tree):
+def _tasks_kept(x: _Subject) -> list[str]:
+    """The instantiated tree keeps the caller's tasks and uuids."""
+    out = []
+    original = leaves(x.tree)
+    if len(original) != len(x.inst_leaves):
+        out.append(f"tree has {len(original)} tasks but the plan's tree {len(x.inst_leaves)}")
+    inst_uuids = {n.node_uuid for _, n in walk(x.plan.tst)}
+    for _, node in walk(x.tree):
         if node.node_uuid and node.node_uuid not in inst_uuids:
             out.append(f"node-uuid {node.node_uuid} of the caller is missing from the plan's tree")
+    return out
 
-    # Every task is assigned or unassigned with a reason, exactly once.
-    assigned = {a.node_uuid: a for a in plan.assignments}
+
+def _each_task_once(x: _Subject) -> list[str]:
+    """Every task is assigned or unassigned with a reason, exactly once."""
+    out = []
+    plan, assigned = x.plan, x.assigned
     if len(assigned) != len(plan.assignments):
         out.append("a task is assigned twice")
     missing = {u.node_uuid for u in plan.unassigned}
@@ -86,14 +146,21 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
             out.append(f"unassigned task {gone.node_uuid} has no reason")
         if gone.node_uuid in assigned:
             out.append(f"task {gone.node_uuid} is both assigned and unassigned")
-    for leaf in inst_leaves:
+    for leaf in x.inst_leaves:
         if leaf.node_uuid not in assigned and leaf.node_uuid not in missing:
             out.append(f"task {leaf.node_uuid} ({leaf.name}) is neither assigned nor unassigned")
     if plan.feasible != (not plan.unassigned):
         out.append("feasible does not match the unassigned list")
+    return out
 
-    # Each assignment: a live unit that offers the task, the one the tree names.
-    for a in plan.assignments:
+
+def _units_valid(x: _Subject) -> list[str]:
+    """Each assignment: a live unit that offers the task, the one the tree names; fixed units
+    and aliases hold; every control node has a unit."""
+    out = []
+    by_name = {u.name: u for u in x.units}
+    leaf_by_uuid = {leaf.node_uuid: leaf for leaf in x.inst_leaves}
+    for a in x.plan.assignments:
         found = leaf_by_uuid.get(a.node_uuid)
         unit = by_name.get(a.execunit.strip("/"))
         if found is None:
@@ -110,7 +177,13 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
             out.append(f"{a.node_uuid}: tree says {found.execunit!r}, plan says {a.execunit!r}")
         if not _close(a.end, a.start + a.travel_time + a.work_time):
             out.append(f"{a.node_uuid}: end is not start + travel + work")
-    for _, node in walk(tree):
+    return out + _fixed_and_aliases(x)
+
+
+def _fixed_and_aliases(x: _Subject) -> list[str]:
+    out = []
+    assigned = x.assigned
+    for _, node in walk(x.tree):
         if node.is_control or not node.node_uuid or node.node_uuid not in assigned:
             continue
         kind, ref = classify_execunit(node.execunit)
@@ -118,7 +191,7 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
             out.append(f"{node.node_uuid} is fixed to /{ref} but planned on "
                        f"{assigned[node.node_uuid].execunit}")
     aliases: dict[str, set[str]] = {}
-    for orig in original:
+    for orig in leaves(x.tree):
         kind, ref = classify_execunit(orig.execunit)
         hit = assigned.get(orig.node_uuid or "")
         if kind is ExecUnitKind.ALIAS and hit is not None:
@@ -126,111 +199,168 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
     for alias, chosen in aliases.items():
         if len(chosen) > 1:
             out.append(f"alias {alias!r} is split over {', '.join(sorted(chosen))}")
-    for path, node in walk(plan.tst):
+    for path, node in walk(x.plan.tst):
         unit_text = node.execunit if isinstance(node.execunit, str) else ""
         if node.is_control and not unit_text.startswith("/"):
             out.append(f"control node {path} has no unit")
+    return out
 
-    # No unit runs two vehicle tasks at once.
-    per_unit: dict[str, list[Assignment]] = {}
-    for a in plan.assignments:
-        if is_vehicle_task(a.name):
-            per_unit.setdefault(a.execunit.strip("/"), []).append(a)
-    for name, items in per_unit.items():
-        items.sort(key=lambda a: (a.start, a.end))
+
+def _no_overlap(x: _Subject) -> list[str]:
+    """No unit runs two vehicle tasks at once."""
+    out = []
+    for name, items in x.per_unit.items():
         for p, q in itertools.pairwise(items):
             if q.start < p.end - TOL * max(1.0, p.end):
                 out.append(f"{name} runs {p.node_uuid} and {q.node_uuid} at the same time")
+    return out
 
-    # The plan's source is the caller's tree (same shape, names, uuids); its seq order holds.
-    source = plan.source if plan.source is not None else plan.tst
-    if plan.source is not None:
-        mine = list(walk(tree))
-        theirs = list(walk(plan.source))
-        if len(mine) != len(theirs):
-            out.append("the plan's source tree does not have the caller's shape")
-        for (path, ours), (_, kept) in zip(mine, theirs, strict=False):
-            if ours.name != kept.name or len(ours.children) != len(kept.children):
-                out.append(f"{path}: the plan's source tree differs from the caller's")
-                break
-            if ours.node_uuid and ours.node_uuid != kept.node_uuid:
-                out.append(f"{path}: node-uuid {ours.node_uuid} was not kept")
-    out.extend(_unsafe_pairs(plan.tst, assigned))
+
+def _source_kept(x: _Subject) -> list[str]:
+    """The plan's source is the caller's tree (same shape, names, uuids)."""
+    out: list[str] = []
+    if x.plan.source is None:
+        return out
+    mine = list(walk(x.tree))
+    theirs = list(walk(x.plan.source))
+    if len(mine) != len(theirs):
+        out.append("the plan's source tree does not have the caller's shape")
+    for (path, ours), (_, kept) in zip(mine, theirs, strict=False):
+        if ours.name != kept.name or len(ours.children) != len(kept.children):
+            out.append(f"{path}: the plan's source tree differs from the caller's")
+            break
+        if ours.node_uuid and ours.node_uuid != kept.node_uuid:
+            out.append(f"{path}: node-uuid {ours.node_uuid} was not kept")
+    return out
+
+
+def _seq_order(x: _Subject) -> list[str]:
+    """The instantiated tree never runs two tasks of a unit at once; the source's seq order
+    holds in the plan's times."""
+    out = _unsafe_pairs(x.plan.tst, x.assigned)
+    source = x.plan.source if x.plan.source is not None else x.plan.tst
     for path, node in walk(source):
         if node.name != "seq":
             continue
         ended = -math.inf
         for k, child in enumerate(node.children):
-            items = [assigned[x.node_uuid] for x in leaves(child) if x.node_uuid in assigned]
+            items = [x.assigned[n.node_uuid] for n in leaves(child) if n.node_uuid in x.assigned]
             if items and min(a.start for a in items) < ended - TOL * max(1.0, ended):
                 out.append(f"{path}/children[{k}] starts before its predecessor ended")
             if items:
                 ended = max(ended, max(a.end for a in items))
-
-    # Each unit's route (its order; the plan's assignments in it) holds exactly its vehicle tasks.
-    routes: dict[str, list[Assignment]] = {}
-    for name, items in per_unit.items():
-        route = [assigned[a.node_uuid] for a in plan.routes.get(name, [])
-                 if a.node_uuid in assigned and is_vehicle_task(a.name)]
-        if sorted(a.node_uuid for a in route) != sorted(a.node_uuid for a in items):
-            out.append(f"the route of {name} does not list exactly its vehicle tasks")
-            route = items
-        routes[name] = route
-
-    # Times agree with distances and speeds; battery holds; totals add up.
-    if inst_leaves and units:
-        unit_list = list(units)
-        tables = cost_tables(unit_list, inst_leaves)
-        index = {x.node_uuid: t for t, x in enumerate(inst_leaves)}
-        total_time = sum(a.travel_time + a.work_time for a in plan.assignments)
-        total_distance = sum(a.distance for a in plan.assignments)
-        latest = max((a.end for a in plan.assignments), default=0.0)
-        unit_index = {x.name: i for i, x in enumerate(unit_list)}
-        duration: dict[str, float] = {}  # travel + work per task, from the tables and the route
-        for a in plan.assignments:
-            u = unit_index.get(a.execunit.strip("/"))
-            t = index.get(a.node_uuid)
-            if u is not None and t is not None and not is_vehicle_task(a.name):
-                duration[a.node_uuid] = float(tables.work_time[u, t])
-        for name, items in routes.items():
-            u = unit_index[name]
-            here = tables.unit_xy[u]
-            spent = 0.0
-            for a in items:
-                t = index[a.node_uuid]
-                start, end = tables.start_for(u, t), tables.end_for(u, t)
-                d = 0.0 if start is None else float(np.hypot(*(start - here)))
-                speed = float(tables.speed[u, t])
-                duration[a.node_uuid] = d / speed + float(tables.work_time[u, t])
-                if not _close(a.travel_time, d / speed):
-                    out.append(f"{a.node_uuid}: travel time {a.travel_time:.3f} s does not match "
-                               f"{d:.1f} m at {speed} m/s")
-                if not _close(a.work_time, float(tables.work_time[u, t])):
-                    out.append(f"{a.node_uuid}: work time {a.work_time:.3f} s is not the task's "
-                               f"{float(tables.work_time[u, t]):.3f} s")
-                if not _close(a.distance, d + float(tables.work_distance[u, t])):
-                    out.append(f"{a.node_uuid}: distance {a.distance:.1f} m does not match")
-                here = here if end is None else end
-                spent += a.travel_time + a.work_time
-            if unit_list[u].home is not None:
-                back = float(np.hypot(*(tables.home_xy[u] - here)))
-                leg = back / float(unit_list[u].speeds["standard"])
-                spent += leg
-                total_time += leg
-                total_distance += back
-                latest = max(latest, items[-1].end + leg)
-            remaining = unit_list[u].remaining_endurance
-            if remaining is not None and spent > remaining * (1 + TOL) + TOL:
-                out.append(f"{name} needs {spent:.0f} s but has {remaining:.0f} s of endurance")
-        if not _close(plan.total_time, total_time):
-            out.append(f"total-time {plan.total_time:.3f} is not the sum {total_time:.3f}")
-        if not _close(plan.total_distance, total_distance):
-            out.append(f"total-distance {plan.total_distance:.1f} is not the sum "
-                       f"{total_distance:.1f}")
-        if not _close(plan.makespan, latest):
-            out.append(f"makespan {plan.makespan:.3f} is not the last end {latest:.3f}")
-        out.extend(_run_the_tree(plan.tst, assigned, routes, duration))
     return out
+
+
+def _routes_exact(x: _Subject) -> list[str]:
+    """Each unit's route (its order; the plan's assignments in it) holds exactly its vehicle
+    tasks."""
+    return [f"the route of {name} does not list exactly its vehicle tasks"
+            for name, items in x.per_unit.items() if not _same_tasks(x.listed(name), items)]
+
+
+def _times_and_totals(x: _Subject) -> list[str]:
+    """Times agree with distances and speeds; battery holds; totals add up."""
+    out: list[str] = []
+    if not (x.inst_leaves and x.units):
+        return out
+    plan, unit_list, tables = x.plan, list(x.units), x.tables
+    index = {n.node_uuid: t for t, n in enumerate(x.inst_leaves)}
+    total_time = sum(a.travel_time + a.work_time for a in plan.assignments)
+    total_distance = sum(a.distance for a in plan.assignments)
+    latest = max((a.end for a in plan.assignments), default=0.0)
+    unit_index = {u.name: i for i, u in enumerate(unit_list)}
+    for name, items in x.routes.items():
+        u = unit_index[name]
+        here = tables.unit_xy[u]
+        spent = 0.0
+        for a in items:
+            t = index[a.node_uuid]
+            out.extend(_leg_matches(a, tables, u, t, here))
+            end = tables.end_for(u, t)
+            here = here if end is None else end
+            spent += a.travel_time + a.work_time
+        if unit_list[u].home is not None:
+            back = float(np.hypot(*(tables.home_xy[u] - here)))
+            leg = back / float(unit_list[u].speeds["standard"])
+            spent += leg
+            total_time += leg
+            total_distance += back
+            latest = max(latest, items[-1].end + leg)
+        remaining = unit_list[u].remaining_endurance
+        if remaining is not None and spent > remaining * (1 + TOL) + TOL:
+            out.append(f"{name} needs {spent:.0f} s but has {remaining:.0f} s of endurance")
+    if not _close(plan.total_time, total_time):
+        out.append(f"total-time {plan.total_time:.3f} is not the sum {total_time:.3f}")
+    if not _close(plan.total_distance, total_distance):
+        out.append(f"total-distance {plan.total_distance:.1f} is not the sum "
+                   f"{total_distance:.1f}")
+    if not _close(plan.makespan, latest):
+        out.append(f"makespan {plan.makespan:.3f} is not the last end {latest:.3f}")
+    return out
+
+
+def _leg_matches(
+    a: Assignment, tables: CostTables, u: int, t: int, here: np.ndarray
+) -> list[str]:
+    """Task ``t`` of unit ``u``, which comes from ``here``: its travel, work and distance."""
+    out = []
+    start = tables.start_for(u, t)
+    d = 0.0 if start is None else float(np.hypot(*(start - here)))
+    speed = float(tables.speed[u, t])
+    if not _close(a.travel_time, d / speed):
+        out.append(f"{a.node_uuid}: travel time {a.travel_time:.3f} s does not match "
+                   f"{d:.1f} m at {speed} m/s")
+    if not _close(a.work_time, float(tables.work_time[u, t])):
+        out.append(f"{a.node_uuid}: work time {a.work_time:.3f} s is not the task's "
+                   f"{float(tables.work_time[u, t]):.3f} s")
+    if not _close(a.distance, d + float(tables.work_distance[u, t])):
+        out.append(f"{a.node_uuid}: distance {a.distance:.1f} m does not match")
+    return out
+
+
+def _tree_runs(x: _Subject) -> list[str]:
+    """Running the instantiated tree gives the plan's times."""
+    if not (x.inst_leaves and x.units):
+        return []
+    return _run_the_tree(x.plan.tst, x.assigned, x.routes, _durations(x))
+
+
+def _durations(x: _Subject) -> dict[str, float]:
+    """Travel + work per task, from the cost tables and the routes."""
+    tables = x.tables
+    index = {n.node_uuid: t for t, n in enumerate(x.inst_leaves)}
+    unit_index = {u.name: i for i, u in enumerate(x.units)}
+    duration: dict[str, float] = {}
+    for a in x.plan.assignments:
+        u = unit_index.get(a.execunit.strip("/"))
+        t = index.get(a.node_uuid)
+        if u is not None and t is not None and not is_vehicle_task(a.name):
+            duration[a.node_uuid] = float(tables.work_time[u, t])
+    for name, items in x.routes.items():
+        u = unit_index[name]
+        here = tables.unit_xy[u]
+        for a in items:
+            t = index[a.node_uuid]
+            start, end = tables.start_for(u, t), tables.end_for(u, t)
+            d = 0.0 if start is None else float(np.hypot(*(start - here)))
+            duration[a.node_uuid] = d / float(tables.speed[u, t]) + float(tables.work_time[u, t])
+            here = here if end is None else end
+    return duration
+
+
+#: Every check, in the order its sentences are reported.
+CHECKS: list[Callable[[_Subject], list[str]]] = [
+    _tasks_kept,
+    _each_task_once,
+    _units_valid,
+    _no_overlap,
+    _source_kept,
+    _seq_order,
+    _routes_exact,
+    _times_and_totals,
+    _tree_runs,
+]
 
 
 def _run_the_tree(

@@ -13,11 +13,12 @@ from delegation.allocation.auction import assign_passive
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import home_legs, insertion_costs
 from delegation.allocation.schedule import EPS, Schedule, evaluate
+from delegation.allocation.strategies import Objective
 
 
-def nearest(problem: Problem, objective: str = "makespan") -> Schedule:
-    """Plan with the nearest-unit rule (``objective`` only labels the result)."""
-    del objective  # the rule ignores it
+def nearest(problem: Problem, objective: Objective | str = Objective.MAKESPAN) -> Schedule:
+    """Plan with the nearest-unit rule (the rule ignores ``objective``, which must be one)."""
+    Objective(objective)  # ValueError for an unknown one
     n_units, n_tasks = problem.n_units, problem.n_tasks
     assign = np.full(n_tasks, -1, dtype=int)
     routes: list[list[int]] = [[] for _ in range(n_units)]

@@ -9,12 +9,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from delegation.allocation.auction import auction, unassigned_reason
+from delegation.allocation.auction import unassigned_reason
 from delegation.allocation.instantiate import Placement, instantiate
-from delegation.allocation.nearest import nearest
 from delegation.allocation.plan import Assignment, Plan, Unassigned
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.schedule import Schedule
+from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError
 from delegation.errors import Problem as InputProblem
 from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
@@ -24,8 +24,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-STRATEGIES: tuple[str, ...] = ("nearest", "auction", "optimal")
-OBJECTIVES: tuple[str, ...] = ("makespan", "total")
+__all__ = ["OBJECTIVES", "STRATEGIES", "check_options", "make_plan", "plan_mission"]
 
 
 def check_options(strategy: str, objective: str, time_limit: float) -> None:
@@ -55,7 +54,7 @@ def plan_mission(
     units: Sequence[UnitState],
     *,
     strategy: str = "auction",
-    objective: str = "makespan",
+    objective: Objective | str = Objective.MAKESPAN,
     time_limit: float = 5.0,
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
@@ -72,22 +71,12 @@ def plan_mission(
     began = time.perf_counter()
     prepared = with_defaults(with_uuids(tree, new_uuid))
     problem = build_problem(prepared, units)
-    bound: float | None = None
-    notes: list[str] = []
-    if strategy == "nearest":
-        schedule = nearest(problem, objective)
-    elif strategy == "auction":
-        schedule = auction(problem, objective)
-    else:
-        from delegation.allocation.optimal import optimise
-
-        result = optimise(problem, objective, time_limit)
-        schedule, bound, notes = result.schedule, result.bound, result.notes
+    result = STRATEGIES[strategy](problem, Objective(objective), time_limit)
     solve_time = time.perf_counter() - began
     return make_plan(
-        problem, schedule, prepared, strategy=strategy, objective=objective,
-        solve_time=solve_time, bound=bound, engine_unit=engine_unit, new_uuid=new_uuid,
-        notes=notes,
+        problem, result.schedule, prepared, strategy=strategy, objective=objective,
+        solve_time=solve_time, bound=result.bound, engine_unit=engine_unit, new_uuid=new_uuid,
+        notes=result.notes,
     )
 
 
@@ -97,7 +86,7 @@ def make_plan(
     prepared: TstNode,
     *,
     strategy: str,
-    objective: str,
+    objective: Objective | str,
     solve_time: float,
     bound: float | None = None,
     engine_unit: str = "op0",
@@ -136,14 +125,19 @@ def make_plan(
         if route:
             routes[problem.unit_names[u]] = [by_uuid[problem.tasks[t].uuid] for t in route]
     tst = instantiate(prepared, placements, engine_unit, new_uuid)
-    primary = schedule.total_time if objective == "total" else schedule.makespan
+    goal = Objective(objective)
+    match goal:
+        case Objective.MAKESPAN:
+            primary = schedule.makespan
+        case Objective.TOTAL:
+            primary = schedule.total_time
     gap = None
     if bound is not None:
         bound = min(bound, primary)
         gap = (primary - bound) / primary if primary > 0 else 0.0
     return Plan(
         strategy=strategy,
-        objective=objective,
+        objective=goal.value,
         feasible=not unassigned and schedule.valid,
         makespan=schedule.makespan,
         total_time=schedule.total_time,

@@ -17,15 +17,36 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from enum import StrEnum
 
 import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.serialise import Serialisation, serialisation
+from delegation.allocation.strategies import Objective
 
 #: Relative slack when comparing times against endurance (float noise, not a real margin).
 EPS = 1e-9
+
+
+class IssueKind(StrEnum):
+    """Why an allocation cannot run as planned."""
+
+    ORDER = "order"  # a unit's order lists a task wrongly, or an assigned task is in none
+    SERIALISATION = "serialisation"  # subtrees sharing units cannot run one after another
+    DEADLOCK = "deadlock"  # the tree's order and the units' orders wait for each other
+    ENDURANCE = "endurance"  # a unit would run out of battery
+
+
+@dataclass(frozen=True)
+class ScheduleIssue:
+    """One reason a schedule is not valid: its kind, and a sentence for people."""
+
+    kind: IssueKind
+    text: str
+
+    def __str__(self) -> str:
+        return self.text
 
 
 @dataclass
@@ -46,7 +67,7 @@ class Schedule:
     makespan: float
     total_time: float
     total_distance: float
-    problems: list[str] = field(default_factory=list)  # deadlock, battery, serialisation
+    issues: list[ScheduleIssue] = field(default_factory=list)  # empty: the schedule can run
     node_act: np.ndarray | None = None  # (tree nodes,) when each node was activated
     node_fin: np.ndarray | None = None  # (tree nodes,) when each node finished
     #: The wrappers that change times (concs whose children holding tasks are subtrees).
@@ -54,17 +75,19 @@ class Schedule:
 
     @property
     def valid(self) -> bool:
-        return not self.problems
+        return not self.issues
 
     @property
     def n_unassigned(self) -> int:
         return int((self.assign < 0).sum())
 
-    def key(self, objective: str) -> tuple[float, float, float]:
+    def key(self, objective: Objective | str) -> tuple[float, float, float]:
         """Sort key: fewer unassigned tasks first, then the objective, then the other measure."""
-        if objective == "total":
-            return (float(self.n_unassigned), self.total_time, self.makespan)
-        return (float(self.n_unassigned), self.makespan, self.total_time)
+        match Objective(objective):
+            case Objective.MAKESPAN:
+                return (float(self.n_unassigned), self.makespan, self.total_time)
+            case Objective.TOTAL:
+                return (float(self.n_unassigned), self.total_time, self.makespan)
 
 
 @dataclass(frozen=True)
@@ -105,20 +128,40 @@ def template_for(problem: Problem) -> _Template:
     return tpl
 
 
-def _static_for(problem: Problem) -> dict[str, list[Any]]:
+@dataclass(frozen=True)
+class _Static:
     """The problem's per-task and per-unit numbers as plain lists (the simulation loop is
     Python), made once per problem."""
-    static: dict[str, list[Any]] | None = problem.cache.get("static")
+
+    vehicle: list[bool]  # per task
+    sx: list[float]  # per task: start and end point
+    sy: list[float]
+    ex: list[float]
+    ey: list[float]
+    travels: list[bool]
+    to_home: list[bool]
+    ux: list[float]  # per unit: where it is, its home, how fast it flies home, its battery
+    uy: list[float]
+    has_home: list[bool]
+    home_x: list[float]
+    home_y: list[float]
+    home_speed: list[float]
+    endurance: list[float]
+
+
+def _static_for(problem: Problem) -> _Static:
+    static: _Static | None = problem.cache.get("static")
     if static is None:
-        static = problem.cache["static"] = {
-            "vehicle": [t.vehicle for t in problem.tasks],
-            "ux": problem.unit_xy[:, 0].tolist(), "uy": problem.unit_xy[:, 1].tolist(),
-            "sx": problem.start_xy[:, 0].tolist(), "sy": problem.start_xy[:, 1].tolist(),
-            "ex": problem.end_xy[:, 0].tolist(), "ey": problem.end_xy[:, 1].tolist(),
-            "travels": problem.travels.tolist(), "to_home": problem.home_task().tolist(),
-            "has_home": problem.has_home.tolist(),
-            "home_x": problem.home_xy[:, 0].tolist(), "home_y": problem.home_xy[:, 1].tolist(),
-        }
+        static = problem.cache["static"] = _Static(
+            vehicle=[t.vehicle for t in problem.tasks],
+            sx=problem.start_xy[:, 0].tolist(), sy=problem.start_xy[:, 1].tolist(),
+            ex=problem.end_xy[:, 0].tolist(), ey=problem.end_xy[:, 1].tolist(),
+            travels=problem.travels.tolist(), to_home=problem.home_task().tolist(),
+            ux=problem.unit_xy[:, 0].tolist(), uy=problem.unit_xy[:, 1].tolist(),
+            has_home=problem.has_home.tolist(),
+            home_x=problem.home_xy[:, 0].tolist(), home_y=problem.home_xy[:, 1].tolist(),
+            home_speed=problem.home_speed.tolist(), endurance=problem.endurance.tolist(),
+        )
     return static
 
 
@@ -128,25 +171,63 @@ def evaluate(
     """Simulate the tree with this allocation (earliest start everywhere) and measure it.
 
     A cycle between the tree's order and the units' orders (unit A waits for B which waits for A)
-    is reported in ``problems`` ("deadlock"), as is a unit that would run out of battery.
+    is reported in ``issues`` (``DEADLOCK``), as is a unit that would run out of battery
+    (``ENDURANCE``).
     """
-    n_tasks, n_units = problem.n_tasks, problem.n_units
-    assign_arr = np.asarray(assign, dtype=int).reshape(n_tasks)
-    s = problem.structure
-    tpl = template_for(problem)
-    problems: list[str] = []
+    assign_arr = np.asarray(assign, dtype=int).reshape(problem.n_tasks)
+    static = _static_for(problem)
+    prev, clean, issues = _clean_orders(problem, assign_arr, orders, static)
+    graph = _activation_graph(problem, prev, clean)
+    issues.extend(ScheduleIssue(IssueKind.SERIALISATION, text) for text in graph.wrapped.problems)
+    run = _simulate(problem, assign_arr, prev, graph, static)
+    if run.done < len(run.value):
+        issues.append(ScheduleIssue(IssueKind.DEADLOCK, (
+            "deadlock: the units' orders and the tree's order wait for each other"
+            if not graph.wrapped.problems else
+            "deadlock: the serialised subtrees and the units' orders wait for each other"
+        )))
+    totals = _unit_totals(problem, assign_arr, orders, run, static)
+    issues.extend(totals.issues)
+    return Schedule(
+        assign=assign_arr.copy(),
+        orders=[list(o) for o in orders],
+        start=np.array(run.start, dtype=float),
+        end=np.array(run.end, dtype=float),
+        travel_time=np.array(run.travel, dtype=float),
+        work_time=np.array(run.work, dtype=float),
+        distance=np.array(run.dist, dtype=float),
+        unit_finish=np.array(totals.unit_finish, dtype=float),
+        unit_used=np.array(totals.unit_used, dtype=float),
+        home_time=np.array(totals.home_time, dtype=float),
+        home_distance=np.array(totals.home_dist, dtype=float),
+        makespan=totals.makespan,
+        total_time=totals.total_time,
+        total_distance=totals.total_distance,
+        issues=issues,
+        node_act=np.array(run.value[0::2]),
+        node_fin=np.array(run.value[1::2]),
+        serialised=graph.wrapped,
+    )
 
+
+def _clean_orders(
+    problem: Problem, assign: np.ndarray, orders: Sequence[Sequence[int]], static: _Static
+) -> tuple[list[int], list[list[int]], list[ScheduleIssue]]:
+    """Each task's predecessor on its unit (-1: first), the orders without the tasks they list
+    wrongly, and the wrongly listed or missing tasks."""
+    n_tasks, vehicle = problem.n_tasks, static.vehicle
+    issues: list[ScheduleIssue] = []
     prev = [-1] * n_tasks
     seen = [False] * n_tasks
-    static = _static_for(problem)
-    vehicle = static["vehicle"]
     clean: list[list[int]] = []
     for u, order in enumerate(orders):
         p = -1
         kept: list[int] = []
         for t in order:
-            if assign_arr[t] != u or not vehicle[t] or seen[t]:
-                problems.append(f"order of unit {problem.unit_names[u]} lists task {t} wrongly")
+            if assign[t] != u or not vehicle[t] or seen[t]:
+                issues.append(ScheduleIssue(
+                    IssueKind.ORDER, f"order of unit {problem.unit_names[u]} lists task {t} wrongly"
+                ))
                 continue
             seen[t] = True
             prev[t] = p
@@ -154,58 +235,78 @@ def evaluate(
             kept.append(t)
         clean.append(kept)
     for t in range(n_tasks):
-        if assign_arr[t] >= 0 and vehicle[t] and not seen[t]:
-            problems.append(f"task {t} is assigned but in no unit's order")
+        if assign[t] >= 0 and vehicle[t] and not seen[t]:
+            issues.append(ScheduleIssue(IssueKind.ORDER,
+                                        f"task {t} is assigned but in no unit's order"))
+    return prev, clean, issues
 
-    succ = tpl.succ
-    indeg = list(tpl.indeg)
-    extra: dict[int, int] = {}  # a unit's previous task ends -> its next task may begin
+
+@dataclass
+class _Graph:
+    """The activation graph of one allocation: the tree's (``template_for``) plus, per event, at
+    most one successor from a unit's order and one from the serialised subtrees."""
+
+    indeg: list[int]
+    after: list[int]  # a unit's previous task ends -> its next task may begin (-1: none)
+    wrap_next: list[int]  # fin(X) -> act(next X) of whole subtrees sharing a unit (-1: none)
+    wrapped: Serialisation
+
+
+def _activation_graph(problem: Problem, prev: list[int], clean: list[list[int]]) -> _Graph:
+    """Events act(n) = 2n, fin(n) = 2n + 1 of every tree node, and what waits for what."""
+    s = problem.structure
+    indeg = list(template_for(problem).indeg)
+    after = [-1] * (2 * s.size)
     node_of = s.node_of_task
-    for t in range(n_tasks):
+    for t in range(problem.n_tasks):
         if prev[t] >= 0:
-            src = 2 * node_of[prev[t]] + 1
-            extra[src] = 2 * node_of[t] + 1
+            after[2 * node_of[prev[t]] + 1] = 2 * node_of[t] + 1
             indeg[2 * node_of[t] + 1] += 1
     # Whole subtrees sharing a unit run one after another: fin(X) -> act(next X).
     wrapped = serialisation(problem, clean, every_conc=False)
-    problems.extend(wrapped.problems)
-    chained: dict[int, int] = {}
+    wrap_next = [-1] * (2 * s.size)
     for _, kids in wrapped.wraps:
         for a, b in itertools.pairwise(kids):
-            chained[2 * a + 1] = 2 * b
+            wrap_next[2 * a + 1] = 2 * b
             indeg[2 * b] += 1
+    return _Graph(indeg, after, wrap_next, wrapped)
 
-    ux, uy, sx, sy = static["ux"], static["uy"], static["sx"], static["sy"]
-    ex, ey, travels, to_home = static["ex"], static["ey"], static["travels"], static["to_home"]
-    has_home = static["has_home"]
-    # Per task, the numbers of its unit (0 where unassigned): plain floats for the loop below.
-    safe = np.where(assign_arr >= 0, assign_arr, 0)
-    cols = np.arange(n_tasks)
-    if n_units:
-        speed_t = problem.speed[safe, cols].tolist()
-        work_tt = problem.work_time[safe, cols].tolist()
-        work_dt = problem.work_distance[safe, cols].tolist()
-    else:
-        speed_t = work_tt = work_dt = [0.0] * n_tasks
-    home_x, home_y = static["home_x"], static["home_y"]
-    assigned_to = assign_arr.tolist()
 
+@dataclass
+class _Run:
+    """Per task (NaN: unassigned or never reached): times, distances, where it leaves the unit;
+    per event its time, and how many events ran (fewer than all: a deadlock)."""
+
+    start: list[float]
+    end: list[float]
+    travel: list[float]
+    work: list[float]
+    dist: list[float]
+    pos_x: list[float]
+    pos_y: list[float]
+    value: list[float]
+    done: int
+
+
+def _simulate(
+    problem: Problem, assign: np.ndarray, prev: list[int], graph: _Graph, static: _Static
+) -> _Run:
+    """Run the events in topological order, earliest times everywhere: a task's event fin(n)
+    is reached when the tree activated it and its unit is free; travel starts then, from where
+    the unit is."""
+    n_tasks, s = problem.n_tasks, problem.structure
+    vehicle, ux, uy, sx, sy = static.vehicle, static.ux, static.uy, static.sx, static.sy
+    ex, ey, travels, to_home = static.ex, static.ey, static.travels, static.to_home
+    has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
+    speed_t, work_tt, work_dt = _numbers_of_units(problem, assign)
+    assigned_to = assign.tolist()
     nan = math.nan
-    start_l = [nan] * n_tasks
-    end_l = [nan] * n_tasks
-    travel_l = [nan] * n_tasks
-    work_l = [nan] * n_tasks
-    dist_l = [nan] * n_tasks
-    pos_x = [0.0] * n_tasks
-    pos_y = [0.0] * n_tasks
-
-    value = [0.0] * (2 * s.size)
-    after = [-1] * (2 * s.size)  # the extra successors: a unit's next task, the next subtree
-    for i, j in extra.items():
-        after[i] = j
-    wrap_next = [-1] * (2 * s.size)
-    for i, j in chained.items():
-        wrap_next[i] = j
+    run = _Run([nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks,
+               [nan] * n_tasks, [0.0] * n_tasks, [0.0] * n_tasks, [0.0] * (2 * s.size), 0)
+    start_l, end_l, travel_l, work_l, dist_l = run.start, run.end, run.travel, run.work, run.dist
+    pos_x, pos_y, value = run.pos_x, run.pos_y, run.value
+    succ, indeg, after, wrap_next = template_for(problem).succ, graph.indeg, graph.after, \
+        graph.wrap_next
     task_of_node = s.task_of_node
     stack = [i for i in range(2 * s.size) if indeg[i] == 0]
     done = 0
@@ -261,27 +362,52 @@ def evaluate(
             indeg[j] -= 1
             if indeg[j] == 0:
                 stack.append(j)
-    start = np.array(start_l, dtype=float)
-    end = np.array(end_l, dtype=float)
-    travel_time = np.array(travel_l, dtype=float)
-    work_time = np.array(work_l, dtype=float)
-    distance = np.array(dist_l, dtype=float)
-    if done < 2 * s.size and not wrapped.problems:
-        problems.append("deadlock: the units' orders and the tree's order wait for each other")
-    elif done < 2 * s.size:
-        problems.append("deadlock: the serialised subtrees and the units' orders wait for each "
-                        "other")
+    run.done = done
+    return run
 
-    # Per unit: travel + work of its vehicle tasks, the way home, when it is done (plain
-    # Python: cheaper than numpy at the sizes the auction simulates hundreds of times).
-    unit_finish_l = [0.0] * n_units
-    unit_used_l = [0.0] * n_units
-    home_time_l = [0.0] * n_units
-    home_dist_l = [0.0] * n_units
-    makespan = 0.0
-    total_time = 0.0
-    total_distance = 0.0
-    for t in range(n_tasks):
+
+def _numbers_of_units(
+    problem: Problem, assign: np.ndarray
+) -> tuple[list[float], list[float], list[float]]:
+    """Per task, the speed, work time and work distance of its unit (0 where unassigned):
+    plain floats for the simulation loop."""
+    if not problem.n_units:
+        zeros = [0.0] * problem.n_tasks
+        return zeros, zeros, zeros
+    safe = np.where(assign >= 0, assign, 0)
+    cols = np.arange(problem.n_tasks)
+    return (problem.speed[safe, cols].tolist(), problem.work_time[safe, cols].tolist(),
+            problem.work_distance[safe, cols].tolist())
+
+
+@dataclass
+class _Totals:
+    """Per unit: when it is done, its battery use, its way home; the plan's measures."""
+
+    unit_finish: list[float]
+    unit_used: list[float]
+    home_time: list[float]
+    home_dist: list[float]
+    makespan: float = 0.0
+    total_time: float = 0.0
+    total_distance: float = 0.0
+    issues: list[ScheduleIssue] = field(default_factory=list)
+
+
+def _unit_totals(
+    problem: Problem, assign: np.ndarray, orders: Sequence[Sequence[int]], run: _Run,
+    static: _Static,
+) -> _Totals:
+    """Per unit: travel + work of its vehicle tasks, the way home, when it is done, whether its
+    battery holds (plain Python: cheaper than numpy at the sizes the auction simulates hundreds
+    of times)."""
+    n_units, vehicle, assigned_to = problem.n_units, static.vehicle, assign.tolist()
+    out = _Totals([0.0] * n_units, [0.0] * n_units, [0.0] * n_units, [0.0] * n_units)
+    unit_finish_l, unit_used_l = out.unit_finish, out.unit_used
+    home_time_l, home_dist_l = out.home_time, out.home_dist
+    makespan = total_time = total_distance = 0.0
+    end_l, travel_l, work_l, dist_l = run.end, run.travel, run.work, run.dist
+    for t in range(problem.n_tasks):
         e = end_l[t]
         if e != e:  # NaN: unassigned or never reached
             continue
@@ -291,14 +417,14 @@ def evaluate(
         makespan = max(makespan, e)
         if vehicle[t]:
             unit_used_l[assigned_to[t]] += tt + w
-    home_speed = problem.home_speed.tolist()
-    endurance = problem.endurance.tolist()
+    has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
+    home_speed, endurance = static.home_speed, static.endurance
     for u, order in enumerate(orders):
         if not order:
             continue
         last = order[-1]
         if has_home[u]:
-            d = math.hypot(home_x[u] - pos_x[last], home_y[u] - pos_y[last])
+            d = math.hypot(home_x[u] - run.pos_x[last], home_y[u] - run.pos_y[last])
             home_dist_l[u] = d
             home_time_l[u] = d / home_speed[u]
         unit_finish_l[u] = end_l[last] + home_time_l[u]
@@ -307,37 +433,15 @@ def evaluate(
         total_distance += home_dist_l[u]
         makespan = max(makespan, unit_finish_l[u])
         if unit_used_l[u] > endurance[u] * (1 + EPS) + EPS:
-            problems.append(
+            out.issues.append(ScheduleIssue(IssueKind.ENDURANCE, (
                 f"unit {problem.unit_names[u]} needs {unit_used_l[u]:.0f} s but has "
                 f"{endurance[u]:.0f} s of endurance left"
-            )
-    unit_finish = np.array(unit_finish_l, dtype=float)
-    unit_used = np.array(unit_used_l, dtype=float)
-    home_time = np.array(home_time_l, dtype=float)
-    home_distance = np.array(home_dist_l, dtype=float)
-    return Schedule(
-        assign=assign_arr.copy(),
-        orders=[list(o) for o in orders],
-        start=start,
-        end=end,
-        travel_time=travel_time,
-        work_time=work_time,
-        distance=distance,
-        unit_finish=unit_finish,
-        unit_used=unit_used,
-        home_time=home_time,
-        home_distance=home_distance,
-        makespan=makespan,
-        total_time=total_time,
-        total_distance=total_distance,
-        problems=problems,
-        node_act=np.array(value[0::2]),
-        node_fin=np.array(value[1::2]),
-        serialised=wrapped,
-    )
+            )))
+    out.makespan, out.total_time, out.total_distance = makespan, total_time, total_distance
+    return out
 
 
-def better(a: Schedule, b: Schedule, objective: str, rel: float = 1e-9) -> bool:
+def better(a: Schedule, b: Schedule, objective: Objective | str, rel: float = 1e-9) -> bool:
     """True when ``a`` is strictly better than ``b`` (beyond float noise)."""
     ka, kb = a.key(objective), b.key(objective)
     for x, y in zip(ka, kb, strict=True):

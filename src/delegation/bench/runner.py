@@ -11,7 +11,7 @@ import itertools
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -176,7 +176,7 @@ def scenarios_from_dicts(data: Iterable[dict[str, Any]]) -> list[LoadedScenario]
 # --------------------------------------------------------------------------- running
 
 
-def check_choice(kind: str, chosen: Sequence[str], known: Sequence[str]) -> list[str]:
+def check_choice(kind: str, chosen: Sequence[str], known: Collection[str]) -> list[str]:
     """``chosen`` without duplicates, or InputError naming what is unknown."""
     unknown = [c for c in chosen if c not in known]
     if unknown:

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, Problem
 
 
@@ -50,13 +51,13 @@ def register(subparsers: Any) -> None:
         "--strategies",
         type=_words,
         default=None,
-        help="comma-separated (default: all: nearest,auction,optimal)",
+        help=f"comma-separated (default: all: {','.join(STRATEGIES)})",
     )
     parser.add_argument(
         "--objectives",
         type=_words,
         default=None,
-        help="comma-separated (default: makespan,total; --scale: makespan)",
+        help=f"comma-separated (default: {','.join(OBJECTIVES)}; --scale: makespan)",
     )
     parser.add_argument(
         "--repeat", type=int, default=1, help="runs of each combination (default 1)"

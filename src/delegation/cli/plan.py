@@ -11,11 +11,15 @@ import json
 import sys
 from typing import TYPE_CHECKING, Any
 
+from delegation.allocation import OBJECTIVES, STRATEGIES
+
 if TYPE_CHECKING:
     from delegation.allocation import Plan
 
-STRATEGY_CHOICES = ("nearest", "auction", "optimal")
-OBJECTIVE_CHOICES = ("makespan", "total")
+#: The planner's names (``delegation.allocation``), for argparse ``choices``; ``cli.runtime``
+#: imports these two.
+STRATEGY_CHOICES: tuple[str, ...] = tuple(STRATEGIES)
+OBJECTIVE_CHOICES: tuple[str, ...] = tuple(o.value for o in OBJECTIVES)
 
 
 def register(subparsers: Any) -> None:

@@ -1,0 +1,132 @@
+"""The ``optimal`` strategy: OR-Tools, warm-started from the auction, under a time limit.
+
+Which solver (DESIGN 4):
+- the **routing solver** for larger trees where every task is activated at mission start (a
+  ``conc`` of tasks: an mTSP with per-unit speeds, capabilities, aliases, homes and battery);
+  guided local search from the auction's routes; it proves no bound;
+- **CP-SAT** where the tree orders tasks across units (``seq``) or has conc children that are
+  subtrees, and for small flat trees (it proves optimality there, so the plan carries a ``bound``):
+  per-unit circuits over optional arcs, activation times from the tree, makespan and battery as
+  linear constraints. Conc children that share a unit run one after another as whole subtrees, in
+  the order ``serialise`` derives (DESIGN 3.4); for concs with at most ``CP_EXACT_CHILDREN``
+  children holding tasks the model encodes exactly that (which children share a unit, the total
+  order of each component, the tie rule), for larger ones a relaxation (each unit's consecutive
+  subtrees one after another), so the bound stays a lower bound and the solution is re-evaluated.
+
+Solver costs are integers (ticks); durations are rounded down so that CP-SAT's bound stays a proven
+lower bound. Whatever the solver returns is re-evaluated with the schedule simulator, and the
+auction's schedule is kept (and said so in a note and a log line) when the solver found nothing
+better: ``optimal`` is never worse than ``auction``.
+
+Modules: ``routing`` (the routing model), ``cpsat`` (the CP-SAT model), ``cpsat_subtrees`` (its
+subtree-serialisation sub-model), ``shared`` (ticks, task points, evaluating routes); this one
+chooses the solver.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+from delegation.allocation.auction import auction
+from delegation.allocation.optimal.cpsat import CP_EXACT_ARCS, candidates, solve_cpsat
+from delegation.allocation.optimal.cpsat_subtrees import CP_EXACT_CHILDREN
+from delegation.allocation.optimal.routing import (
+    ROUTING_MAKESPAN_PHASES,
+    ROUTING_MAX_ENTRIES,
+    solve_routing,
+)
+from delegation.allocation.optimal.shared import TICKS
+from delegation.allocation.problem import Problem
+from delegation.allocation.schedule import Schedule, better
+from delegation.allocation.strategies import Objective
+
+log = logging.getLogger(__name__)
+
+#: Flat trees with at most this many vehicle tasks go to CP-SAT (which proves optimality).
+CP_MAX_FLAT_TASKS = 12
+#: CP-SAT is not tried when even the pruned circuits would have more arcs than this (the pruning
+#: starts above ``CP_EXACT_ARCS``).
+CP_MAX_ARCS = 40_000
+
+__all__ = [
+    "CP_EXACT_ARCS",
+    "CP_EXACT_CHILDREN",
+    "CP_MAX_ARCS",
+    "CP_MAX_FLAT_TASKS",
+    "ROUTING_MAKESPAN_PHASES",
+    "ROUTING_MAX_ENTRIES",
+    "TICKS",
+    "OptimalResult",
+    "optimise",
+]
+
+
+@dataclass
+class OptimalResult:
+    """The chosen schedule, a proven lower bound on the objective (s) if any, and what happened."""
+
+    schedule: Schedule
+    bound: float | None = None
+    notes: list[str] = field(default_factory=list)
+    solver: str = ""
+
+
+def optimise(
+    problem: Problem,
+    objective: Objective | str = Objective.MAKESPAN,
+    time_limit: float = 5.0,
+    *,
+    use_all_units: bool = False,
+) -> OptimalResult:
+    """Plan with OR-Tools within ``time_limit`` seconds; never worse than the auction.
+
+    ``use_all_units`` (benchmarks only: the published mTSP min-sum values require it) makes every
+    unit take at least one task; the auction's plan then counts only if it does so too.
+    ``ValueError`` for an unknown objective.
+    """
+    began = time.perf_counter()
+    objective = Objective(objective)
+    base = auction(problem, objective)
+    tasks = [t for t in range(problem.n_tasks) if problem.tasks[t].vehicle and base.assign[t] >= 0]
+    result = OptimalResult(base)
+    if not tasks:
+        result.notes.append("no vehicle task to optimise; the auction's plan is optimal")
+        log.info("optimal: %s", result.notes[-1])
+        return result
+    flat = problem.plain  # routing models a unit's own route only: exact for plain trees
+    mask = candidates(problem, tasks, base)
+    arcs = sum(int(mask[u, tasks].sum()) ** 2 for u in range(problem.n_units))
+    remaining = max(0.05, time_limit - (time.perf_counter() - began))
+    candidate: Schedule | None = None
+    bound: float | None = None
+    if (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
+        result.solver = "cp-sat"
+        candidate, bound, note = solve_cpsat(
+            problem, objective, base, tasks, remaining, mask, use_all_units=use_all_units
+        )
+    elif flat:
+        result.solver = "routing"
+        candidate, note = solve_routing(
+            problem, objective, base, tasks, remaining, use_all_units=use_all_units
+        )
+    else:
+        note = (
+            f"CP-SAT not run: the model would have {arcs} arcs (limit {CP_MAX_ARCS}); "
+            "keeping the auction's plan"
+        )
+    result.notes.append(note)
+    base_counts = not use_all_units or all(base.orders)
+    if candidate is not None and candidate.valid and (
+        better(candidate, base, objective) or not base_counts
+    ):
+        result.schedule = candidate
+    elif candidate is not None:
+        result.notes.append(
+            f"{result.solver} found no better plan than the auction's; keeping the auction's plan"
+        )
+    result.bound = bound
+    for text in result.notes:
+        log.info("optimal: %s", text)
+    return result
