@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from delegation.allocation.strategies import Objective
 from delegation.bench.isolate import call_isolated
 from delegation.errors import DelegationError, InputError, Problem
 
@@ -342,9 +343,11 @@ def run_one(
     return record, plan
 
 
-def objective_value(plan: Plan, objective: str) -> float:
+def objective_value(plan: Plan, objective: Objective | str) -> float:
     """The number the objective minimises: makespan, or total time (travel + work)."""
-    return float(plan.makespan if objective == "makespan" else plan.total_time)
+    if Objective(objective) is Objective.MAKESPAN:
+        return float(plan.makespan)
+    return float(plan.total_time)
 
 
 def _opt(value: float | None) -> float | None:

@@ -8,18 +8,15 @@ instead of a dead worker.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, plan_mission
-from delegation.costs import cost_tables
+from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, compute_bids, plan_mission
 from delegation.errors import InputError, Problem
 from delegation.fleet import UnitState
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
-from delegation.tst.node import TstNode, leaves, walk, where
-from delegation.tst.validate import with_defaults
+from delegation.tst.node import TstNode, walk, where
 
 log = logging.getLogger(__name__)
 
@@ -133,31 +130,6 @@ def internal_error(exc: object) -> JobFailed:
     problem = Problem("planner", "", f"internal error: {type(exc).__name__}: {exc}")
     return JobFailed(InputError(problem).fail_reason)
 
-
-# moves to allocation.bids at merge
-def compute_bids(tree: TstNode, units: Sequence[UnitState]) -> list[dict[str, Any]]:
-    """Every task node x unit: estimated travel, work and distance, or why the unit cannot bid."""
-    tasks = leaves(with_defaults(tree))
-    if not tasks or not units:
-        return []
-    tables = cost_tables(units, tasks)
-    to_start = tables.dist_unit_to_start()
-    bids: list[dict[str, Any]] = []
-    for t, task in enumerate(tables.tasks):
-        for u, unit in enumerate(tables.units):
-            base = {"node-uuid": task.node_uuid, "name": task.name, "unit": f"/{unit.name}"}
-            if not tables.capable[u, t]:
-                bids.append({**base, "reason": tables.reason(u, t) or "cannot take this task"})
-                continue
-            travel = float(to_start[u, t])  # 0 for tasks done in place
-            bids.append({
-                **base,
-                "travel-time": round(travel / float(tables.speed[u, t]), 3),
-                "work-time": round(float(tables.work_time[u, t]), 3),
-                "distance": round(travel + float(tables.work_distance[u, t]), 3),
-                "open-ended": bool(tables.open_ended[t]),
-            })
-    return bids
 
 
 def infeasible_reason(plan: Plan, tree: TstNode) -> str:
