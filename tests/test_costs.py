@@ -1,4 +1,4 @@
-"""The cost model (DESIGN 3.6): coverage paths, speeds, sweep widths, the cost tables."""
+"""The cost model (docs/plan.md §2): coverage paths, speeds, sweep widths, the cost tables."""
 
 from __future__ import annotations
 

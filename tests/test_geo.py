@@ -65,7 +65,7 @@ def test_zero_and_symmetry() -> None:
     a, b = P(57.7605, 16.6815, 40.0), P(57.7611, 16.6805, 0.0)
     assert distance_m(a, a) == 0.0
     assert distance_m(a, b) == pytest.approx(distance_m(b, a), abs=1e-6)
-    # Altitude is ignored (DESIGN 3.6).
+    # Altitude is ignored (docs/plan.md §2.1).
     assert distance_m(a, b) == distance_m(P(57.7605, 16.6815), b)
 
 

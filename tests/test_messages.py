@@ -1,4 +1,4 @@
-"""Messages: decode by topic, encode canonically, lenient readers (DESIGN 4), clear errors."""
+"""Messages: decode by topic, encode canonically, lenient readers (docs/protocol.md §9), clear errors."""
 
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def test_new_com_uuid_is_fresh() -> None:
 
 # --------------------------------------------------------------------------- the example agent
 # Messages exactly as the public WARA-PS L2 Python example agent builds them (json.dumps of dicts
-# in its key order), DESIGN 4.
+# in its key order), docs/protocol.md §9.
 
 AGENT_UUID = "5d0f1d0e-6f4a-4c58-9d7e-2f6c3a1b9e11"
 TASKS_AVAILABLE = [
@@ -343,7 +343,7 @@ def test_fail_reason_follows_the_seed() -> None:
     started = json.loads(encode(TstResponse(response="started", response_to="a", root_uuid="r")))
     assert (started["fail-reason"], started["root-uuid"]) == ("", "r")
     ok = json.loads(encode(DelegationResponse(response="ok", response_to="a")))
-    assert ok["fail-reason"] == ""  # DESIGN 3.2: every delegation response carries it
+    assert ok["fail-reason"] == ""  # docs/protocol.md §5: every delegation response carries it
     assert "plan" not in ok
 
 

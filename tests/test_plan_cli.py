@@ -1,4 +1,4 @@
-"""``delegation plan SCENARIO``: JSON is exactly DESIGN 3.5; table renders; errors are one line."""
+"""``delegation plan SCENARIO``: JSON is exactly docs/plan.md §1; table renders; errors are one line."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The cost model of DESIGN 3.6: what each unit would need to do each task, as numpy tables.
+"""The cost model of docs/plan.md §2: what each unit would need to do each task, as numpy tables.
 
 Every strategy plans on the same ``CostTables`` so that their plans mean the same thing:
 

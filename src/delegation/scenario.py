@@ -1,4 +1,4 @@
-"""Scenario files (DESIGN 3.7): a fleet and a mission, in YAML or JSON.
+"""Scenario files (docs/scenarios.md): a fleet and a mission, in YAML or JSON.
 
 Scenarios serve the benchmark, the demo, the simulator and the tests alike. A bad file is answered
 with one ``InputError`` whose problems name the file and the field

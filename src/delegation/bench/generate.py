@@ -1,6 +1,6 @@
 """Random scenarios for benchmarking: reproducible from a seed, in the scenario file format.
 
-A generated scenario is a plain dict in the DESIGN 3.7 layout (``name``, ``description``,
+A generated scenario is a plain dict in the docs/scenarios.md layout (``name``, ``description``,
 ``agents``, ``mission``), so it is saved as YAML that ``load_scenario`` reads back, and read by
 ``scenario_from_dict`` without a file. Everything random comes from one ``numpy`` generator seeded
 with ``seed``: the same arguments always give the same dict, so results can be reproduced and
@@ -178,7 +178,7 @@ def scenario_name(options: GeneratorOptions) -> str:
 
 
 def generate_scenario(options: GeneratorOptions | None = None, **overrides: Any) -> dict[str, Any]:
-    """A random scenario dict (DESIGN 3.7 layout); the same options always give the same dict."""
+    """A random scenario dict (docs/scenarios.md layout); the same options always give the same dict."""
     if options is None:
         options = GeneratorOptions(**overrides)
     elif overrides:

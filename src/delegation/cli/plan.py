@@ -1,6 +1,6 @@
 """``delegation plan SCENARIO``: plan a scenario's mission offline and print the plan.
 
-``--format json`` prints exactly the plan of DESIGN 3.5 and nothing else on stdout; ``table``
+``--format json`` prints exactly the plan of docs/plan.md §1 and nothing else on stdout; ``table``
 (the default) renders a summary, the assignments and the unassigned tasks with rich.
 """
 

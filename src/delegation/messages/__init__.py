@@ -2,7 +2,7 @@
 
 ``decode(topic, payload)`` turns bytes from a topic into a model or a ``MessageError``;
 ``encode(model)`` writes the seed's canonical JSON. Readers are lenient where real units are
-(DESIGN 4); writers are strict.
+(docs/protocol.md §9); writers are strict.
 """
 
 from delegation.errors import MessageError

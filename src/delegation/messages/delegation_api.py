@@ -1,7 +1,7 @@
-"""The Delegation API on ``delegation/command`` (DESIGN 3.2; the seed names it, we define it).
+"""The Delegation API on ``delegation/command`` (docs/protocol.md §5; the seed names it, we define it).
 
 Commands carrying a tree keep it as raw JSON, like ``start-tst``. Response payloads (plan, bids,
-mission, missions, agents) are plain JSON built by the service; see DESIGN 3.5 for the plan.
+mission, missions, agents) are plain JSON built by the service; see docs/plan.md §1 for the plan.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Heartbeat and per-level info messages (seed section 5), read as real units send them.
 
-Real units are looser than the seed (DESIGN 4): levels spelled ``direct_execution``,
+Real units are looser than the seed (docs/protocol.md §9): levels spelled ``direct_execution``,
 ``tasks-executing`` entries as ``{name, uuid}`` or missing altogether. Readers accept those; writers
 emit the seed's spelling.
 """
@@ -116,7 +116,7 @@ class TstExecutionInfo(WireModel):
 
 
 class DelegationInfo(WireModel):
-    """Info for the delegation level (ours, DESIGN 3.2): what the service offers."""
+    """Info for the delegation level (ours, docs/protocol.md §2): what the service offers."""
 
     name: str
     rate: float

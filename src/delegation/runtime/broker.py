@@ -2,7 +2,7 @@
 
 Both listen on 127.0.0.1 only, on a free port, and are started and stopped explicitly (or as
 context managers). `EmbeddedBroker` is the default when no broker is configured: pure Python,
-MQTT 3.1.1 only, ~5k msg/s (DESIGN 4). `PrivateMosquitto` is for tests and benchmarks where the
+MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10). `PrivateMosquitto` is for tests and benchmarks where the
 `mosquitto` binary exists.
 """
 
@@ -226,7 +226,7 @@ def mosquitto_binary() -> str | None:
 
 
 class PrivateMosquitto:
-    """A mosquitto child process on a free loopback port, with the settings DESIGN 4 asks for."""
+    """A mosquitto child process on a free loopback port, with the settings docs/protocol.md §10 asks for."""
 
     kind = "mosquitto"
 

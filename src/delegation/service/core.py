@@ -1,6 +1,6 @@
 """Every decision of the delegation service, fed with messages, ticks, finished jobs and ``now``.
 
-Faces (DESIGN 3.2): the TST face on ``tst/command`` (a drop-in delegator: ``start-tst`` with a
+Faces (docs/protocol.md §4-§6): the TST face on ``tst/command`` (a drop-in delegator: ``start-tst`` with a
 partial tree, signals forwarded to the engine) and the Delegation API on ``delegation/command``.
 Every command is answered once per com-uuid; a re-send gets the stored answer again (while the
 first is still being planned, the one answer sent when ready serves both).
@@ -8,7 +8,7 @@ first is still being planned, the one answer sent when ready serves both).
 Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``response``,
 ``fail-reason``):
 
-* ``delegate``: ``plan`` (DESIGN 3.5); ``response`` ``ok`` (planned only) or ``started`` (with
+* ``delegate``: ``plan`` (docs/plan.md §1); ``response`` ``ok`` (planned only) or ``started`` (with
   ``start``, once the engine accepted the tree); an infeasible tree is ``failed`` with the plan.
 * ``get-bids``: ``bids``, one per task node x unit: ``node-uuid``, ``name``, ``unit`` and either
   ``travel-time``/``work-time`` (s), ``distance`` (m), ``open-ended``, or ``reason``.

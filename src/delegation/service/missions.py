@@ -2,7 +2,7 @@
 
 The service core feeds these values with decoded messages and ``now``; nothing here reads the
 clock, touches the network or locks. The book is a plain in-memory map today, shaped so that it
-can later be persisted (DESIGN 5): every mutation goes through a small method. Command
+can later be persisted: every mutation goes through a small method. Command
 idempotency is `delegation.runtime.commands.CommandLog`, shared by every unit.
 """
 
@@ -56,7 +56,7 @@ class Mission:
     source: str  # "tst" (start-tst on the TST face) or "delegate"
     created: float
     tst: dict[str, Any]  # the fully instantiated tree, as sent to the engine
-    plan: dict[str, Any]  # DESIGN 3.5
+    plan: dict[str, Any]  # docs/plan.md §1
     nodes: dict[str, NodeInfo]
     status: MissionStatus = MissionStatus.PLANNED
     fail_reason: str = ""

@@ -79,7 +79,7 @@ class TstNode:
 
 
 class ExecUnitKind(Enum):
-    """How an ``execunit`` value constrains allocation (DESIGN 3.3)."""
+    """How an ``execunit`` value constrains allocation (docs/protocol.md §7)."""
 
     FIXED = "fixed"
     """``/dji0``: this unit, kept as given."""
