@@ -1,4 +1,5 @@
-"""Messages: decode by topic, encode canonically, lenient readers (docs/protocol.md §9), clear errors."""
+"""Messages: decode by topic, encode canonically, lenient readers (docs/protocol.md §9), clear
+errors."""
 
 from __future__ import annotations
 

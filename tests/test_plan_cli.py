@@ -1,4 +1,5 @@
-"""``delegation plan SCENARIO``: JSON is exactly docs/plan.md §1; table renders; errors are one line."""
+"""``delegation plan SCENARIO``: JSON is exactly docs/plan.md §1; table renders; errors are one
+line."""
 
 from __future__ import annotations
 

@@ -11,9 +11,9 @@ cell of the previous lane's segment when each is the other's only overlap). Each
 a boustrophedon, consecutive lanes joined by straight connectors at alternating ends; the cells are
 flown one after another, each from the cell and end nearest to where the path is, joined by
 straight transitions. A convex polygon is a single cell: for a rectangle the path is exactly
-``A / w + (n - 1) * w`` for ``A`` the area (docs/plan.md §2.4), for other convex polygons within a few per
-cent of that estimate. For a concave polygon the path is usually longer than the estimate by
-its transitions.
+``A / w + (n - 1) * w`` for ``A`` the area (docs/plan.md §2.4), for other convex polygons within a
+few per cent of that estimate. For a concave polygon the path is usually longer than the estimate
+by its transitions.
 
 What stays inside the area: every lane segment. Connectors and transitions are straight lines; in
 a convex polygon they stay inside it, but over a concave area they may cross outside it (from one
@@ -280,7 +280,8 @@ def coverage_length(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: f
 
 
 def coverage_estimate(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> float:
-    """The closed-form estimate ``A / w + (n - 1) * w`` (docs/plan.md §2.4), for checks and quick bounds.
+    """The closed-form estimate ``A / w + (n - 1) * w`` (docs/plan.md §2.4), for checks and quick
+    bounds.
 
     ``A`` is the polygon's own area (not its convex hull's) and ``n`` the lane count of
     ``sweep_lanes``. It matches ``coverage_length`` within a few per cent for convex polygons; for

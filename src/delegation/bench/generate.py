@@ -178,7 +178,8 @@ def scenario_name(options: GeneratorOptions) -> str:
 
 
 def generate_scenario(options: GeneratorOptions | None = None, **overrides: Any) -> dict[str, Any]:
-    """A random scenario dict (docs/scenarios.md layout); the same options always give the same dict."""
+    """A random scenario dict (docs/scenarios.md layout); the same options always give the same
+    dict."""
     if options is None:
         options = GeneratorOptions(**overrides)
     elif overrides:

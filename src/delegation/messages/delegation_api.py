@@ -1,4 +1,5 @@
-"""The Delegation API on ``delegation/command`` (docs/protocol.md §5; the seed names it, we define it).
+"""The Delegation API on ``delegation/command`` (docs/protocol.md §5; the seed names it, we define
+it).
 
 Commands carrying a tree keep it as raw JSON, like ``start-tst``. Response payloads (plan, bids,
 mission, missions, agents) are plain JSON built by the service; see docs/plan.md §1 for the plan.

@@ -81,7 +81,8 @@ def render_map(
 ) -> Path:
     """Write a PNG map of ``plan`` to ``path`` and return the path.
 
-    ``plan`` is a ``Plan`` or its docs/plan.md §1 JSON; ``tracks`` maps unit names to flown positions.
+    ``plan`` is a ``Plan`` or its docs/plan.md §1 JSON; ``tracks`` maps unit names to flown
+    positions.
     """
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg

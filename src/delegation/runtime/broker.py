@@ -2,7 +2,8 @@
 
 Both listen on 127.0.0.1 only, on a free port, and are started and stopped explicitly (or as
 context managers). `EmbeddedBroker` is the default when no broker is configured: pure Python,
-MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10). `PrivateMosquitto` is for tests and benchmarks where the
+MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10). `PrivateMosquitto` is for tests and benchmarks
+where the
 `mosquitto` binary exists.
 """
 
@@ -226,7 +227,8 @@ def mosquitto_binary() -> str | None:
 
 
 class PrivateMosquitto:
-    """A mosquitto child process on a free loopback port, with the settings docs/protocol.md §10 asks for."""
+    """A mosquitto child process on a free loopback port, with the settings docs/protocol.md §10
+    asks for."""
 
     kind = "mosquitto"
 

@@ -75,7 +75,8 @@ def _message_from_paho(msg: paho.MQTTMessage) -> Message:
 
 
 def _set_nodelay(sock: Any) -> None:
-    """Disable Nagle's algorithm: 88 ms -> 0.8 ms per round trip, measured (docs/protocol.md §10)."""
+    """Disable Nagle's algorithm: 88 ms -> 0.8 ms per round trip, measured (docs/protocol.md
+    §10)."""
     try:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     except (OSError, AttributeError) as exc:  # a websocket wrapper, or a closed socket

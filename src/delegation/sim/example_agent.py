@@ -1,4 +1,5 @@
-"""A simulated unit that behaves like the public WARA-PS example agent (docs/protocol.md §10), quirks included.
+"""A simulated unit that behaves like the public WARA-PS example agent (docs/protocol.md §10),
+quirks included.
 
 Tests that must drive that peer use it. Every way it departs from the seed is here:
 
