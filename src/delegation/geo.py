@@ -1,8 +1,7 @@
 """Geodesy: GeoPoint as WARA-PS sends it, a mission-local ENU frame, geodesic distances.
 
 Distances are horizontal WGS84 geodesics (altitude ignored, docs/plan.md §2.1). Vectorised work
-uses an
-East-North-Up frame around a mission origin; within 50 km its error is below 0.1 %.
+uses an East-North-Up frame around a mission origin; within 50 km its error is below 0.1 %.
 """
 
 from __future__ import annotations

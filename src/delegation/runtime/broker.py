@@ -3,8 +3,7 @@
 Both listen on 127.0.0.1 only, on a free port, and are started and stopped explicitly (or as
 context managers). `EmbeddedBroker` is the default when no broker is configured: pure Python,
 MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10). `PrivateMosquitto` is for tests and benchmarks
-where the
-`mosquitto` binary exists.
+where the `mosquitto` binary exists.
 """
 
 from __future__ import annotations
