@@ -1,8 +1,8 @@
 """Every decision of the delegation service, fed with messages, ticks, finished jobs and ``now``.
 
 Faces (docs/protocol.md §4-§6): the TST face on ``tst/command`` (a drop-in delegator:
-``start-tst`` with a partial tree, signals forwarded to the engine) and the Delegation API on ``delegation/command``.
-Every command is answered once per com-uuid; a re-send gets the stored answer again (while the
+``start-tst`` with a partial tree, signals forwarded to the engine) and the Delegation API on
+``delegation/command``. Every command is answered once per com-uuid; a re-send gets the stored answer again (while the
 first is still being planned, the one answer sent when ready serves both).
 
 Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``response``,
