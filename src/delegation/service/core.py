@@ -2,8 +2,8 @@
 
 Faces (docs/protocol.md §4-§6): the TST face on ``tst/command`` (a drop-in delegator:
 ``start-tst`` with a partial tree, signals forwarded to the engine) and the Delegation API on
-``delegation/command``. Every command is answered once per com-uuid; a re-send gets the stored answer again (while the
-first is still being planned, the one answer sent when ready serves both).
+``delegation/command``. Every command is answered once per com-uuid; a re-send gets the stored
+answer again (while the first is still being planned, the one answer sent when ready serves both).
 
 Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``response``,
 ``fail-reason``):
