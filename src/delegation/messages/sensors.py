@@ -69,7 +69,8 @@ def sensor_value(sensor_name: str, data: Any) -> SensorValue:
                 Problem(where, "", f"expected a number or an object holding one, got {data!r:.80}")
             )
         return number
-    return data
+    value: SensorValue = data  # any other sensor: its JSON value as it came
+    return value
 
 
 def parse_sensor(sensor_name: str, payload: bytes) -> SensorValue:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as paho
-from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
 
 from delegation.errors import DelegationError
 from delegation.runtime.settings import BrokerSettings
@@ -112,7 +112,7 @@ class MqttClient:
         self._connack_code: int | None = None
         self._connack_reason = ""
         self._client: paho.Client | None = None
-        self.protocol_version: paho.MQTTProtocolVersion | None = None
+        self.protocol_version: MQTTProtocolVersion | None = None
         self.connect_count = 0
         self.nodelay_sockets = 0
 
@@ -145,7 +145,7 @@ class MqttClient:
             break
         raise MqttConnectError(f"cannot connect to {self.settings.describe()}: {last}")
 
-    def _make_client(self, protocol: paho.MQTTProtocolVersion) -> paho.Client:
+    def _make_client(self, protocol: MQTTProtocolVersion) -> paho.Client:
         client = paho.Client(
             CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
@@ -164,7 +164,7 @@ class MqttClient:
         client.on_socket_open = self._on_socket_open
         return client
 
-    def _try_connect(self, protocol: paho.MQTTProtocolVersion, deadline: float) -> int:
+    def _try_connect(self, protocol: MQTTProtocolVersion, deadline: float) -> int:
         client = self._make_client(protocol)
         self._connack.clear()
         self._connack_code = None

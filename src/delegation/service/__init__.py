@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+from delegation.allocation.bids import compute_bids
 from delegation.runtime.core import Effects, Outgoing
 from delegation.service.config import ServiceConfig
 from delegation.service.core import ServiceCore, Timing
@@ -20,7 +21,6 @@ from delegation.service.jobs import (
     JobResult,
     PlanDone,
     PlanOptions,
-    compute_bids,
     run_job,
 )
 from delegation.service.unit import DelegationService, serve
