@@ -17,7 +17,7 @@ import uuid
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from delegation.engine_state import (
+from delegation.engine.executor import (
     Action,
     EngineCore,
     NodeChanged,

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from delegation.engine_state import (
+from delegation.engine.executor import (
     Action,
     EngineCore,
     NodeChanged,
