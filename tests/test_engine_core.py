@@ -1,4 +1,4 @@
-"""The engine's tree state machine, message by message, without MQTT or a clock."""
+"""The engine's tree state machine (`TreeExecutor`), action by action, without MQTT or a clock."""
 
 from __future__ import annotations
 
@@ -9,12 +9,13 @@ import pytest
 
 from delegation.engine.executor import (
     Action,
-    EngineCore,
+    EngineOptions,
     NodeChanged,
     SendSignal,
     SendStartTask,
-    check_instantiated,
+    TreeExecutor,
 )
+from delegation.engine.tree import check_instantiated
 from delegation.errors import InputError
 from delegation.messages import NodeStatus as S
 from delegation.tst.node import parse_tree
@@ -39,9 +40,10 @@ def ctl(kind: str, uid: str, *children: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def core(*units: str) -> EngineCore:
+def core(*units: str) -> TreeExecutor:
     counter = itertools.count()
-    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", resend_after=2.0, max_attempts=3)
+    options = EngineOptions(resend_after=2.0, max_attempts=3)
+    c = TreeExecutor(options, new_uuid=lambda: f"u{next(counter)}")
     for u in units:
         c.unit_seen(u, 0.0)
     return c
@@ -55,7 +57,7 @@ def changes(actions: list[Action]) -> list[tuple[str, S]]:
     return [(a.node_uuid, a.status) for a in actions if isinstance(a, NodeChanged)]
 
 
-def accept(c: EngineCore, start: SendStartTask, now: float = 0.0) -> list[Action]:
+def accept(c: TreeExecutor, start: SendStartTask, now: float = 0.0) -> list[Action]:
     return c.on_response(start.com_uuid, "running", now, task_uuid=start.task_uuid)
 
 
@@ -294,7 +296,7 @@ def test_enough_on_a_control_node_ends_it_successfully() -> None:
 
 def test_finished_trees_are_forgotten_beyond_keep_done() -> None:
     counter = itertools.count()
-    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", keep_done=2)
+    c = TreeExecutor(EngineOptions(keep_done=2), new_uuid=lambda: f"u{next(counter)}")
     c.unit_seen("dji0", 0.0)
     for i in range(5):
         _, actions = c.start_tree(parse_tree(ctl("seq", f"R{i}", task(f"a{i}"))), float(i))

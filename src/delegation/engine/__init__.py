@@ -2,6 +2,6 @@
 service (seed section 14)."""
 
 from delegation.engine.core import TstEngine
-from delegation.engine.executor import EngineCore
+from delegation.engine.executor import EngineOptions, TreeExecutor
 
-__all__ = ["EngineCore", "TstEngine"]
+__all__ = ["EngineOptions", "TreeExecutor", "TstEngine"]

@@ -1,8 +1,9 @@
 """The reference TST engine (``op0``) on MQTT: the seed's TST Execution API (section 14).
 
-A thin unit around `delegation.engine_state.EngineCore`: it reads ``tst/command`` (``start-tst``
-for fully instantiated trees, ``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``,
-``ping``), every unit's heartbeat (to learn base topics) and ``exec/response``/``exec/feedback``;
+A thin unit around `delegation.engine.executor.TreeExecutor`: it reads ``tst/command``
+(``start-tst`` for fully instantiated trees, ``signal-tst-node``, ``signal-tst-tree``,
+``signal-unit``, ``ping``), every unit's heartbeat (to learn base topics) and
+``exec/response``/``exec/feedback``;
 it publishes ``tst/response``, ``tst/feedback`` for every node status change, ``start-task`` and
 ``signal-task`` to the units, and its own ``heartbeat`` (levels ``["tst execution"]``) and
 ``tst_execution_info``. A command re-sent with the same com-uuid gets the same answer again.
@@ -19,10 +20,11 @@ from typing import Any
 
 from delegation.engine.executor import (
     Action,
-    EngineCore,
+    EngineOptions,
     NodeChanged,
     SendSignal,
     SendStartTask,
+    TreeExecutor,
 )
 from delegation.errors import InputError
 from delegation.messages import (
@@ -84,7 +86,7 @@ class TstEngine(MqttUnit):
         self.rate = rate
         self.wall = wall
         self.base = unit_base_topic(name, agent_type, role, prefix)
-        self.core = EngineCore(**core_options)
+        self.core = TreeExecutor(EngineOptions(**core_options))
         self.bases: dict[str, str] = {}
         self.agent_uuid = ""
         self._answers = AnswerCache()

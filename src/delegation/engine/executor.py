@@ -1,10 +1,10 @@
 """The TST engine's execution logic as a pure state machine: no MQTT, no clock, no threads.
 
-`EngineCore` executes fully instantiated trees (seed section 14): ``seq`` runs its children one
+`TreeExecutor` executes fully instantiated trees (seed section 14): ``seq`` runs its children one
 after the other, ``conc`` all at once; a task node becomes a ``start-task`` to its unit. It is fed
 what arrives (unit responses and feedback, signals, heartbeats) together with ``now`` and returns
-`Action` values (commands to send, node status changes to report); `delegation.engine` puts it on
-MQTT.
+`Action` values (commands to send, node status changes to report);
+`delegation.engine.core.EngineCore` turns them into messages.
 
 Rules (DESIGN 3.4 and the seed):
 
@@ -29,16 +29,35 @@ from __future__ import annotations
 import logging
 import uuid as uuid_module
 from collections import deque
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
+from delegation.engine.tree import (
+    ControlNode,
+    ExecNode,
+    TaskAttempt,
+    TaskNode,
+    Tree,
+    build_tree,
+    check_instantiated,
+)
 from delegation.errors import InputError, Problem
-from delegation.messages import NodeStatus
-from delegation.tst.catalogue import is_vehicle_task
-from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, walk, where, with_uuids
+from delegation.messages import SIGNALS, TERMINAL_NODE_STATUSES, NodeStatus, Signal
+from delegation.tst.node import TstNode, walk, where, with_uuids
 
 log = logging.getLogger(__name__)
+
+__all__ = [
+    "BUSY_REASON",
+    "FEEDBACK_STATUS",
+    "Action",
+    "EngineOptions",
+    "NodeChanged",
+    "SendSignal",
+    "SendStartTask",
+    "TreeExecutor",
+]
 
 #: Unit feedback statuses and the node status each one means.
 FEEDBACK_STATUS: dict[str, NodeStatus] = {
@@ -52,12 +71,28 @@ FEEDBACK_STATUS: dict[str, NodeStatus] = {
     "failed": NodeStatus.FAILED,
     "aborted": NodeStatus.ABORTED,
 }
-TERMINAL: frozenset[NodeStatus] = frozenset(
-    {NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED, NodeStatus.REVOKED}
-)
 #: The example agent's answer when a unit is busy.
 BUSY_REASON = "A task is already running"
-SIGNALS: tuple[str, ...] = ("$abort", "$pause", "$continue", "$enough")
+
+
+@dataclass(frozen=True, slots=True)
+class EngineOptions:
+    """The engine's timing and retention rules (seconds unless said otherwise)."""
+
+    resend_after: float = 2.0
+    """Re-send an unanswered start-task (same com-uuid) after this long."""
+    max_attempts: int = 5
+    """Sends of one start-task before the node fails."""
+    unit_timeout: float = 15.0
+    """How long a task waits for its unit's first heartbeat."""
+    busy_retry: float = 2.0
+    """Ask a unit busy with someone else's task again after this long."""
+    busy_timeout: float = 120.0
+    """Give up on a busy unit after this long."""
+    abort_timeout: float = 15.0
+    """A task sent ``$abort`` counts as aborted after this long without confirmation."""
+    keep_done: int = 200
+    """Finished trees kept (queryable, their uuids taken) before the oldest is forgotten."""
 
 
 # --------------------------------------------------------------------------- actions
@@ -81,7 +116,7 @@ class SendSignal:
 
     unit: str
     task_uuid: str
-    signal: str
+    signal: Signal
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,127 +133,17 @@ class NodeChanged:
 Action = SendStartTask | SendSignal | NodeChanged
 
 
-# --------------------------------------------------------------------------- state
+# --------------------------------------------------------------------------- the state machine
 
 
-@dataclass
-class ExecNode:
-    """One node of an executing tree."""
-
-    uuid: str
-    name: str
-    path: str
-    parent: str | None
-    children: list[str]
-    unit: str | None  # task nodes: the unit name (no slash)
-    params: dict[str, Any]
-    is_control: bool
-    vehicle: bool
-    status: NodeStatus = NodeStatus.NOT_ACTIVE
-    fail_reason: str = ""
-    # control nodes
-    next_child: int = 0
-    held: bool = False  # $pause: start nothing more until $continue
-    enough: bool = False  # $enough: start nothing more, succeed when running children end
-    stopping: NodeStatus | None = None  # failing/aborting: the status once children have ended
-    # task nodes
-    task_uuid: str = ""
-    com_uuid: str = ""
-    attempts: int = 0
-    sent_at: float = 0.0
-    answered: bool = False
-    waiting_since: float = 0.0
-    retry_at: float | None = None
-    known_uuids: set[str] = field(default_factory=set)
-    known_coms: set[str] = field(default_factory=set)
-    refused: set[str] = field(default_factory=set)  # task-uuids a busy unit refused
-    abort_sent_at: float | None = None
-    pending_signal: str | None = None  # a signal that arrived before the unit answered
-
-    @property
-    def terminal(self) -> bool:
-        return self.status in TERMINAL
-
-    @property
-    def started(self) -> bool:
-        """A task the unit may be executing (start-task sent and not ended)."""
-        return not self.is_control and self.attempts > 0 and not self.terminal
-
-
-@dataclass
-class Tree:
-    root_uuid: str
-    nodes: dict[str, ExecNode]
-    started_at: float
-
-    @property
-    def root(self) -> ExecNode:
-        return self.nodes[self.root_uuid]
-
-    @property
-    def done(self) -> bool:
-        return self.root.terminal
-
-
-def check_instantiated(root: TstNode) -> list[Problem]:
-    """Why a (parsed) tree is not fully instantiated: every task node needs ``/unit``."""
-    problems: list[Problem] = []
-    for path, node in walk(root):
-        try:
-            kind, _ = classify_execunit(node.execunit)
-        except TypeError as exc:
-            problems.append(Problem(where(path, node), f"{node.common_key}.execunit", str(exc)))
-            continue
-        if node.is_control:
-            if node.execunit not in (None, "") and kind is not ExecUnitKind.FIXED:
-                problems.append(
-                    Problem(
-                        where(path, node),
-                        f"{node.common_key}.execunit",
-                        f"{node.execunit!r} is not a unit (a fully instantiated tree names "
-                        "units as /name)",
-                    )
-                )
-            continue
-        if kind is not ExecUnitKind.FIXED:
-            shown = "missing" if node.execunit is None else repr(node.execunit)
-            problems.append(
-                Problem(
-                    where(path, node),
-                    f"{node.common_key}.execunit",
-                    f"{shown} is not a unit: the engine runs fully instantiated trees only "
-                    "(every task names its unit as /name)",
-                )
-            )
-    return problems
-
-
-# --------------------------------------------------------------------------- the core
-
-
-class EngineCore:
+class TreeExecutor:
     """Executes trees; every method takes ``now`` and returns the actions to carry out."""
 
     def __init__(
-        self,
-        *,
-        new_uuid: Callable[[], str] | None = None,
-        resend_after: float = 2.0,
-        max_attempts: int = 5,
-        unit_timeout: float = 15.0,
-        busy_retry: float = 2.0,
-        busy_timeout: float = 120.0,
-        abort_timeout: float = 15.0,
-        keep_done: int = 200,
+        self, options: EngineOptions | None = None, *, new_uuid: Callable[[], str] | None = None
     ) -> None:
+        self.options = options or EngineOptions()
         self.new_uuid = new_uuid or (lambda: str(uuid_module.uuid4()))
-        self.resend_after = resend_after
-        self.max_attempts = max_attempts
-        self.unit_timeout = unit_timeout
-        self.busy_retry = busy_retry
-        self.busy_timeout = busy_timeout
-        self.abort_timeout = abort_timeout
-        self.keep_done = keep_done
         self.trees: dict[str, Tree] = {}
         self._node_tree: dict[str, str] = {}  # node uuid -> root uuid
         self._task_node: dict[str, str] = {}  # every task-uuid sent -> node uuid
@@ -248,7 +173,7 @@ class EngineCore:
                 )
         if problems:
             raise InputError(problems)
-        tree = self._build(root, now)
+        tree = build_tree(root, now)
         self._prune()
         self.trees[tree.root_uuid] = tree
         for uid in tree.nodes:
@@ -257,30 +182,7 @@ class EngineCore:
         self._activate(tree, tree.root, now, actions)
         return tree.root_uuid, actions
 
-    def _build(self, root: TstNode, now: float) -> Tree:
-        nodes: dict[str, ExecNode] = {}
-        parents: dict[int, str] = {}
-        for path, node in walk(root):
-            uid = node.node_uuid or ""
-            unit = None
-            if not node.is_control:
-                _, unit = classify_execunit(node.execunit)
-            nodes[uid] = ExecNode(
-                uuid=uid,
-                name=node.name,
-                path=path,
-                parent=parents.get(id(node)),
-                children=[c.node_uuid or "" for c in node.children],
-                unit=unit,
-                params=dict(node.params),
-                is_control=node.is_control,
-                vehicle=(not node.is_control) and is_vehicle_task(node.name),
-            )
-            for child in node.children:
-                parents[id(child)] = uid
-        return Tree(root.node_uuid or "", nodes, now)
-
-    # ---- the state machine
+    # ---- status changes
 
     def _set(
         self,
@@ -299,27 +201,81 @@ class EngineCore:
         )
 
     def _activate(self, tree: Tree, node: ExecNode, now: float, actions: list[Action]) -> None:
-        if node.is_control:
-            self._set(tree, node, NodeStatus.RUNNING, actions)
-            if not node.children:
-                self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
-            elif node.name == "conc":
-                node.next_child = len(node.children)
-                for uid in node.children:
-                    if node.status in TERMINAL or node.stopping is not None:
-                        break
-                    self._activate(tree, tree.nodes[uid], now, actions)
-            else:
-                node.next_child = 1
-                self._activate(tree, tree.nodes[node.children[0]], now, actions)
+        if isinstance(node, TaskNode):
+            node.waiting_since = now
+            self._try_start(tree, node, now, actions)
             return
-        node.waiting_since = now
-        self._try_start(tree, node, now, actions)
+        assert isinstance(node, ControlNode)
+        self._set(tree, node, NodeStatus.RUNNING, actions)
+        if not node.children:
+            self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
+        elif node.is_seq:
+            node.next_child = 1
+            self._activate(tree, tree.nodes[node.children[0]], now, actions)
+        else:
+            node.next_child = len(node.children)
+            for child in tree.children(node):
+                if node.terminal or node.stopping is not None:
+                    break
+                self._activate(tree, child, now, actions)
 
-    def _try_start(self, tree: Tree, node: ExecNode, now: float, actions: list[Action]) -> None:
+    def _finish(
+        self,
+        tree: Tree,
+        node: ExecNode,
+        status: NodeStatus,
+        now: float,
+        actions: list[Action],
+        reason: str = "",
+    ) -> None:
+        """A node reached a final status: tell its parent."""
+        if node.terminal:
+            return
+        self._set(tree, node, status, actions, reason)
+        if isinstance(node, TaskNode):
+            self._release_unit(node, now, actions)
+            queue = self._queue.get(node.unit)
+            if queue and node.uuid in queue:
+                queue.remove(node.uuid)
+        parent = tree.parent(node)
+        if parent is not None:
+            self._child_ended(tree, parent, node, now, actions)
+
+    def _finish_if_children_ended(
+        self, tree: Tree, node: ControlNode, now: float, actions: list[Action]
+    ) -> None:
+        """A control node whose children have all ended ends too: as it is stopping (failed,
+        aborted), else succeeded."""
+        if tree.children_ended(node):
+            status = node.stopping or NodeStatus.SUCCEEDED
+            self._finish(tree, node, status, now, actions, node.fail_reason)
+
+    def _child_ended(
+        self, tree: Tree, parent: ControlNode, child: ExecNode, now: float, actions: list[Action]
+    ) -> None:
+        if parent.terminal:
+            return
+        if child.status in (NodeStatus.FAILED, NodeStatus.ABORTED) and parent.stopping is None:
+            why = f"{child.path} ({child.name}) {child.status.value}"
+            if child.fail_reason:
+                why += f": {child.fail_reason}"
+            parent.stopping = child.status
+            parent.fail_reason = why
+            self._stop_children(tree, parent, Signal.ABORT, now, actions)
+        going_on = parent.stopping is None and not parent.enough and parent.is_seq
+        if going_on and parent.next_child < len(parent.children):
+            nxt = tree.nodes[parent.children[parent.next_child]]
+            parent.next_child += 1
+            self._activate(tree, nxt, now, actions)
+            return
+        self._finish_if_children_ended(tree, parent, now, actions)
+
+    # ---- starting tasks and sharing units
+
+    def _try_start(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
         """Send the task's start-task now, or make it wait for its unit."""
-        unit = node.unit or ""
-        if self._held(tree, node):
+        unit = node.unit
+        if any(a.held for a in tree.ancestors(node)):
             self._set(tree, node, NodeStatus.PAUSED, actions)
             return
         blocked = unit not in self.units_seen or (
@@ -338,171 +294,168 @@ class EngineCore:
             if waiting and node.uuid in waiting:
                 waiting.remove(node.uuid)
         node.retry_at = None
-        node.task_uuid = self.new_uuid()
-        node.com_uuid = self.new_uuid()
-        node.known_uuids.add(node.task_uuid)
-        self._task_node[node.task_uuid] = node.uuid
-        self._com_node[node.com_uuid] = node.uuid
-        node.known_coms.add(node.com_uuid)
-        node.attempts = 1
-        node.answered = False
-        node.sent_at = now
+        task_uuid = self.new_uuid()
+        node.attempt = TaskAttempt(task_uuid, self.new_uuid(), sends=1, sent_at=now)
+        node.known_uuids.add(task_uuid)
+        node.known_coms.add(node.attempt.com_uuid)
+        self._task_node[task_uuid] = node.uuid
+        self._com_node[node.attempt.com_uuid] = node.uuid
         self._set(tree, node, NodeStatus.ACTIVE, actions)
         actions.append(self._start_action(node))
 
-    def _start_action(self, node: ExecNode) -> SendStartTask:
-        return SendStartTask(
-            node.unit or "", node.com_uuid, node.task_uuid, node.name, node.params, node.uuid
-        )
+    @staticmethod
+    def _start_action(node: TaskNode) -> SendStartTask:
+        a = node.attempt
+        return SendStartTask(node.unit, a.com_uuid, a.task_uuid, node.name, node.params, node.uuid)
 
-    def _held(self, tree: Tree, node: ExecNode) -> bool:
-        return any(tree.nodes[a].held for a in self._ancestors(tree, node))
-
-    def _ancestors(self, tree: Tree, node: ExecNode) -> Iterator[str]:
-        parent = node.parent
-        while parent is not None:
-            yield parent
-            parent = tree.nodes[parent].parent
-
-    def _release_unit(self, node: ExecNode, now: float, actions: list[Action]) -> None:
+    def _release_unit(self, node: TaskNode, now: float, actions: list[Action]) -> None:
         """A vehicle task ended: give its unit to the next task waiting for it."""
-        unit = node.unit or ""
-        if not node.vehicle or self._occupant.get(unit) != node.uuid:
+        if not node.vehicle or self._occupant.get(node.unit) != node.uuid:
             return
-        del self._occupant[unit]
-        self._wake(unit, now, actions)
+        del self._occupant[node.unit]
+        self._wake(node.unit, now, actions)
 
     def _wake(self, unit: str, now: float, actions: list[Action]) -> None:
         queue = self._queue.get(unit)
         while queue and unit not in self._occupant:
             uid = queue.popleft()
-            root = self._node_tree.get(uid)
-            tree = self.trees.get(root or "")
+            tree = self.trees.get(self._node_tree.get(uid, ""))
             if tree is None:
                 continue
             waiting = tree.nodes[uid]
-            if waiting.status is NodeStatus.WAITING:
+            if isinstance(waiting, TaskNode) and waiting.status is NodeStatus.WAITING:
                 self._try_start(tree, waiting, now, actions)
 
-    def _finish(
-        self,
-        tree: Tree,
-        node: ExecNode,
-        status: NodeStatus,
-        now: float,
-        actions: list[Action],
-        reason: str = "",
-    ) -> None:
-        """A node reached a final status: tell its parent."""
-        if node.terminal:
-            return
-        self._set(tree, node, status, actions, reason)
-        if not node.is_control:
-            self._release_unit(node, now, actions)
-            queue = self._queue.get(node.unit or "")
-            if queue and node.uuid in queue:
-                queue.remove(node.uuid)
-        if node.parent is not None:
-            self._child_ended(tree, tree.nodes[node.parent], node, now, actions)
-
-    def _child_ended(
-        self, tree: Tree, parent: ExecNode, child: ExecNode, now: float, actions: list[Action]
-    ) -> None:
-        if parent.terminal:
-            return
-        if child.status in (NodeStatus.FAILED, NodeStatus.ABORTED) and parent.stopping is None:
-            why = f"{child.path} ({child.name}) {child.status.value}"
-            if child.fail_reason:
-                why += f": {child.fail_reason}"
-            parent.stopping = child.status
-            parent.fail_reason = why
-            self._stop_children(tree, parent, "$abort", now, actions)
-        if parent.stopping is not None or parent.enough:
-            if all(tree.nodes[c].terminal for c in parent.children):
-                status = parent.stopping or NodeStatus.SUCCEEDED
-                self._finish(tree, parent, status, now, actions, parent.fail_reason)
-            return
-        if parent.name == "conc":
-            if all(tree.nodes[c].terminal for c in parent.children):
-                self._finish(tree, parent, NodeStatus.SUCCEEDED, now, actions)
-            return
-        # seq: the next child, or done.
-        if parent.next_child < len(parent.children):
-            nxt = tree.nodes[parent.children[parent.next_child]]
-            parent.next_child += 1
-            self._activate(tree, nxt, now, actions)
-        elif all(tree.nodes[c].terminal for c in parent.children):
-            self._finish(tree, parent, NodeStatus.SUCCEEDED, now, actions)
+    # ---- stopping and signals
 
     def _stop_children(
-        self, tree: Tree, parent: ExecNode, signal: str, now: float, actions: list[Action]
+        self, tree: Tree, parent: ControlNode, signal: Signal, now: float, actions: list[Action]
     ) -> None:
         """Stop everything under ``parent``: signal running tasks, revoke what has not started."""
-        for uid in list(parent.children):
-            child = tree.nodes[uid]
+        for child in tree.children(parent):
             if child.terminal:
                 continue
-            if child.is_control:
-                if child.status is NodeStatus.NOT_ACTIVE:
-                    self._revoke_subtree(tree, child, actions)
-                else:
-                    child.stopping = child.stopping or NodeStatus.ABORTED
-                    self._stop_children(tree, child, signal, now, actions)
-                    if all(tree.nodes[c].terminal for c in child.children):
-                        self._finish(tree, child, child.stopping, now, actions, child.fail_reason)
-            elif child.status is NodeStatus.NOT_ACTIVE:
+            if child.status is NodeStatus.NOT_ACTIVE:
                 self._revoke_subtree(tree, child, actions)
-            else:
+            elif isinstance(child, ControlNode):
+                child.stopping = child.stopping or NodeStatus.ABORTED
+                self._stop_children(tree, child, signal, now, actions)
+                self._finish_if_children_ended(tree, child, now, actions)
+            elif isinstance(child, TaskNode):
                 self._signal_task(tree, child, signal, now, actions)
-        if parent.name == "seq":
+        if parent.is_seq:
             parent.next_child = len(parent.children)
 
     def _revoke_subtree(self, tree: Tree, node: ExecNode, actions: list[Action]) -> None:
-        for uid in self._subtree(tree, node):
-            n = tree.nodes[uid]
+        for n in tree.subtree(node):
             if not n.terminal:
                 self._set(tree, n, NodeStatus.REVOKED, actions)
 
-    def _subtree(self, tree: Tree, node: ExecNode) -> list[str]:
-        out, stack = [], [node.uuid]
-        while stack:
-            uid = stack.pop()
-            out.append(uid)
-            stack.extend(reversed(tree.nodes[uid].children))
-        return out
-
     def _signal_task(
-        self, tree: Tree, node: ExecNode, signal: str, now: float, actions: list[Action]
+        self, tree: Tree, node: TaskNode, signal: Signal, now: float, actions: list[Action]
     ) -> None:
         """Deliver a signal to one task node, whatever state it is in."""
         if node.terminal:
             return
-        if node.attempts == 0:
+        if not node.sent:
             # Not sent to the unit (yet): the engine decides alone.
-            if signal == "$abort":
+            if signal is Signal.ABORT:
                 self._finish(
                     tree, node, NodeStatus.ABORTED, now, actions, "aborted before it started"
                 )
-            elif signal == "$enough":
+            elif signal is Signal.ENOUGH:
                 self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
-            elif signal == "$pause":
+            elif signal is Signal.PAUSE:
                 self._set(tree, node, NodeStatus.PAUSED, actions)
-            elif signal == "$continue" and node.status is NodeStatus.PAUSED:
+            elif signal is Signal.CONTINUE and node.status is NodeStatus.PAUSED:
                 self._try_start(tree, node, now, actions)
             return
-        if signal == "$abort" and node.abort_sent_at is None:
+        if signal is Signal.ABORT and node.abort_sent_at is None:
             node.abort_sent_at = now
-        if not node.answered:
+        if not node.attempt.answered:
             node.pending_signal = signal  # deliver once the unit has accepted the task
             return
-        actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
+        actions.append(SendSignal(node.unit, node.attempt.task_uuid, signal))
 
     @staticmethod
-    def _deliver_pending_signal(node: ExecNode, actions: list[Action]) -> None:
+    def _deliver_pending_signal(node: TaskNode, actions: list[Action]) -> None:
         """The unit has accepted the task: send the signal that arrived before it did."""
         if node.pending_signal is not None:
             signal, node.pending_signal = node.pending_signal, None
-            actions.append(SendSignal(node.unit or "", node.task_uuid, signal))
+            actions.append(SendSignal(node.unit, node.attempt.task_uuid, signal))
+
+    def _signal_node(
+        self, tree: Tree, node: ExecNode, signal: Signal, now: float, actions: list[Action]
+    ) -> None:
+        if node.terminal:
+            return
+        if isinstance(node, TaskNode):
+            self._signal_task(tree, node, signal, now, actions)
+            return
+        assert isinstance(node, ControlNode)
+        if signal is Signal.ABORT:
+            node.stopping = node.stopping or NodeStatus.ABORTED
+            node.fail_reason = node.fail_reason or "aborted"
+            self._stop_children(tree, node, Signal.ABORT, now, actions)
+            self._finish_if_children_ended(tree, node, now, actions)
+            return
+        if signal is Signal.PAUSE:
+            node.held = True
+            self._set(tree, node, NodeStatus.PAUSED, actions)
+        elif signal is Signal.CONTINUE:
+            node.held = False
+            if node.status is NodeStatus.PAUSED:
+                self._set(tree, node, NodeStatus.RUNNING, actions)
+        elif signal is Signal.ENOUGH:
+            node.enough = True
+            if node.is_seq:
+                node.next_child = len(node.children)
+            for n in tree.subtree(node)[1:]:
+                if n.status is NodeStatus.NOT_ACTIVE:
+                    self._set(tree, n, NodeStatus.REVOKED, actions)
+        for child in tree.children(node):
+            if child.status is not NodeStatus.NOT_ACTIVE:
+                self._signal_node(tree, child, signal, now, actions)
+        if signal is Signal.ENOUGH:
+            self._finish_if_children_ended(tree, node, now, actions)
+
+    def signal_node(self, node_uuid: str, signal: str, now: float) -> list[Action]:
+        """``signal-tst-node``: raises `InputError` for an unknown node or signal."""
+        tree = self._tree_of(node_uuid)
+        sig = self._check_signal(signal)
+        actions: list[Action] = []
+        self._signal_node(tree, tree.nodes[node_uuid], sig, now, actions)
+        return actions
+
+    def signal_tree(self, node_uuid: str, signal: str, now: float) -> list[Action]:
+        """``signal-tst-tree``: the signal to the node and every node under it."""
+        return self.signal_node(node_uuid, signal, now)
+
+    def signal_unit(self, unit: str, signal: str, now: float) -> list[Action]:
+        """``signal-unit``: the signal to every running task node on ``unit``."""
+        sig = self._check_signal(signal)
+        name = unit.strip("/")
+        actions: list[Action] = []
+        for tree in list(self.trees.values()):
+            for node in tree.tasks():
+                if node.unit == name and node.started:
+                    self._signal_task(tree, node, sig, now, actions)
+        return actions
+
+    def _tree_of(self, node_uuid: str) -> Tree:
+        root = self._node_tree.get(node_uuid)
+        if root is None or root not in self.trees:
+            raise InputError(Problem("node-uuid", "node-uuid", f"no executing node {node_uuid!r}"))
+        return self.trees[root]
+
+    @staticmethod
+    def _check_signal(signal: str) -> Signal:
+        try:
+            return Signal(signal)
+        except ValueError:
+            raise InputError(
+                Problem("signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
+            ) from None
 
     # ---- inputs from units
 
@@ -514,25 +467,17 @@ class EngineCore:
         self.units_seen.add(unit)
         actions: list[Action] = []
         for tree in list(self.trees.values()):
-            for node in list(tree.nodes.values()):
-                if node.unit == unit and node.status is NodeStatus.WAITING and node.attempts == 0:
+            for node in tree.tasks():
+                if node.unit == unit and node.status is NodeStatus.WAITING and not node.sent:
                     self._try_start(tree, node, now, actions)
         return actions
 
-    def _node_for_task(self, task_uuid: str | None) -> tuple[Tree, ExecNode] | None:
-        uid = self._task_node.get(task_uuid or "")
+    def _task(self, uid: str | None) -> tuple[Tree, TaskNode] | None:
         tree = self.trees.get(self._node_tree.get(uid or "", ""))
-        if tree is None or uid is None:
+        node = tree.nodes.get(uid or "") if tree is not None else None
+        if tree is None or not isinstance(node, TaskNode):
             return None
-        return tree, tree.nodes[uid]
-
-    def _node_for_com(self, com_uuid: str) -> tuple[Tree, ExecNode] | None:
-        uid = self._com_node.get(com_uuid)
-        tree = self.trees.get(self._node_tree.get(uid or "", ""))
-        if tree is None or uid is None:
-            return None
-        node = tree.nodes[uid]
-        return (tree, node) if node.com_uuid == com_uuid else None
+        return tree, node
 
     def on_response(
         self,
@@ -544,14 +489,14 @@ class EngineCore:
         task_uuid: str | None = None,
     ) -> list[Action]:
         """A unit's ``exec/response`` to one of our start-tasks (others are ignored)."""
-        found = self._node_for_com(response_to)
-        if found is None:
+        found = self._task(self._com_node.get(response_to))
+        if found is None or found[1].attempt.com_uuid != response_to:
             return []
         tree, node = found
         actions: list[Action] = []
-        if node.terminal or node.answered:
+        if node.terminal or node.attempt.answered:
             return actions
-        node.answered = True
+        node.attempt.answered = True
         if response in ("running", "started", "ok", "finished"):
             if node.status in (NodeStatus.ACTIVE, NodeStatus.WAITING):
                 self._set(tree, node, NodeStatus.RUNNING, actions)
@@ -561,27 +506,21 @@ class EngineCore:
                 self._deliver_pending_signal(node, actions)
             return actions
         reason = fail_reason or f"{response}"
-        if reason == BUSY_REASON and now - node.waiting_since < self.busy_timeout:
+        if reason == BUSY_REASON and now - node.waiting_since < self.options.busy_timeout:
             # Busy with a task that is not ours: ask again later, with a fresh task-uuid.
             # The node keeps the unit, so this engine's own tasks for it stay queued behind.
-            node.retry_at = now + self.busy_retry
-            node.attempts = 0
-            node.refused.add(node.task_uuid)
+            node.retry_at = now + self.options.busy_retry
+            node.attempt.sends = 0
+            node.refused.add(node.attempt.task_uuid)
             self._set(tree, node, NodeStatus.WAITING, actions)
             return actions
-        self._finish(
-            tree,
-            node,
-            NodeStatus.FAILED,
-            now,
-            actions,
-            f"/{node.unit} refused {node.name}: {reason}",
-        )
+        refused = f"/{node.unit} refused {node.name}: {reason}"
+        self._finish(tree, node, NodeStatus.FAILED, now, actions, refused)
         return actions
 
     def on_feedback(self, task_uuid: str, status: str, now: float) -> list[Action]:
         """A unit's ``exec/feedback`` for one of our tasks (others are ignored)."""
-        found = self._node_for_task(task_uuid)
+        found = self._task(self._task_node.get(task_uuid))
         if found is None:
             return []
         tree, node = found
@@ -590,102 +529,27 @@ class EngineCore:
             return actions
         if status == "failed" and task_uuid in node.refused:
             return actions  # the example agent's feedback next to a refusal we already handled
-        if task_uuid != node.task_uuid:
+        if task_uuid != node.attempt.task_uuid:
             # An earlier attempt of this node is what the unit runs after all: adopt it.
-            node.task_uuid = task_uuid
+            node.attempt.task_uuid = task_uuid
             node.retry_at = None
             if node.vehicle:
-                self._occupant[node.unit or ""] = node.uuid
+                self._occupant[node.unit] = node.uuid
         mapped = FEEDBACK_STATUS.get(status)
         if mapped is None:
             log.debug("task %s reports %r (task specific): kept as running", task_uuid, status)
             return actions
-        if mapped is NodeStatus.FAILED and not node.answered:
+        if mapped is NodeStatus.FAILED and not node.attempt.answered:
             # The example agent sends feedback "failed" next to a refusal; the response decides.
             return actions
-        node.answered = True
-        if mapped in TERMINAL:
+        node.attempt.answered = True
+        if mapped in TERMINAL_NODE_STATUSES:
             reason = f"/{node.unit} reported {status}" if mapped is not NodeStatus.SUCCEEDED else ""
             self._finish(tree, node, mapped, now, actions, reason)
         else:
             self._set(tree, node, mapped, actions)
             self._deliver_pending_signal(node, actions)
         return actions
-
-    # ---- signals
-
-    def _signal_node(
-        self, tree: Tree, node: ExecNode, signal: str, now: float, actions: list[Action]
-    ) -> None:
-        if node.terminal:
-            return
-        if not node.is_control:
-            self._signal_task(tree, node, signal, now, actions)
-            return
-        if signal == "$abort":
-            node.stopping = node.stopping or NodeStatus.ABORTED
-            node.fail_reason = node.fail_reason or "aborted"
-            self._stop_children(tree, node, "$abort", now, actions)
-            if all(tree.nodes[c].terminal for c in node.children):
-                self._finish(tree, node, node.stopping, now, actions, node.fail_reason)
-            return
-        if signal == "$pause":
-            node.held = True
-            self._set(tree, node, NodeStatus.PAUSED, actions)
-        elif signal == "$continue":
-            node.held = False
-            if node.status is NodeStatus.PAUSED:
-                self._set(tree, node, NodeStatus.RUNNING, actions)
-        elif signal == "$enough":
-            node.enough = True
-            if node.name == "seq":
-                node.next_child = len(node.children)
-            for uid in self._subtree(tree, node)[1:]:
-                n = tree.nodes[uid]
-                if n.status is NodeStatus.NOT_ACTIVE:
-                    self._set(tree, n, NodeStatus.REVOKED, actions)
-        for uid in node.children:
-            child = tree.nodes[uid]
-            if child.status is not NodeStatus.NOT_ACTIVE:
-                self._signal_node(tree, child, signal, now, actions)
-        if signal == "$enough" and all(tree.nodes[c].terminal for c in node.children):
-            self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
-
-    def signal_node(self, node_uuid: str, signal: str, now: float) -> list[Action]:
-        """``signal-tst-node``: raises `InputError` for an unknown node or signal."""
-        tree = self._tree_of(node_uuid)
-        self._check_signal(signal)
-        actions: list[Action] = []
-        self._signal_node(tree, tree.nodes[node_uuid], signal, now, actions)
-        return actions
-
-    def signal_tree(self, node_uuid: str, signal: str, now: float) -> list[Action]:
-        """``signal-tst-tree``: the signal to the node and every node under it."""
-        return self.signal_node(node_uuid, signal, now)
-
-    def signal_unit(self, unit: str, signal: str, now: float) -> list[Action]:
-        """``signal-unit``: the signal to every running task node on ``unit``."""
-        self._check_signal(signal)
-        name = unit.strip("/")
-        actions: list[Action] = []
-        for tree in list(self.trees.values()):
-            for node in list(tree.nodes.values()):
-                if node.unit == name and node.started:
-                    self._signal_task(tree, node, signal, now, actions)
-        return actions
-
-    def _tree_of(self, node_uuid: str) -> Tree:
-        root = self._node_tree.get(node_uuid)
-        if root is None or root not in self.trees:
-            raise InputError(Problem("node-uuid", "node-uuid", f"no executing node {node_uuid!r}"))
-        return self.trees[root]
-
-    @staticmethod
-    def _check_signal(signal: str) -> None:
-        if signal not in SIGNALS:
-            raise InputError(
-                Problem("signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
-            )
 
     # ---- time
 
@@ -695,71 +559,49 @@ class EngineCore:
         for tree in list(self.trees.values()):
             if tree.done:
                 continue
-            for node in list(tree.nodes.values()):
-                if node.is_control or node.terminal:
-                    continue
-                if (
-                    node.abort_sent_at is not None
-                    and now - node.abort_sent_at >= self.abort_timeout
-                ):
-                    self._finish(
-                        tree,
-                        node,
-                        NodeStatus.ABORTED,
-                        now,
-                        actions,
-                        f"/{node.unit} did not confirm $abort within {self.abort_timeout:g} s",
-                    )
-                    continue
-                if node.attempts > 0 and not node.answered and node.status is NodeStatus.ACTIVE:
-                    if now - node.sent_at < self.resend_after:
-                        continue
-                    if node.attempts >= self.max_attempts:
-                        self._finish(
-                            tree,
-                            node,
-                            NodeStatus.FAILED,
-                            now,
-                            actions,
-                            f"/{node.unit} did not answer start-task ({node.attempts} attempts)",
-                        )
-                        continue
-                    node.attempts += 1
-                    node.sent_at = now
-                    actions.append(self._start_action(node))
-                elif node.status is NodeStatus.WAITING and node.attempts == 0:
-                    if node.retry_at is not None:
-                        if now >= node.retry_at:
-                            self._try_start(tree, node, now, actions)
-                    elif (node.unit or "") not in self.units_seen and (
-                        now - node.waiting_since >= self.unit_timeout
-                    ):
-                        self._finish(
-                            tree,
-                            node,
-                            NodeStatus.FAILED,
-                            now,
-                            actions,
-                            f"unit /{node.unit} is unknown: no heartbeat within "
-                            f"{self.unit_timeout:g} s",
-                        )
+            for node in tree.tasks():
+                if not node.terminal:
+                    self._tick_task(tree, node, now, actions)
         return actions
 
-    # ---- queries
+    def _tick_task(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
+        opts = self.options
+        attempt = node.attempt
+        if node.abort_sent_at is not None and now - node.abort_sent_at >= opts.abort_timeout:
+            why = f"/{node.unit} did not confirm $abort within {opts.abort_timeout:g} s"
+            self._finish(tree, node, NodeStatus.ABORTED, now, actions, why)
+        elif node.sent and not attempt.answered and node.status is NodeStatus.ACTIVE:
+            if now - attempt.sent_at < opts.resend_after:
+                return
+            if attempt.sends >= opts.max_attempts:
+                why = f"/{node.unit} did not answer start-task ({attempt.sends} attempts)"
+                self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
+                return
+            attempt.sends += 1
+            attempt.sent_at = now
+            actions.append(self._start_action(node))
+        elif node.status is NodeStatus.WAITING and not node.sent:
+            if node.retry_at is not None:
+                if now >= node.retry_at:
+                    self._try_start(tree, node, now, actions)
+            elif node.unit not in self.units_seen and now - node.waiting_since >= opts.unit_timeout:
+                why = f"unit /{node.unit} is unknown: no heartbeat within {opts.unit_timeout:g} s"
+                self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
+
+    # ---- queries and memory
 
     def executing(self) -> list[str]:
         """Root uuids of the trees still executing."""
         return [r for r, t in self.trees.items() if not t.done]
 
     def status(self, node_uuid: str) -> NodeStatus | None:
-        root = self._node_tree.get(node_uuid)
-        tree = self.trees.get(root or "")
+        tree = self.trees.get(self._node_tree.get(node_uuid, ""))
         return tree.nodes[node_uuid].status if tree else None
 
     def _prune(self) -> None:
         """Forget the oldest finished trees beyond ``keep_done`` (they stay queryable till then)."""
         done = [r for r, t in self.trees.items() if t.done]  # insertion order: oldest first
-        for root_uuid in done[: max(0, len(done) - self.keep_done)]:
+        for root_uuid in done[: max(0, len(done) - self.options.keep_done)]:
             self.forget(root_uuid)
 
     def forget(self, root_uuid: str) -> None:
@@ -768,8 +610,9 @@ class EngineCore:
         if tree is None or not tree.done:
             return
         del self.trees[root_uuid]
-        for uid, node in tree.nodes.items():
+        for uid in tree.nodes:
             self._node_tree.pop(uid, None)
+        for node in tree.tasks():
             for t in node.known_uuids:
                 self._task_node.pop(t, None)
             for c in node.known_coms:
