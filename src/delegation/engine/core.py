@@ -1,22 +1,19 @@
-"""The reference TST engine (``op0``) on MQTT: the seed's TST Execution API (section 14).
+"""The reference TST engine's core: the seed's TST Execution API (section 14), pure.
 
-A thin unit around `delegation.engine.executor.TreeExecutor`: it reads ``tst/command``
-(``start-tst`` for fully instantiated trees, ``signal-tst-node``, ``signal-tst-tree``,
-``signal-unit``, ``ping``), every unit's heartbeat (to learn base topics) and
-``exec/response``/``exec/feedback``;
-it publishes ``tst/response``, ``tst/feedback`` for every node status change, ``start-task`` and
-``signal-task`` to the units, and its own ``heartbeat`` (levels ``["tst execution"]``) and
-``tst_execution_info``. A command re-sent with the same com-uuid gets the same answer again.
+`EngineCore` reads ``tst/command`` (``start-tst`` for fully instantiated trees,
+``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``), every unit's heartbeat (to
+learn base topics) and ``exec/response``/``exec/feedback``; it returns ``tst/response``,
+``tst/feedback`` for every node status change, and ``start-task``/``signal-task`` to the units'
+``exec/command``. Its status is a ``heartbeat`` (levels ``["tst execution"]``) and a
+``tst_execution_info``. A command re-sent with the same com-uuid gets the same answer again and is
+never run twice (`CommandLog`). The tree logic itself is `TreeExecutor`'s; `TstEngine` puts this
+core on a broker.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
-import time
-import uuid
 from collections.abc import Callable, Iterable
-from typing import Any
 
 from delegation.engine.executor import (
     Action,
@@ -26,12 +23,13 @@ from delegation.engine.executor import (
     SendStartTask,
     TreeExecutor,
 )
+from delegation.engine.tree import Tree
 from delegation.errors import InputError
 from delegation.messages import (
     ExecFeedback,
     ExecResponse,
-    HeartBeat,
     MessageError,
+    NodeStatus,
     Ping,
     SignalTask,
     SignalTstNode,
@@ -43,225 +41,223 @@ from delegation.messages import (
     TstExecutionInfo,
     TstFeedback,
     TstResponse,
+    WireModel,
     decode,
-    encode,
 )
-from delegation.messages.answers import AnswerCache, com_uuid_of
-from delegation.runtime.mqtt import Message
-from delegation.runtime.settings import BrokerSettings
-from delegation.runtime.unit import MqttUnit
-from delegation.topics import (
-    DEFAULT_PREFIX,
-    QOS_COMMAND,
-    QOS_PERIODIC,
-    parse_unit_topic,
-    unit_base_topic,
-    unit_filter,
-)
+from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
+from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
+from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
 from delegation.tst.node import parse_tree
 
 log = logging.getLogger(__name__)
 
+__all__ = ["LEVELS", "EngineCore"]
 
-class TstEngine(MqttUnit):
-    """The TST engine unit. ``core_options`` are passed to `EngineCore` (timeouts, retries)."""
+#: The engine's heartbeat levels.
+LEVELS: tuple[str, ...] = ("tst execution",)
+#: A tree's final statuses worth a log line (a root is never revoked).
+ENDED = frozenset({NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED})
+#: The face commands arrive on (the `CommandLog` key's first part).
+FACE = "tst"
+
+
+class EngineCore:
+    """The TST engine's every decision: commands, unit messages and time in, `Effects` out."""
 
     def __init__(
         self,
-        settings: BrokerSettings,
-        name: str = "op0",
+        identity: Identity,
+        options: EngineOptions | None = None,
         *,
-        prefix: str = DEFAULT_PREFIX,
-        agent_type: str = "ground",
-        role: str = "simulation",
-        rate: float = 1.0,
-        clock: Callable[[], float] = time.monotonic,
-        wall: Callable[[], float] = time.time,
-        tick_interval: float = 0.1,
-        **core_options: Any,
+        new_uuid: Callable[[], str] | None = None,
     ) -> None:
-        super().__init__(settings, name, tick_interval=tick_interval, clock=clock)
-        self.prefix = prefix
-        self.agent_type = agent_type
-        self.rate = rate
-        self.wall = wall
-        self.base = unit_base_topic(name, agent_type, role, prefix)
-        self.core = TreeExecutor(EngineOptions(**core_options))
+        self.identity = identity
+        self.executor = TreeExecutor(options, new_uuid=new_uuid)
+        self.commands = CommandLog()
         self.bases: dict[str, str] = {}
-        self.agent_uuid = ""
-        self._answers = AnswerCache()
-        self._next_info = 0.0
-        self._seen = threading.Condition()
+        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes)."""
+        self._command_topic = identity.topic("tst/command")
 
-    def wait_for_units(self, names: Iterable[str], timeout: float) -> bool:
-        """Block until the engine has heard a heartbeat of every unit in ``names``."""
-        wanted = {n.strip("/") for n in names}
-        with self._seen:
-            return self._seen.wait_for(lambda: wanted <= set(self.bases), timeout)
+    # ---- the Core protocol
 
-    # ---- MqttUnit hooks
+    @property
+    def name(self) -> str:
+        return self.identity.name
+
+    @property
+    def status_period(self) -> float:
+        return 1.0 / self.identity.rate
 
     def subscriptions(self) -> list[str]:
+        prefix = self.identity.prefix
         return [
-            f"{self.base}/tst/command",
-            unit_filter(self.prefix, "heartbeat"),
-            unit_filter(self.prefix, "exec/response"),
-            unit_filter(self.prefix, "exec/feedback"),
+            self._command_topic,
+            unit_filter(prefix, "heartbeat"),
+            unit_filter(prefix, "exec/response"),
+            unit_filter(prefix, "exec/feedback"),
         ]
 
-    def on_start(self) -> None:
-        self.agent_uuid = str(uuid.uuid4())
-        self._publish_info()
-        self._next_info = self.clock() + 1.0 / self.rate
-
-    def tick(self, now: float) -> None:
-        self._carry_out(self.core.tick(now))
-        if now >= self._next_info:
-            self._publish_info()
-            self._next_info = max(self._next_info + 1.0 / self.rate, now)
-
-    def handle(self, message: Message) -> None:
-        now = self.clock()
-        parsed = parse_unit_topic(message.topic)
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        if topic == self._command_topic:
+            return self._command(topic, payload, now)
+        parsed = parse_unit_topic(topic)
         if parsed is None:
-            return
+            return Effects()
         if parsed.rest == "heartbeat":
-            if self.bases.get(parsed.name) != parsed.base:
-                with self._seen:
-                    self.bases[parsed.name] = parsed.base
-                    self._seen.notify_all()
-            self._carry_out(self.core.unit_seen(parsed.name, now))
-        elif parsed.rest == "tst/command" and parsed.base == self.base:
-            self._command(message, now)
-        elif parsed.rest in ("exec/response", "exec/feedback"):
-            self._from_unit(message, now)
+            self.bases[parsed.name] = parsed.base
+            return self._carry_out(self.executor.unit_seen(parsed.name, now))
+        if parsed.rest in ("exec/response", "exec/feedback"):
+            return self._from_unit(topic, payload, now)
+        return Effects()
+
+    def on_tick(self, now: float) -> Effects:
+        """Re-sends, busy retries and timeouts (see `TreeExecutor.tick`)."""
+        return self._carry_out(self.executor.tick(now))
+
+    def status(self, now: float, stamp: float) -> list[Outgoing]:
+        info = TstExecutionInfo(
+            name=self.identity.name,
+            rate=self.identity.rate,
+            stamp=stamp,
+            trees_executing=self.executor.executing(),
+        )
+        return [
+            heartbeat(self.identity, LEVELS, stamp),
+            Outgoing.of(self.identity.topic("tst_execution_info"), info, QOS_PERIODIC),
+        ]
+
+    # ---- views (tests, `TstEngine.wait_for_units`)
+
+    @property
+    def base(self) -> str:
+        return self.identity.base
+
+    @property
+    def trees(self) -> dict[str, Tree]:
+        """The trees executing or recently finished, by root uuid."""
+        return self.executor.trees
+
+    def knows(self, names: Iterable[str]) -> bool:
+        """Whether a heartbeat of every unit in ``names`` has arrived (their tasks can start)."""
+        return {n.strip("/") for n in names} <= set(self.bases)
 
     # ---- tst/command
 
-    def _command(self, message: Message, now: float) -> None:
-        com_uuid = com_uuid_of(message.payload)
-        previous = self._answers.get(com_uuid)
-        if previous is not None:
-            log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
-            self.publish(f"{self.base}/tst/response", previous, qos=QOS_COMMAND)
-            return
+    def _command(self, topic: str, payload: bytes, now: float) -> Effects:
+        com_uuid = com_uuid_of(payload)
+        key: CommandKey | None = (FACE, com_uuid) if com_uuid else None
+        if key is not None:
+            entry = self.commands.seen(key)
+            if entry is not None and entry.state is CommandState.DONE:
+                log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
+                return Effects.of(entry.answer)
+            self.commands.begin(key, now)
         try:
-            command = decode(message.topic, message.payload)
+            command = decode(topic, payload)
         except MessageError as exc:
             log.warning("%s: bad command: %s", self.name, exc)
-            if com_uuid is not None:
-                self._respond(com_uuid, "failed", fail_reason=exc.fail_reason)
-            return
-        actions: list[Action] = []
+            if key is None:
+                return Effects()
+            return self._answer(key, key[1], "failed", fail_reason=exc.fail_reason)
         try:
-            if isinstance(command, Ping):
-                self._respond(command.com_uuid, "pong")
-                return
-            if isinstance(command, StartTst):
-                root_uuid, actions = self.core.start_tree(parse_tree(command.tst), now)
-                log.info("%s: executing tree %s", self.name, root_uuid)
-                self._respond(command.com_uuid, "started", root_uuid=root_uuid)
-            elif isinstance(command, SignalTstNode):
-                actions = self.core.signal_node(command.node_uuid, command.signal, now)
-                self._respond(command.com_uuid, "ok")
-            elif isinstance(command, SignalTstTree):
-                actions = self.core.signal_tree(command.node_uuid, command.signal, now)
-                self._respond(command.com_uuid, "ok")
-            elif isinstance(command, SignalUnit):
-                actions = self.core.signal_unit(command.unit, command.signal, now)
-                self._respond(command.com_uuid, "ok")
-            else:
-                name = getattr(command, "command", type(command).__name__)
-                self._respond(
-                    getattr(command, "com_uuid", com_uuid or ""),
-                    "failed",
-                    fail_reason=f"{name} is not supported by the TST engine",
-                )
+            return self._dispatch(command, key, now)
         except InputError as exc:
-            self._respond(getattr(command, "com_uuid", ""), "failed", fail_reason=exc.fail_reason)
-            return
-        self._carry_out(actions)
+            answer_to = getattr(command, "com_uuid", "")
+            return self._answer(key, answer_to, "failed", fail_reason=exc.fail_reason)
 
-    def _respond(
-        self, com_uuid: str, response: str, fail_reason: str = "", root_uuid: str | None = None
-    ) -> None:
+    def _dispatch(self, command: WireModel, key: CommandKey | None, now: float) -> Effects:
+        """Run one decoded command: its answer first, then what it set going."""
+        if isinstance(command, Ping):
+            return self._answer(key, command.com_uuid, "pong")
+        if isinstance(command, StartTst):
+            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now)
+            log.info("%s: executing tree %s", self.name, root_uuid)
+            answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
+            return answer.extend(self._carry_out(actions))
+        if isinstance(command, SignalTstNode):
+            actions = self.executor.signal_node(command.node_uuid, command.signal, now)
+        elif isinstance(command, SignalTstTree):
+            actions = self.executor.signal_tree(command.node_uuid, command.signal, now)
+        elif isinstance(command, SignalUnit):
+            actions = self.executor.signal_unit(command.unit, command.signal, now)
+        else:  # a tst command this engine does not implement (decode knows every tst command)
+            name = getattr(command, "command", type(command).__name__)
+            reason = f"{name} is not supported by the TST engine"
+            return self._answer(key, getattr(command, "com_uuid", ""), "failed", reason)
+        return self._answer(key, command.com_uuid, "ok").extend(self._carry_out(actions))
+
+    def _answer(
+        self,
+        key: CommandKey | None,
+        com_uuid: str,
+        response: str,
+        fail_reason: str = "",
+        root_uuid: str | None = None,
+    ) -> Effects:
+        """The ``tst/response``, remembered for re-sends of the command."""
         answer = TstResponse(
             fail_reason=fail_reason, response=response, response_to=com_uuid, root_uuid=root_uuid
         )
-        data = encode(answer)
-        self._answers.put(com_uuid, data)
-        self.publish(f"{self.base}/tst/response", data, qos=QOS_COMMAND)
+        out = Outgoing.of(self.identity.topic("tst/response"), answer, QOS_COMMAND)
+        if key is not None:
+            self.commands.finish(key, [out])
+        return Effects.of([out])
 
     # ---- from the units
 
-    def _from_unit(self, message: Message, now: float) -> None:
-        """A unit's ``exec/response`` or ``exec/feedback``, handed to the core."""
+    def _from_unit(self, topic: str, payload: bytes, now: float) -> Effects:
+        """A unit's ``exec/response`` or ``exec/feedback``, handed to the executor."""
         try:
-            msg = decode(message.topic, message.payload)
+            msg = decode(topic, payload)
         except MessageError as exc:
-            log.debug("%s: unreadable message on %s: %s", self.name, message.topic, exc)
-            return
+            log.debug("%s: unreadable message on %s: %s", self.name, topic, exc)
+            return Effects()
         if isinstance(msg, ExecResponse):
-            self._carry_out(
-                self.core.on_response(
-                    msg.response_to,
-                    msg.response,
-                    now,
-                    fail_reason=msg.fail_reason,
-                    task_uuid=msg.task_uuid,
-                )
+            actions = self.executor.on_response(
+                msg.response_to,
+                msg.response,
+                now,
+                fail_reason=msg.fail_reason,
+                task_uuid=msg.task_uuid,
             )
         elif isinstance(msg, ExecFeedback):
-            self._carry_out(self.core.on_feedback(msg.task_uuid, msg.status, now))
+            actions = self.executor.on_feedback(msg.task_uuid, msg.status, now)
+        else:
+            return Effects()
+        return self._carry_out(actions)
 
-    # ---- actions
+    # ---- actions to messages
 
-    def _carry_out(self, actions: list[Action]) -> None:
+    def _carry_out(self, actions: list[Action]) -> Effects:
+        effects = Effects()
         for action in actions:
             if isinstance(action, NodeChanged):
-                feedback = TstFeedback(
-                    fail_reason=action.fail_reason,
-                    node_uuid=action.node_uuid,
-                    root_flag=action.root_flag,
-                    status=action.status.value,
-                )
-                self.publish(f"{self.base}/tst/feedback", encode(feedback), qos=QOS_COMMAND)
-                if action.root_flag and action.status.value in ("succeeded", "failed", "aborted"):
-                    log.info("%s: tree %s %s", self.name, action.root_uuid, action.status.value)
-            elif isinstance(action, SendStartTask):
-                base = self.bases.get(action.unit)
-                if base is None:  # the core starts tasks only on units it has seen
-                    log.error("%s: no base topic for /%s", self.name, action.unit)
-                    continue
-                start = StartTask(
-                    com_uuid=action.com_uuid,
-                    execution_unit=f"/{action.unit}",
-                    sender=self.name,
-                    task=TaskSpecMsg(name=action.name, params=action.params),
-                    task_uuid=action.task_uuid,
-                )
-                self.publish(f"{base}/exec/command", encode(start), qos=QOS_COMMAND)
-            elif isinstance(action, SendSignal):
-                base = self.bases.get(action.unit)
-                if base is None:
-                    continue
-                signal = SignalTask(
-                    signal=action.signal, sender=self.name, task_uuid=action.task_uuid
-                )
-                self.publish(f"{base}/exec/command", encode(signal), qos=QOS_COMMAND)
+                effects.send(self.identity.topic("tst/feedback"), self._feedback(action))
+                continue
+            base = self.bases.get(action.unit)
+            if base is None:  # the executor starts tasks only on units it has seen
+                log.error("%s: no base topic for /%s", self.name, action.unit)
+                continue
+            effects.send(f"{base}/exec/command", self._to_unit(action))
+        return effects
 
-    def _publish_info(self) -> None:
-        stamp = self.wall()
-        heartbeat = HeartBeat(
-            agent_type=self.agent_type,
-            agent_uuid=self.agent_uuid,
-            levels=["tst execution"],
-            name=self.name,
-            rate=self.rate,
-            stamp=stamp,
+    def _to_unit(self, action: SendStartTask | SendSignal) -> StartTask | SignalTask:
+        if isinstance(action, SendStartTask):
+            return StartTask(
+                com_uuid=action.com_uuid,
+                execution_unit=f"/{action.unit}",
+                sender=self.name,
+                task=TaskSpecMsg(name=action.name, params=action.params),
+                task_uuid=action.task_uuid,
+            )
+        return SignalTask(signal=action.signal.value, sender=self.name, task_uuid=action.task_uuid)
+
+    def _feedback(self, change: NodeChanged) -> TstFeedback:
+        if change.root_flag and change.status in ENDED:
+            log.info("%s: tree %s %s", self.name, change.root_uuid, change.status.value)
+        return TstFeedback(
+            fail_reason=change.fail_reason,
+            node_uuid=change.node_uuid,
+            root_flag=change.root_flag,
+            status=change.status.value,
         )
-        self.publish(f"{self.base}/heartbeat", encode(heartbeat), qos=QOS_PERIODIC)
-        info = TstExecutionInfo(
-            name=self.name, rate=self.rate, stamp=stamp, trees_executing=self.core.executing()
-        )
-        self.publish(f"{self.base}/tst_execution_info", encode(info), qos=QOS_PERIODIC)
