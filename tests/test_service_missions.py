@@ -1,7 +1,4 @@
-"""Mission book-keeping and command idempotency (pure state, no broker).
-
-The command log is `delegation.runtime.commands.CommandLog` (the one store every unit uses); its
-tests stay here, next to the service that first needed it."""
+"""Mission book-keeping (pure state, no broker)."""
 
 from __future__ import annotations
 
@@ -9,8 +6,6 @@ import pytest
 
 from delegation.errors import InputError
 from delegation.messages import MissionStatus
-from delegation.runtime.commands import CommandLog, CommandState
-from delegation.runtime.core import Outgoing
 from delegation.service.missions import Mission, MissionBook, node_infos
 from delegation.tst.node import make_node
 
@@ -95,27 +90,3 @@ def test_conflicts_name_reused_uuids_of_live_missions_only() -> None:
 def test_unknown_mission_is_an_input_error_naming_it() -> None:
     with pytest.raises(InputError, match="unknown mission 'nope'"):
         MissionBook().get("nope")
-
-
-def test_command_log_answers_once_and_remembers() -> None:
-    log = CommandLog()
-    key = ("tst", "c1")
-    assert log.seen(key) is None
-    log.begin(key, 0.0)
-    entry = log.seen(key)
-    assert entry is not None and entry.state is CommandState.PENDING and entry.resends == 1
-    assert log.finish(key, [Outgoing("t", b"answer")])
-    assert not log.finish(key, [Outgoing("t", b"other")])  # answered once
-    again = log.seen(key)
-    assert again is not None and again.answer == [Outgoing("t", b"answer")]
-
-
-def test_command_log_is_bounded_but_keeps_pending() -> None:
-    log = CommandLog(capacity=3)
-    log.begin(("tst", "pending"), 0.0)
-    for i in range(5):
-        log.begin(("tst", f"c{i}"), float(i))
-        log.finish(("tst", f"c{i}"), [])
-    assert len(log) == 3
-    assert log.seen(("tst", "pending")) is not None
-    assert log.seen(("tst", "c0")) is None

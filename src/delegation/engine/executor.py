@@ -6,7 +6,7 @@ what arrives (unit responses and feedback, signals, heartbeats) together with ``
 `Action` values (commands to send, node status changes to report);
 `delegation.engine.core.EngineCore` turns them into messages.
 
-Rules (DESIGN 3.4 and the seed):
+Rules (docs/protocol.md §8 and the seed):
 
 * A start-task is re-sent with the same com-uuid (and task-uuid) every ``resend_after`` s until
   the unit answers, at most ``max_attempts`` times; then the node fails.
