@@ -88,10 +88,32 @@ def test_alive_for_three_periods_but_at_least_five_seconds() -> None:
     assert only(reg, 100.0).alive
     assert only(reg, 104.9).alive
     assert not only(reg, 105.0).alive
-    slow = FleetRegistry()
+    slow = FleetRegistry(max_timeout=60.0)
     live_unit(slow, rate=0.1, now=100.0)  # 3 periods = 30 s
     assert only(slow, 129.0).alive
     assert not only(slow, 130.5).alive
+
+
+def test_a_very_low_advertised_rate_is_capped() -> None:
+    reg = FleetRegistry()  # max_timeout 15 s
+    live_unit(reg, rate=1e-4, now=100.0)  # 3 periods = 30,000 s
+    assert only(reg, 114.9).alive
+    assert not only(reg, 115.0).alive
+    assert reg.timeout(1e-4) == 15.0
+
+
+def test_check_reports_a_lost_unit_once_until_it_comes_back() -> None:
+    reg = FleetRegistry()
+    live_unit(reg, rate=1.0, now=100.0)
+    reg.drain_events()
+    assert reg.check(104.0) == []
+    lost = reg.check(105.0)
+    assert [(e.kind, e.name, e.at) for e in lost] == [(FleetEventKind.LOST, "dji0", 105.0)]
+    assert reg.check(106.0) == []
+    assert [e.kind for e in reg.drain_events()] == [FleetEventKind.LOST]
+    live_unit(reg, rate=1.0, now=110.0)
+    assert reg.check(112.0) == []
+    assert [e.kind for e in reg.check(115.0)] == [FleetEventKind.LOST]
 
 
 def test_liveness_is_configurable() -> None:

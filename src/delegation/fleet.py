@@ -23,8 +23,10 @@ subsurface 5. The default camera field of view is 60 degrees.
 An unknown agent type gets the ``air`` values (the reference peer's).
 
 Liveness: a unit is alive while its last heartbeat is younger than ``periods`` heartbeat periods
-(``1/rate``), and never less than ``min_timeout`` seconds. A heartbeat with a new ``agent-uuid``
-means the unit rebooted: everything it reported executing is forgotten.
+(``1/rate``), never less than ``min_timeout`` and never more than ``max_timeout`` seconds (a unit
+advertising a very low rate is still declared lost within a bounded time). A heartbeat with a new
+``agent-uuid`` means the unit rebooted: everything it reported executing is forgotten. `check`
+reports each unit whose heartbeat stopped as a ``lost`` event, once per loss.
 
 Fleet profiles (``FleetRegistry(profiles=...)``) give what heartbeats do not carry: a dict keyed
 by unit name or agent type (a name entry wins), each value with any of ``speeds``, ``home``,
@@ -181,6 +183,8 @@ class FleetEventKind(Enum):
     """First heartbeat from a unit."""
     REBOOTED = "rebooted"
     """A heartbeat with a new ``agent-uuid``: the unit lost its tasks."""
+    LOST = "lost"
+    """No heartbeat for the unit's timeout (reported by `FleetRegistry.check`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,6 +214,7 @@ class _Record:
     tasks_executing: tuple[tuple[str, str], ...] = ()
     has_direct_execution: bool = False
     reboots: int = 0
+    lost: bool = False
 
 
 class FleetRegistry:
@@ -230,9 +235,11 @@ class FleetRegistry:
         profiles: dict[str, dict[str, Any]] | None = None,
         min_timeout: float = 5.0,
         periods: float = 3.0,
+        max_timeout: float = 15.0,
     ) -> None:
         self.profiles: dict[str, dict[str, Any]] = dict(profiles or {})
         self.min_timeout = float(min_timeout)
+        self.max_timeout = max(float(max_timeout), self.min_timeout)
         self.periods = float(periods)
         self._units: dict[str, _Record] = {}
         self._events: list[FleetEvent] = []
@@ -290,6 +297,7 @@ class FleetRegistry:
         rec.agent_type = hb.agent_type or rec.agent_type
         rec.levels = tuple(hb.levels)
         rec.rate = hb.rate
+        rec.lost = False
         rec.last_heartbeat = now if rec.last_heartbeat is None else max(rec.last_heartbeat, now)
 
     def _sensor(self, rec: _Record, sensor: str, value: Any) -> None:
@@ -311,7 +319,7 @@ class FleetRegistry:
         self._units.pop(name.strip("/"), None)
 
     def drain_events(self) -> list[FleetEvent]:
-        """The events noticed since the last call (appearances, reboots), oldest first."""
+        """The events noticed since the last call (appearances, reboots, losses), oldest first."""
         events, self._events = self._events, []
         return events
 
@@ -319,10 +327,25 @@ class FleetRegistry:
 
     def timeout(self, rate: float | None) -> float:
         """How long a heartbeat at ``rate`` Hz keeps a unit alive: ``periods / rate``, at least
-        ``min_timeout`` (also for a missing or non-positive rate)."""
+        ``min_timeout`` (also for a missing or non-positive rate), at most ``max_timeout``."""
         if rate is None or not rate > 0.0 or not math.isfinite(rate):
             return self.min_timeout
-        return max(self.min_timeout, self.periods / rate)
+        return min(self.max_timeout, max(self.min_timeout, self.periods / rate))
+
+    def check(self, now: float) -> list[FleetEvent]:
+        """Record a ``lost`` event (see `drain_events`) for every unit whose heartbeat stopped
+        since the last check; returns them too. A unit is reported lost once until it comes
+        back."""
+        lost: list[FleetEvent] = []
+        for rec in self._units.values():
+            if rec.last_heartbeat is None or rec.lost or self._alive(rec, now):
+                continue
+            rec.lost = True
+            log.info("fleet: %s lost (no heartbeat for %.1f s)", rec.name,
+                     now - rec.last_heartbeat)
+            lost.append(FleetEvent(FleetEventKind.LOST, rec.name, now))
+        self._events.extend(lost)
+        return lost
 
     def is_alive(self, name: str, now: float) -> bool:
         """True while the unit's last heartbeat is fresher than its timeout."""

@@ -24,6 +24,9 @@ class MissionStatus(StrEnum):
     SUCCEEDED = "succeeded"
     FAILED = "failed"
     ABORTED = "aborted"
+    #: Not a state: an event while running, when a lost unit's tasks moved to other units
+    #: (`DelegationFeedback.tasks` names them); the mission stays ``running``.
+    RE_DELEGATED = "re-delegated"
 
 
 #: Mission statuses after which a mission never changes again.
@@ -118,3 +121,6 @@ class DelegationFeedback(WireModel):
     root_uuid: str
     status: str
     fail_reason: str = ""
+    #: With ``re-delegated``: one entry per task moved (``node-uuid`` of the new node,
+    #: ``replaces`` the node it replaces, ``name``, ``path``, ``unit`` its new unit).
+    tasks: list[dict[str, Any]] | None = None

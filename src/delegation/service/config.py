@@ -29,6 +29,16 @@ class ServiceConfig:
     rate: float = 1.0
     #: Fleet profiles for what heartbeats do not carry (speeds, endurance, ...); see ``fleet``.
     profiles: dict[str, dict[str, Any]] | None = None
+    #: A unit (or the engine) is lost after at most this many seconds without a heartbeat,
+    #: whatever rate it advertises (3 periods, at least 5 s).
+    max_heartbeat_timeout: float = 15.0
+    #: Units whose battery (state of charge, 0..1) is below this are not planned for.
+    min_battery: float = 0.2
+    #: How often one task may be re-delegated (lost unit, unit answered ``failed``).
+    max_retries: int = 2
+    #: Plan around units busy in another running mission of this service (``exclude``: they
+    #: are left out, said in the plan's notes) or not (``share``: the engine queues the tasks).
+    commitments: str = "exclude"
 
     @property
     def base_topic(self) -> str:

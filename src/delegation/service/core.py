@@ -19,7 +19,14 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 * ``list-missions``: ``missions``: the summary fields above.
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
   ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
-* ``cancel-mission``: ``ok`` once the engine confirmed the ``$abort`` of the tree.
+* ``cancel-mission``: ``ok`` once the engine accepted the ``$abort`` of the tree (the mission
+  becomes ``aborted`` when the engine reports the root aborted, within its abort timeout); with no
+  live engine the mission is ended ``aborted`` at once, saying so.
+
+Faults (DESIGN 3.9, docs/protocol.md §9): a unit lost (heartbeat stopped, or a new agent-uuid) or
+answering ``failed`` has its unfinished tasks re-delegated (`delegation.service.redelegation`); an
+engine lost or restarted fails its missions with the reason. ``now`` is monotonic (every timeout);
+mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` + offset).
 
 Planning is a job (`Effects.jobs`) the unit runs on its worker, in arrival order: a long
 ``optimal`` plan delays the next plan, never a ``ping``, a signal or feedback. The tree and the
@@ -32,13 +39,14 @@ import logging
 import uuid
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, MessageError, Problem
-from delegation.fleet import FleetRegistry, UnitState
+from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
 from delegation.messages import (
+    TERMINAL_NODE_STATUSES,
     CancelMission,
     Delegate,
     DelegationFeedback,
@@ -84,14 +92,37 @@ from delegation.service.jobs import (
     plan_options,
 )
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.redelegation import (
+    Remaining,
+    first_origin,
+    moved_tasks,
+    remaining_tree,
+    unfinished_on,
+)
 from delegation.topics import QOS_PERIODIC, parse_unit_topic
-from delegation.tst.node import with_uuids
+from delegation.tst.node import parse_tree, walk, where, with_uuids
 from delegation.tst.validate import parse_and_validate
 
 log = logging.getLogger(__name__)
 
 #: The levels the service's heartbeat announces.
 LEVELS = ("tst execution", "delegation")
+#: Node statuses after which a task no longer holds its unit.
+TERMINAL = TERMINAL_NODE_STATUSES
+#: How often a start plan is made again because a unit it uses got busy meanwhile.
+MAX_REPLANS = 3
+#: The `CommandKey` face of the service's own engine commands (re-delegation): never answered.
+INTERNAL = "internal"
+
+
+@dataclass(frozen=True, slots=True)
+class Replan:
+    """A re-delegation being planned: what remains, why, and the tree it replaces."""
+
+    remaining: Remaining
+    why: str
+    old_root: str
+    units: frozenset[str]
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,13 +146,18 @@ class ServiceCore:
         agent_uuid: str | None = None,
     ) -> None:
         self.config = config or ServiceConfig()
-        self.fleet = fleet or FleetRegistry(profiles=self.config.profiles)
+        self.fleet = fleet or FleetRegistry(profiles=self.config.profiles,
+                                            max_timeout=self.config.max_heartbeat_timeout)
         self.book = MissionBook()
         self.commands = CommandLog()
         self.engine = EngineLink(self.config, self.fleet)
         self.identity = self.config.identity(agent_uuid or str(uuid.uuid4()))
         self.timings: deque[Timing] = deque(maxlen=10_000)
         self._job_ids = 0
+        self._replanned: dict[CommandKey, int] = {}
+        self._replans: dict[str, Replan] = {}
+        #: Epoch seconds minus ``now`` (learnt from `status`): mission records are epoch stamps.
+        self._epoch_offset = 0.0
         base = self.config.base_topic
         self.tst_command_topic = f"{base}/tst/command"
         self.delegation_command_topic = f"{base}/delegation/command"
@@ -169,7 +205,11 @@ class ServiceCore:
         if parsed.name == self.config.engine and parsed.rest in ("tst/response", "tst/feedback"):
             return self._from_engine(topic, payload, now)
         self._observe_fleet(topic, payload, now)
-        return Effects()
+        return self._fleet_events(now)
+
+    def _epoch(self, now: float) -> float:
+        """``now`` (monotonic) as epoch seconds, for mission records."""
+        return now + self._epoch_offset
 
     def _observe_fleet(self, topic: str, payload: bytes, now: float) -> None:
         """Units, and the engine: the registry knows every heartbeat's base topic and age, and
@@ -183,9 +223,20 @@ class ServiceCore:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
             log.debug("fleet ignored %s: %s", topic, exc)
-        # Consume what the registry noticed (it would otherwise pile up in a long-running service).
+
+    def _fleet_events(self, now: float) -> Effects:
+        """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
+        engine ends its missions (consumed here: events would otherwise pile up)."""
+        effects = Effects()
         for event in self.fleet.drain_events():
             log.info("unit %s %s", event.name, event.kind.value)
+            if event.kind is FleetEventKind.APPEARED:
+                continue
+            if event.name == self.config.engine:
+                effects.extend(self._engine_gone(event, now))
+            else:
+                effects.extend(self._unit_lost(event, now))
+        return effects
 
     # ------------------------------------------------------------------ fleet views
 
@@ -207,6 +258,42 @@ class ServiceCore:
         if engine and self.engine_base(now) is None:
             return False
         return set(units) <= {u.name for u in self.units(now) if u.alive}
+
+    def plannable(
+        self, now: float, exclude: Iterable[str] = (), mission: str = ""
+    ) -> tuple[tuple[UnitState, ...], tuple[str, ...]]:
+        """The units to plan a mission with, and notes naming those left out: battery below
+        ``min_battery``, busy in another running mission (``commitments: exclude``), ``exclude``
+        (a lost or failing unit being re-delegated from)."""
+        busy = self._committed(mission) if self.config.commitments == "exclude" else {}
+        skip = set(exclude)
+        units: list[UnitState] = []
+        notes: list[str] = []
+        for unit in self.units(now):
+            if unit.name in skip:
+                notes.append(f"{unit.name}: left out (lost or failed a task of this mission)")
+            elif unit.battery is not None and unit.battery < self.config.min_battery:
+                notes.append(f"{unit.name}: left out, battery {unit.battery:.0%} is below "
+                             f"{self.config.min_battery:.0%}")
+            elif unit.name in busy:
+                notes.append(f"{unit.name}: left out, busy in mission {busy[unit.name]}")
+            else:
+                units.append(unit)
+        return tuple(units), tuple(notes)
+
+    def _committed(self, but: str = "") -> dict[str, str]:
+        """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
+        busy: dict[str, str] = {}
+        for m in self.book:
+            if m.ended or m.root_uuid == but:
+                continue
+            if m.status is MissionStatus.PLANNED and not self.engine.starting(m.root_uuid):
+                continue  # planned only (start: false)
+            for uid in m.current_nodes:
+                info, status = m.nodes[uid], m.node_status.get(uid)
+                if info.is_task and info.execunit and status not in TERMINAL:
+                    busy.setdefault(info.execunit.strip("/"), m.root_uuid)
+        return busy
 
     # ------------------------------------------------------------------ commands
 
@@ -316,7 +403,17 @@ class ServiceCore:
                                 DelegationResponse(response="ok", response_to=key[1]))
             return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
                                                "cancelled before it started"))
-        model = SignalTstTree(node_uuid=mission.root_uuid, signal="$abort",
+        problem = self.engine.problem(now)
+        if problem or mission.redelegating:
+            # Nothing to wait for: no engine runs the tree (or its replacement is not sent yet).
+            why = f"cancelled ({problem})" if problem else "cancelled while re-delegating"
+            out = self._respond("delegation", key,
+                                DelegationResponse(response="ok", response_to=key[1]))
+            if mission.redelegating:
+                self._replans.pop(mission.root_uuid, None)
+            return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
+                                               why))
+        model = SignalTstTree(node_uuid=mission.current_root, signal="$abort",
                               sender=self.config.name)
         return self._to_engine("cancel", key, "delegation", model, now, mission.root_uuid)
 
@@ -354,9 +451,11 @@ class ServiceCore:
                 raise InputError(Problem("engine", "", problem))
         self._job_ids += 1
         entry = self.commands.get(key)
+        units, notes = self.plannable(now) if kind == "plan" else (self.units(now), ())
         job = Job(id=self._job_ids, kind=kind, key=key, face=face, tree=tree,
-                  units=self.units(now), options=options, engine=self.config.engine,
-                  start=start, source=source, received=entry.received if entry else now)
+                  units=units, options=options, engine=self.config.engine,
+                  start=start, source=source, received=entry.received if entry else now,
+                  notes=notes)
         return Effects(jobs=[job])
 
     def on_job_done(self, done: JobDone, now: float) -> Effects:
@@ -364,13 +463,23 @@ class ServiceCore:
         job: Job = done.job
         result: JobResult = (done.result if isinstance(done.result, PlanDone | BidsDone | JobFailed)
                              else internal_error(done.result))
+        if job.redelegate:
+            return self._redelegated(job, result, now)
         if isinstance(result, JobFailed):
             return self._fail(job.face, job.key, job.com_uuid, result.reason)
         if isinstance(result, BidsDone):
             return self._respond(job.face, job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, bids=list(result.bids)))
         plan = result.plan
-        plan_json = plan.to_json()
+        plan_json = {**plan.to_json(), "notes": list(plan.notes)}
+        clash = self._clash(plan) if job.start and plan.feasible else set()
+        if clash and self._replanned.get(job.key, 0) < MAX_REPLANS:
+            # A unit it uses got busy in a mission started meanwhile: plan again around it.
+            self._replanned[job.key] = self._replanned.get(job.key, 0) + 1
+            self._job_ids += 1
+            units, notes = self.plannable(now)
+            return Effects(jobs=[replace(job, id=self._job_ids, units=units, notes=notes)])
+        self._replanned.pop(job.key, None)
         if not plan.feasible:
             reason = infeasible_reason(plan, job.tree)
             if job.face == "tst":
@@ -381,7 +490,7 @@ class ServiceCore:
         if conflicts:  # a twin command with the same tree was planned meanwhile
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
-        self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=now,
+        self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=self._epoch(now),
                               tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst)))
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
@@ -421,14 +530,38 @@ class ServiceCore:
         return Effects()
 
     def _engine_feedback(self, fb: TstFeedback, now: float) -> Effects:
+        # A task failing on its unit is re-delegated (within its retry budget) before the
+        # engine's root ``failed`` that follows could end the mission.
+        retry = self._failed_task(fb)
         mission, events = self.book.observe_feedback(
-            fb.node_uuid, fb.status, fb.root_flag, fb.fail_reason, now
+            fb.node_uuid, fb.status, fb.root_flag, fb.fail_reason, self._epoch(now)
         )
         if mission is None:
             return Effects()  # a tree someone else gave the engine
         relay = TstFeedback(node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
                             fail_reason=fb.fail_reason)
-        return Effects().send(self.tst_feedback_topic, relay).extend(self._lifecycle(events))
+        effects = Effects().send(self.tst_feedback_topic, relay).extend(self._lifecycle(events))
+        if retry is not None:
+            effects.extend(self._redelegate(mission, retry[0], retry[1], now))
+        return effects
+
+    def _failed_task(self, fb: TstFeedback) -> tuple[str, str] | None:
+        """(unit, why) when ``fb`` is a task of a running mission's current tree failing on its
+        unit with retry budget left, else None."""
+        if fb.status != "failed":
+            return None
+        mission = self.book.of_node(fb.node_uuid)
+        if mission is None or mission.ended or mission.redelegating:
+            return None
+        info = mission.nodes.get(fb.node_uuid)
+        if info is None or not info.is_task or fb.node_uuid not in mission.current_nodes:
+            return None
+        if mission.retries.get(first_origin(mission.origin, fb.node_uuid), 0) \
+                >= self.config.max_retries:
+            return None  # the budget is spent: the failure ends the mission as usual
+        unit = info.execunit.strip("/")
+        why = f"{info.path} ({info.name}) failed on /{unit}: {fb.fail_reason or 'failed'}"
+        return unit, why
 
     def _engine_answer(self, got: EngineAnswer, now: float) -> Effects:
         """The mission moves on (if it does), then the caller gets its answer."""
@@ -437,6 +570,8 @@ class ServiceCore:
         if got.mission_status is not None:
             effects.extend(self._set_status(req.root_uuid, got.mission_status, now,
                                             got.fail_reason))
+        if req.key[0] == INTERNAL:
+            return effects  # the service's own command (re-delegation): nobody to answer
         return effects.extend(self._respond(req.face, req.key, got.answer))
 
     # ------------------------------------------------------------------ ticks and status
@@ -446,11 +581,13 @@ class ServiceCore:
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
-        return effects
+        self.fleet.check(now)
+        return effects.extend(self._fleet_events(now))
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
         c = self.config
+        self._epoch_offset = stamp - now
         active = [m.root_uuid for m in self.book if not m.ended
                   and m.status is not MissionStatus.PLANNED]
         tst_info = TstExecutionInfo(name=c.name, rate=c.rate, stamp=stamp, trees_executing=active)
@@ -466,7 +603,7 @@ class ServiceCore:
         self, root_uuid: str, status: MissionStatus, now: float, fail_reason: str = ""
     ) -> Effects:
         """Move a mission on (`MissionBook.set_status`) and publish the change, if any."""
-        event = self.book.set_status(root_uuid, status, now, fail_reason)
+        event = self.book.set_status(root_uuid, status, self._epoch(now), fail_reason)
         return self._lifecycle([event] if event else [])
 
     def _lifecycle(self, events: Iterable[LifecycleEvent]) -> Effects:
@@ -478,3 +615,132 @@ class ServiceCore:
             log.info("mission %s %s%s", e.root_uuid, e.status.value,
                      f": {e.fail_reason}" if e.fail_reason else "")
         return effects
+
+    # ------------------------------------------------------------------ faults (DESIGN 3.9)
+
+    def _engine_gone(self, event: FleetEvent, now: float) -> Effects:
+        """The engine's heartbeat stopped, or it came back with a new agent-uuid: the trees it
+        executed are gone with it, so its missions end ``failed`` saying so (never a wait)."""
+        engine = self.config.engine
+        if event.kind is FleetEventKind.LOST:
+            why = f"engine {engine} lost (no heartbeat): the trees it executed are gone"
+        else:
+            why = f"engine {engine} restarted (new agent-uuid): the trees it executed are gone"
+        effects = Effects()
+        for m in self.book:
+            if m.ended or m.status is MissionStatus.PLANNED:
+                continue
+            self._replans.pop(m.root_uuid, None)
+            effects.extend(self._set_status(m.root_uuid, MissionStatus.FAILED, now, why))
+        return effects
+
+    def _unit_lost(self, event: FleetEvent, now: float) -> Effects:
+        """A unit lost or rebooted: re-delegate its unfinished tasks in every running mission."""
+        why = (f"/{event.name} lost (no heartbeat)" if event.kind is FleetEventKind.LOST
+               else f"/{event.name} rebooted (new agent-uuid): its tasks are gone")
+        effects = Effects()
+        for m in self.book:
+            if m.ended or m.redelegating or m.status not in (MissionStatus.STARTED,
+                                                             MissionStatus.RUNNING):
+                continue
+            if unfinished_on(parse_tree(m.current_tst), m.node_status, event.name):
+                effects.extend(self._redelegate(m, event.name, why, now))
+        return effects
+
+    def _redelegate(self, mission: Mission, unit: str, why: str, now: float) -> Effects:
+        """Plan what ``mission`` still has to do without ``unit`` (a job); the mission waits for
+        it (``redelegating``: no root status ends it meanwhile)."""
+        tree = parse_tree(mission.current_tst)
+        # Every unit of the tree that is gone too (e.g. lost while this was being planned).
+        lost = {unit} | {n.execunit.strip("/") for _, n in walk(tree) if not n.is_control
+                         and isinstance(n.execunit, str) and n.execunit.startswith("/")
+                         and not self.fleet.is_alive(n.execunit, now)}
+        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()))
+        if remaining is None:
+            return Effects()
+        paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
+        for uid in remaining.freed:
+            old = remaining.origin[uid]
+            if mission.retries.get(first_origin(mission.origin, old), 0) >= self.config.max_retries:
+                reason = (f"{why}; {paths.get(old, old)} was re-delegated "
+                          f"{self.config.max_retries} times already (retry budget)")
+                return self._abort_and_fail(mission, mission.current_root, reason, now)
+        old_root = mission.current_root
+        mission.current_root = ""  # re-delegating
+        units, notes = self.plannable(now, exclude=lost, mission=mission.root_uuid)
+        self._replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost))
+        self._job_ids += 1
+        options = self._options(mission.plan.get("strategy"), mission.plan.get("objective"),
+                                None)
+        job = Job(id=self._job_ids, kind="plan",
+                  key=(INTERNAL, f"{mission.root_uuid}#{mission.redelegations + 1}"),
+                  face="delegation", tree=remaining.tree, units=units, options=options,
+                  engine=self.config.engine, start=True, source="redelegate", received=now,
+                  notes=notes, redelegate=mission.root_uuid)
+        log.info("mission %s: re-delegating %d task(s): %s", mission.root_uuid,
+                 len(remaining.freed), why)
+        return Effects(jobs=[job])
+
+    def _redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
+        """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
+        or fail the mission naming the unit and the tasks nobody can take."""
+        replan = self._replans.pop(job.redelegate, None)
+        mission = self.book.find(job.redelegate)
+        if replan is None or mission is None or mission.ended:
+            return Effects()  # cancelled or ended meanwhile
+        if isinstance(result, JobFailed):
+            return self._abort_and_fail(mission, replan.old_root, f"{replan.why}; {result.reason}",
+                                        now)
+        if not isinstance(result, PlanDone):
+            return self._abort_and_fail(mission, replan.old_root,
+                                        internal_error(result).reason, now)
+        plan = result.plan
+        origin = replan.remaining.origin
+        if not plan.feasible:
+            paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
+            parts = [f"{paths.get(origin.get(u.node_uuid, ''), u.name)}: {u.reason}"
+                     for u in plan.unassigned]
+            reason = f"{replan.why}; nobody can take " + "; ".join(parts)
+            return self._abort_and_fail(mission, replan.old_root, reason, now)
+        if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
+               for uid in origin):
+            # A task finished while this was planned: plan again without it (never run twice).
+            mission.current_root = replan.old_root
+            return self._redelegate(mission, next(iter(replan.units)), replan.why, now)
+        problem = self.engine.problem(now)
+        if problem:
+            return self._abort_and_fail(mission, replan.old_root, f"{replan.why}; {problem}", now)
+        plan_json = {**plan.to_json(), "notes": list(plan.notes)}
+        new_root = plan.tst.node_uuid or ""
+        self.book.replace_tree(mission, plan_json["tst"], new_root, node_infos(plan.tst), origin)
+        moved = moved_tasks(plan.tst, replan.remaining)
+        for uid in replan.remaining.freed:
+            first = first_origin(mission.origin, uid)
+            mission.retries[first] = mission.retries.get(first, 0) + 1
+        effects = self._abort_tree(replan.old_root, now)
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        effects.extend(self._to_engine("start", (INTERNAL, f"{new_root}#start"), "delegation",
+                                       start, now, mission.root_uuid, plan=plan_json))
+        effects.send(self.delegation_feedback_topic, DelegationFeedback(
+            root_uuid=mission.root_uuid, status=MissionStatus.RE_DELEGATED.value,
+            fail_reason=replan.why, tasks=moved))
+        log.info("mission %s re-delegated: %s", mission.root_uuid,
+                 ", ".join(f"{t['path']} -> {t['unit']}" for t in moved))
+        return effects
+
+    def _abort_tree(self, root: str, now: float) -> Effects:
+        """``$abort`` a tree the service gave the engine (no caller waits for the answer)."""
+        if not root or self.engine.problem(now):
+            return Effects()
+        model = SignalTstTree(node_uuid=root, signal="$abort", sender=self.config.name)
+        return self._to_engine("signal", (INTERNAL, f"{root}#abort"), "delegation", model, now)
+
+    def _abort_and_fail(self, mission: Mission, root: str, reason: str, now: float) -> Effects:
+        effects = self._abort_tree(root, now)
+        return effects.extend(self._set_status(mission.root_uuid, MissionStatus.FAILED, now,
+                                               reason))
+
+    def _clash(self, plan: Any) -> set[str]:
+        """Units a start plan uses that are busy in a mission that started meanwhile."""
+        busy = self._committed() if self.config.commitments == "exclude" else {}
+        return {a.execunit.strip("/") for a in plan.assignments} & set(busy)

@@ -74,6 +74,10 @@ class Job:
     source: str
     #: When the command arrived (core clock), for `Timing`.
     received: float
+    #: Said in the plan's notes (units left out: busy in another mission, battery low).
+    notes: tuple[str, ...] = ()
+    #: The root uuid of the mission this plan re-delegates ("" for a command's plan).
+    redelegate: str = ""
 
     @property
     def com_uuid(self) -> str:
@@ -110,14 +114,16 @@ def run_job(job: Job) -> JobResult:
     try:
         if job.kind == "bids":
             return BidsDone(compute_bids(job.tree, job.units))
-        return PlanDone(plan_mission(
+        plan = plan_mission(
             job.tree,
             job.units,
             strategy=job.options.strategy,
             objective=job.options.objective,
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
-        ))
+        )
+        plan.notes.extend(job.notes)
+        return PlanDone(plan)
     except InputError as exc:
         return JobFailed(exc.fail_reason)
     except Exception as exc:  # a planner bug must not kill the service: answer it

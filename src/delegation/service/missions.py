@@ -65,6 +65,29 @@ class Mission:
     node_status: dict[str, str] = field(default_factory=dict)
     node_started: dict[str, float] = field(default_factory=dict)  # first "running"
     node_ended: dict[str, float] = field(default_factory=dict)  # first final status
+    #: The root uuid of the tree the engine executes for this mission: ``root_uuid`` until a
+    #: re-delegation replaces the tree, ``""`` while a replacement is being planned (no root
+    #: status then ends the mission).
+    current_root: str = ""
+    #: The tree the engine executes (``tst`` until a re-delegation).
+    current_tst: dict[str, Any] = field(default_factory=dict)
+    #: Node uuid of a replacement tree -> the node it replaces.
+    origin: dict[str, str] = field(default_factory=dict)
+    #: Re-delegations per original task uuid (the retry budget).
+    retries: dict[str, int] = field(default_factory=dict)
+    redelegations: int = 0
+    #: The node uuids of the current tree.
+    current_nodes: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        self.current_root = self.current_root or self.root_uuid
+        self.current_tst = self.current_tst or self.tst
+        self.current_nodes = self.current_nodes or set(self.nodes)
+
+    @property
+    def redelegating(self) -> bool:
+        """True while a replacement tree is being planned or sent."""
+        return not self.current_root
 
     @property
     def ended(self) -> bool:
@@ -111,6 +134,8 @@ class Mission:
             "unassigned": list(self.plan.get("unassigned", [])),
             "makespan": self.plan.get("makespan"),
             "strategy": self.plan.get("strategy"),
+            "current-root": self.current_root,
+            "re-delegations": self.redelegations,
         }
 
 
@@ -177,6 +202,20 @@ class MissionBook:
         for uid in mission.nodes:
             self._node_root[uid] = mission.root_uuid
 
+    def replace_tree(
+        self, mission: Mission, tst: dict[str, Any], root: str, nodes: dict[str, NodeInfo],
+        origin: dict[str, str],
+    ) -> None:
+        """A re-delegation: the mission continues with a new tree (its nodes join the mission)."""
+        mission.current_tst = tst
+        mission.current_nodes = set(nodes)
+        mission.origin.update(origin)
+        mission.nodes.update(nodes)
+        for uid in nodes:
+            self._node_root[uid] = mission.root_uuid
+        mission.current_root = root
+        mission.redelegations += 1
+
     def get(self, root_uuid: str) -> Mission:
         """The mission with this root uuid; ``InputError`` naming it if there is none."""
         mission = self._missions.get(root_uuid)
@@ -229,7 +268,8 @@ class MissionBook:
         elif status in TERMINAL_NODE_STATUSES:
             mission.node_ended.setdefault(node_uuid, now)
         events: list[LifecycleEvent] = []
-        is_root = root_flag or node_uuid == mission.root_uuid
+        # Only the root of the tree the engine executes for the mission now ends it.
+        is_root = node_uuid == mission.current_root
         if not is_root:
             return mission, events
         if status in ("running", "active", "waiting") and mission.status in (

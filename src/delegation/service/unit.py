@@ -29,8 +29,9 @@ class DelegationService(CoreUnit[ServiceCore]):
     """The service on a broker. ``planner`` runs a job on the worker thread (``run_job``; tests
     pass one they can hold).
 
-    The core's clock is the wall clock: mission times (``created``, ``started``, ...) are answered
-    as epoch seconds.
+    The core's clock is monotonic (every timeout; a wall-clock jump changes nothing); mission
+    times (``created``, ``started``, ...) are answered as epoch seconds, from the status
+    ``stamp`` (``wall``).
     """
 
     def __init__(
@@ -40,7 +41,7 @@ class DelegationService(CoreUnit[ServiceCore]):
         planner: Callable[[Job], JobResult] = run_job,
     ) -> None:
         self.config = config or ServiceConfig()
-        super().__init__(settings, ServiceCore(self.config), worker=planner, clock=time.time,
+        super().__init__(settings, ServiceCore(self.config), worker=planner, clock=time.monotonic,
                          wall=time.time, tick_interval=TICK_INTERVAL)
 
     def on_start(self) -> None:
