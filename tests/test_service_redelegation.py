@@ -242,3 +242,17 @@ def test_a_plan_using_a_unit_that_got_busy_meanwhile_is_made_again() -> None:
     again = [n.execunit for _, n in walk(parse_tree(on(two, "op0/tst/command")[0]["tst"]))
              if not n.is_control]
     assert set(again).isdisjoint(used)
+
+
+def test_nobody_is_lost_while_the_service_itself_is_off_the_broker() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    fleet(core, 100.0)
+    started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
+    core.on_disconnect(101.0)
+    assert core.on_tick(116.0) == Effects()  # 15 s of outage: nobody judged
+    core.on_reconnect(116.0)
+    assert core.on_tick(120.9) == Effects()  # a full timeout from the reconnect
+    fleet(core, 120.0, ("u0", "u1"))
+    gone = core.on_tick(121.0)  # u2 did not come back (not in a mission); the engine neither
+    assert statuses(gone) == ["failed"] and "engine op0 lost" in core.book.get(
+        "root-1").fail_reason

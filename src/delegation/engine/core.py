@@ -19,6 +19,7 @@ from delegation.engine.executor import (
     Action,
     EngineOptions,
     NodeChanged,
+    SendQuery,
     SendSignal,
     SendStartTask,
     TreeExecutor,
@@ -31,6 +32,7 @@ from delegation.messages import (
     MessageError,
     NodeStatus,
     Ping,
+    QueryStatus,
     SignalTask,
     SignalTstNode,
     SignalTstTree,
@@ -77,6 +79,11 @@ class EngineCore:
         self.bases: dict[str, str] = {}
         """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes)."""
         self._command_topic = identity.topic("tst/command")
+        self.heard: dict[str, float] = {}
+        """Unit name -> when its last heartbeat arrived (``now``)."""
+        self._reconnected_at: float | None = None
+        self.catch_up_gap = 3.0
+        """A unit heard again after this long a silence is asked ``query-status``."""
 
     # ---- the Core protocol
 
@@ -105,10 +112,31 @@ class EngineCore:
             return Effects()
         if parsed.rest == "heartbeat":
             self.bases[parsed.name] = parsed.base
-            return self._carry_out(self.executor.unit_seen(parsed.name, now))
+            actions = self.executor.unit_seen(parsed.name, now)
+            if self._missed(parsed.name, now):
+                log.info("%s: /%s is back: asking for its tasks' status", self.name, parsed.name)
+                actions += self.executor.query(parsed.name)
+            self.heard[parsed.name] = now
+            return self._carry_out(actions)
         if parsed.rest in ("exec/response", "exec/feedback"):
             return self._from_unit(topic, payload, now)
         return Effects()
+
+    def _missed(self, unit: str, now: float) -> bool:
+        """True when messages from ``unit`` may have been lost: its heartbeat comes back after a
+        gap, or for the first time since this engine reconnected to the broker."""
+        last = self.heard.get(unit)
+        if last is None:
+            return False
+        if self._reconnected_at is not None and last < self._reconnected_at:
+            return True
+        return now - last > self.catch_up_gap
+
+    def on_reconnect(self, now: float) -> Effects:
+        """Back on the broker after an outage: ask every unit about the tasks it runs for us (and
+        again each unit when its heartbeat is first heard, in case it was not back yet)."""
+        self._reconnected_at = now
+        return self._carry_out(self.executor.query())
 
     def on_tick(self, now: float) -> Effects:
         """Re-sends, busy retries and timeouts (see `TreeExecutor.tick`)."""
@@ -241,7 +269,12 @@ class EngineCore:
             effects.send(f"{base}/exec/command", self._to_unit(action))
         return effects
 
-    def _to_unit(self, action: SendStartTask | SendSignal) -> StartTask | SignalTask:
+    def _to_unit(
+        self, action: SendStartTask | SendSignal | SendQuery
+    ) -> StartTask | SignalTask | QueryStatus:
+        if isinstance(action, SendQuery):
+            return QueryStatus(com_uuid=action.com_uuid, sender=self.name,
+                               task_uuid=action.task_uuid)
         if isinstance(action, SendStartTask):
             return StartTask(
                 com_uuid=action.com_uuid,

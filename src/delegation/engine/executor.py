@@ -19,6 +19,10 @@ Rules (docs/protocol.md §8 and the seed):
   -> ``aborted``; ``paused``/``running`` as they are.
 * A child that fails fails its ``seq``/``conc``; the rest is stopped (running tasks get ``$abort``,
   tasks not started are ``revoked``). A child that is aborted aborts its parent the same way.
+* After a broker outage (the engine reconnected, or a unit's heartbeat came back after a gap) the
+  engine asks the unit ``query-status`` for each task it runs for us and applies the answer as
+  feedback: a ``finished`` lost during the outage still ends the task; ``unknown`` (the unit lost
+  the task) fails it.
 * ``$abort``/``$pause``/``$continue``/``$enough`` on a node reach every running task under it;
   ``$abort`` revokes what has not started; ``$pause`` also holds back what would start next;
   ``$enough`` on a control node lets running tasks end and starts nothing more (it succeeds).
@@ -54,6 +58,7 @@ __all__ = [
     "Action",
     "EngineOptions",
     "NodeChanged",
+    "SendQuery",
     "SendSignal",
     "SendStartTask",
     "TreeExecutor",
@@ -130,7 +135,16 @@ class NodeChanged:
     fail_reason: str = ""
 
 
-Action = SendStartTask | SendSignal | NodeChanged
+@dataclass(frozen=True, slots=True)
+class SendQuery:
+    """Send ``query-status`` to ``unit`` for ``task_uuid`` (catching up after an outage)."""
+
+    unit: str
+    com_uuid: str
+    task_uuid: str
+
+
+Action = SendStartTask | SendSignal | SendQuery | NodeChanged
 
 
 # --------------------------------------------------------------------------- the state machine
@@ -150,6 +164,7 @@ class TreeExecutor:
         self._com_node: dict[str, str] = {}  # every start-task com-uuid -> node uuid
         self._occupant: dict[str, str] = {}  # unit -> node uuid of the vehicle task it runs
         self._queue: dict[str, deque[str]] = {}  # unit -> node uuids waiting for it
+        self._queries: dict[str, str] = {}  # query-status com-uuid -> task-uuid asked about
         self.units_seen: set[str] = set()
 
     # ---- starting
@@ -489,6 +504,9 @@ class TreeExecutor:
         task_uuid: str | None = None,
     ) -> list[Action]:
         """A unit's ``exec/response`` to one of our start-tasks (others are ignored)."""
+        asked = self._queries.pop(response_to, None)
+        if asked is not None:
+            return self._status_answer(asked, response, now)
         found = self._task(self._com_node.get(response_to))
         if found is None or found[1].attempt.com_uuid != response_to:
             return []
@@ -549,6 +567,41 @@ class TreeExecutor:
         else:
             self._set(tree, node, mapped, actions)
             self._deliver_pending_signal(node, actions)
+        return actions
+
+    # ---- catching up after an outage
+
+    def query(self, unit: str | None = None) -> list[Action]:
+        """``query-status`` for every task a unit (``unit``, or every unit) accepted from us and
+        that has not ended: its feedback may have been lost while the broker was away."""
+        actions: list[Action] = []
+        for tree in list(self.trees.values()):
+            if tree.done:
+                continue
+            for node in tree.tasks():
+                if node.terminal or not node.sent or not node.attempt.answered:
+                    continue
+                if unit is not None and node.unit != unit:
+                    continue
+                com = self.new_uuid()
+                self._queries[com] = node.attempt.task_uuid
+                actions.append(SendQuery(node.unit, com, node.attempt.task_uuid))
+        if len(self._queries) > 10_000:  # unanswered queries (example agents never answer)
+            for com in list(self._queries)[: len(self._queries) - 10_000]:
+                del self._queries[com]
+        return actions
+
+    def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
+        """A unit's answer to ``query-status``: its task's state, applied as feedback."""
+        if response != "unknown":
+            return self.on_feedback(task_uuid, response, now)
+        found = self._task(self._task_node.get(task_uuid))
+        if found is None or found[1].terminal or found[1].attempt.task_uuid != task_uuid:
+            return []
+        tree, node = found
+        actions: list[Action] = []
+        why = f"/{node.unit} no longer knows task {task_uuid} (query-status after an outage)"
+        self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
         return actions
 
     # ---- time

@@ -100,8 +100,12 @@ class MqttClient:
         settings: BrokerSettings,
         client_id: str | None = None,
         sink: MessageSink | None = None,
+        on_connection: Callable[[bool, int], None] | None = None,
     ) -> None:
+        """``on_connection(up, connect_count)`` is called on paho's thread at every connect and
+        disconnect (it must not block): units catch up after an outage with it."""
         self.settings = settings
+        self._on_connection = on_connection
         self.client_id = client_id or f"delegation-{uuid.uuid4().hex[:12]}"
         self.messages: queue.Queue[Message] = queue.Queue()
         self._sink: MessageSink = sink or self.messages.put
@@ -263,6 +267,8 @@ class MqttClient:
                 client.subscribe(subs)
             self.connect_count += 1
             self.connected.set()
+            if self._on_connection is not None:
+                self._on_connection(True, self.connect_count)
         self._connack.set()
 
     def _on_disconnect(
@@ -270,6 +276,8 @@ class MqttClient:
     ) -> None:
         self.connected.clear()
         log.debug("%s disconnected: %s", self.client_id, reason)
+        if self._on_connection is not None:
+            self._on_connection(False, self.connect_count)
 
     def _on_message(self, client: paho.Client, userdata: Any, msg: paho.MQTTMessage) -> None:
         self._sink(_message_from_paho(msg))

@@ -17,6 +17,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 from pydantic import BaseModel
@@ -30,6 +31,17 @@ log = logging.getLogger(__name__)
 
 class _Stop:
     """Sentinel that ends a unit's loop."""
+
+
+@dataclass(frozen=True, slots=True)
+class Disconnected:
+    """Inbox event: the connection to the broker was lost (paho reconnects by itself)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Reconnected:
+    """Inbox event: connected again after a loss. Messages published meanwhile (QoS 1 from
+    clean-start peers included) may be lost: a core catches up (``on_reconnect``)."""
 
 
 class MqttUnit:
@@ -57,12 +69,20 @@ class MqttUnit:
         self.clock = clock
         self._inbox: queue.Queue[object] = queue.Queue()
         self.client = MqttClient(
-            settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put
+            settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put,
+            on_connection=self._connection,
         )
         self._thread: threading.Thread | None = None
         self._started = threading.Event()
         self._stopped = threading.Event()
         self.errors = 0
+
+    def _connection(self, up: bool, count: int) -> None:
+        """paho's thread: a lost or renewed connection becomes an inbox event."""
+        if not up:
+            self._inbox.put(Disconnected())
+        elif count > 1:
+            self._inbox.put(Reconnected())
 
     # ---- hooks
 
@@ -74,6 +94,9 @@ class MqttUnit:
 
     def handle_event(self, event: object) -> None:
         """One item put in the inbox with `call_soon` that is not a `Message` (unit's thread)."""
+        if isinstance(event, Reconnected | Disconnected):
+            log.info("%s: %s", self.name, type(event).__name__.lower())
+            return
         log.warning("%s: unexpected inbox item %r", self.name, type(event).__name__)
 
     def tick(self, now: float) -> None:
@@ -296,6 +319,13 @@ class CoreUnit(MqttUnit, Generic[C]):
         if isinstance(event, JobDone) and isinstance(self.core, JobCore):
             core = self.core
             self._run_core(lambda: core.on_job_done(event, self.clock()))
+        elif isinstance(event, Reconnected | Disconnected):
+            # Optional core hooks: ``on_reconnect(now)`` / ``on_disconnect(now)`` -> Effects.
+            hook = getattr(self.core, "on_reconnect" if isinstance(event, Reconnected)
+                           else "on_disconnect", None)
+            if hook is not None:
+                log.info("%s: %s", self.name, type(event).__name__.lower())
+                self._run_core(lambda: hook(self.clock()))
         else:
             super().handle_event(event)
 

@@ -156,6 +156,7 @@ class ServiceCore:
         self._job_ids = 0
         self._replanned: dict[CommandKey, int] = {}
         self._replans: dict[str, Replan] = {}
+        self._offline_since: float | None = None
         #: Epoch seconds minus ``now`` (learnt from `status`): mission records are epoch stamps.
         self._epoch_offset = 0.0
         base = self.config.base_topic
@@ -581,8 +582,21 @@ class ServiceCore:
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
-        self.fleet.check(now)
+        if self._offline_since is None:  # nobody is lost while we cannot hear them
+            self.fleet.check(now)
         return effects.extend(self._fleet_events(now))
+
+    def on_disconnect(self, now: float) -> Effects:
+        """Our own connection to the broker is lost: stop judging liveness until it is back."""
+        self._offline_since = now
+        return Effects()
+
+    def on_reconnect(self, now: float) -> Effects:
+        """Back on the broker: every unit and the engine get a full timeout from now to be heard
+        again (they reconnect too); whoever is not is lost then."""
+        self._offline_since = None
+        self.fleet.grace(now)
+        return Effects()
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
