@@ -252,7 +252,7 @@ def test_nobody_is_lost_while_the_service_itself_is_off_the_broker() -> None:
     assert core.on_tick(116.0) == Effects()  # 15 s of outage: nobody judged
     core.on_reconnect(116.0)
     assert core.on_tick(120.9) == Effects()  # a full timeout from the reconnect
-    fleet(core, 120.0, ("u0", "u1"))
-    gone = core.on_tick(121.0)  # u2 did not come back (not in a mission); the engine neither
+    feed_unit(core, "u0", 57.76, 16.68, MOVE, 120.0)
+    gone = core.on_tick(121.0)  # the engine did not come back
     assert statuses(gone) == ["failed"] and "engine op0 lost" in core.book.get(
         "root-1").fail_reason
