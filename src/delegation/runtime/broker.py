@@ -256,14 +256,19 @@ class PrivateMosquitto:
         self._proc: subprocess.Popen[bytes] | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
-    def start(self, timeout: float = 10.0, attempts: int = 3) -> PrivateMosquitto:
+    def start(
+        self, timeout: float = 10.0, attempts: int = 3, port: int | None = None
+    ) -> PrivateMosquitto:
+        """Start on a free port, or on ``port`` (a restart after `kill`: clients come back)."""
         if self._proc is not None:
             return self
+        self._cleanup_dir()
         self._dir = tempfile.TemporaryDirectory(prefix="delegation-mosquitto-")
         extra = self._stage_files(Path(self._dir.name))
         last = ""
         for _ in range(attempts):
-            self.port = free_port(self.host)
+            # To come back on the same port later, start on ``free_port(stable=True)``.
+            self.port = port or free_port(self.host)
             conf = Path(self._dir.name) / "mosquitto.conf"
             logfile = Path(self._dir.name) / "mosquitto.log"
             conf.write_text(
@@ -341,6 +346,15 @@ class PrivateMosquitto:
         if self._dir is not None:
             self._dir.cleanup()
             self._dir = None
+
+    def kill(self) -> None:
+        """SIGKILL the broker (fault tests: an outage); `start` with ``port`` brings it back."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        if proc is not None and proc.stderr:
+            proc.stderr.close()
 
     def stop(self) -> None:
         """Terminate the process and remove its files (idempotent)."""

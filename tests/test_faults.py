@@ -1,0 +1,340 @@
+"""Fault tests on a real broker with real processes (DESIGN 3.9, issue 10 item 6).
+
+Each test runs a private mosquitto, one ``delegation sim`` process per unit (so one unit can be
+killed), the reference engine and the service, then breaks something: a unit killed -9, a unit
+rebooted, the engine killed -9, the broker down 15 s, two missions at once. Each asserts the
+mission's final status and that nothing ran twice: every task finished exactly once, counted from
+the units' own ``exec/feedback``. Every wait has a deadline.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from conftest import Collector
+from delegation.engine import TstEngine
+from delegation.runtime.broker import PrivateMosquitto, free_port, mosquitto_binary
+from delegation.runtime.settings import BrokerSettings
+from delegation.service import DelegationService, ServiceConfig
+
+pytestmark = [
+    pytest.mark.mqtt,
+    pytest.mark.slow,
+    pytest.mark.skipif(mosquitto_binary() is None, reason="no mosquitto binary"),
+]
+
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+#: Simulated seconds per wall second: a 300 m move-to at 4 m/s takes 75 s, 7.5 s wall.
+SPEEDUP = 10.0
+HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7603, 16.6842)}
+GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840), "near-u0": (57.7627, 16.6808)}
+
+
+# --------------------------------------------------------------------------- the parts
+
+
+@pytest.fixture
+def mosquitto() -> Iterator[PrivateMosquitto]:
+    broker = PrivateMosquitto().start(port=free_port(stable=True))
+    try:
+        yield broker
+    finally:
+        broker.stop()
+
+
+@pytest.fixture
+def prefix() -> str:
+    return f"fault-{uuid.uuid4().hex[:10]}"
+
+
+class Processes:
+    """``delegation`` subprocesses, killed at the end of the test whatever happened."""
+
+    def __init__(self, settings: BrokerSettings, prefix: str, workdir: Path) -> None:
+        self.settings, self.prefix, self.workdir = settings, prefix, workdir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def _run(self, key: str, *args: str) -> subprocess.Popen[bytes]:
+        env = {**os.environ, "PYTHONPATH": SRC}
+        for k in [k for k in env if k.startswith("WARAPS_")]:
+            del env[k]
+        log = (self.workdir / f"{key}.log").open("ab")
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "delegation", *args, "--broker", self.settings.host,
+             "--port", str(self.settings.port), "--prefix", self.prefix],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env)
+        log.close()
+        self.procs[key] = proc
+        return proc
+
+    def sim(self, name: str) -> subprocess.Popen[bytes]:
+        lat, lon = HOME[name]
+        scenario = {
+            "name": name, "description": "one unit of a fault test",
+            "agents": [{"name": name, "type": "air", "rate": 2.0,
+                        "position": {"latitude": lat, "longitude": lon, "altitude": 20.0},
+                        "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
+                        "tasks": ["move-to"]}],
+            "mission": move_to(GOAL["u0"], "*"),
+        }
+        path = self.workdir / f"{name}.json"
+        path.write_text(json.dumps(scenario))
+        return self._run(name, "sim", str(path), "--speedup", str(SPEEDUP))
+
+    def engine(self) -> subprocess.Popen[bytes]:
+        return self._run("op0", "engine")
+
+    def kill(self, key: str) -> None:
+        proc = self.procs[key]
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+
+    def stop(self) -> None:
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+
+
+@pytest.fixture
+def procs(mosquitto: PrivateMosquitto, prefix: str, tmp_path: Path) -> Iterator[Processes]:
+    p = Processes(mosquitto.settings(), prefix, tmp_path)
+    try:
+        yield p
+    finally:
+        p.stop()
+
+
+def move_to(goal: tuple[float, float], unit: str) -> dict[str, Any]:
+    return {"name": "move-to", "common_params": {"execunit": unit},
+            "params": {"speed": "standard",
+                       "waypoint": {"latitude": goal[0], "longitude": goal[1], "altitude": 20.0}}}
+
+
+def conc(*children: dict[str, Any]) -> dict[str, Any]:
+    return {"name": "conc", "common_params": {}, "children": list(children)}
+
+
+def start_service(settings: BrokerSettings, prefix: str) -> DelegationService:
+    """The service (started by ``with``)."""
+    return DelegationService(settings, ServiceConfig(prefix=prefix))
+
+
+def watch(settings: BrokerSettings, prefix: str) -> Collector:
+    return Collector(settings, [f"{prefix}/unit/+/+/+/exec/#",
+                                f"{prefix}/unit/+/+/delegator0/delegation/#"]).start()
+
+
+def delegate(col: Collector, service: DelegationService, tree: dict[str, Any]) -> str:
+    """Send ``delegate start``; the root uuid of the started mission."""
+    com = str(uuid.uuid4())
+    col.publish(f"{service.config.base_topic}/delegation/command",
+                {"com-uuid": com, "command": "delegate", "tst": tree, "start": True})
+    answer = col.wait_json("+/unit/+/+/+/delegation/response",
+                           lambda d: d.get("response-to") == com, timeout=30.0)
+    assert answer["response"] == "started", answer
+    return str(answer["plan"]["tst"]["common_params"]["node-uuid"])
+
+
+def final_status(col: Collector, root: str, timeout: float) -> dict[str, Any]:
+    return col.wait_json("+/unit/+/+/+/delegation/feedback",
+                         lambda d: d.get("root-uuid") == root and d.get("status") in (
+                             "succeeded", "failed", "aborted"), timeout=timeout,
+                         what=f"the end of mission {root}")
+
+
+def wait_running(col: Collector, units: set[str], timeout: float = 30.0) -> None:
+    col.wait_for(lambda m: units <= running_units(col), timeout, f"tasks running on {units}")
+
+
+def running_units(col: Collector) -> set[str]:
+    return {m.topic.split("/")[-3] for m in list(col.messages)
+            if m.topic.endswith("exec/feedback") and b'"running"' in m.payload}
+
+
+def finished_per_goal(col: Collector) -> dict[tuple[float, float], list[str]]:
+    """Waypoint -> the units that reported a task to it ``finished`` (once each task)."""
+    goal_of: dict[str, tuple[float, float]] = {}
+    for d in col.json_on("+/unit/+/+/+/exec/command"):
+        if d.get("command") == "start-task":
+            wp = d["task"]["params"]["waypoint"]
+            goal_of[d["task-uuid"]] = (round(wp["latitude"], 6), round(wp["longitude"], 6))
+    done: dict[tuple[float, float], list[str]] = {}
+    seen: set[str] = set()
+    for m in list(col.messages):
+        if not m.topic.endswith("exec/feedback"):
+            continue
+        d = json.loads(m.payload)
+        uid = d.get("task-uuid")
+        if d.get("status") == "finished" and uid in goal_of and uid not in seen:
+            seen.add(uid)
+            done.setdefault(goal_of[uid], []).append(m.topic.split("/")[-3])
+    return done
+
+
+def ready(service: Any, units: list[str]) -> None:
+    assert service.wait_ready(units, timeout=30.0), "units and engine not seen within 30 s"
+
+
+# --------------------------------------------------------------------------- the faults
+
+
+def test_a_unit_killed_mid_task_is_re_delegated_and_nothing_runs_twice(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    for name in HOME:
+        procs.sim(name)
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, list(HOME))
+        col = watch(settings, prefix)
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u0"], "/u0"),
+                                               move_to(GOAL["u1"], "/u1")))
+            wait_running(col, {"u0", "u1"})
+            procs.kill("u1")
+            killed = time.monotonic()
+            moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
+                                  lambda d: d.get("status") == "re-delegated", timeout=20.0)
+            # 3 heartbeat periods (at least 5 s) + a tick + planning.
+            assert time.monotonic() - killed < 10.0
+            assert "/u1 lost" in moved["fail-reason"]
+            assert [t["unit"] for t in moved["tasks"]] == ["/u2"]
+            end = final_status(col, root, timeout=90.0)
+            assert end["status"] == "succeeded", end
+            done = finished_per_goal(col)
+            assert done == {GOAL["u0"]: ["u0"], GOAL["u1"]: ["u2"]}, done
+        finally:
+            col.stop()
+
+
+def test_a_rebooted_unit_is_re_delegated_at_once(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    for name in HOME:
+        procs.sim(name)
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, list(HOME))
+        col = watch(settings, prefix)
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u1"], "/u1")))
+            wait_running(col, {"u1"})
+            procs.kill("u1")
+            procs.sim("u1")  # the same unit, a new process: a new agent-uuid, no tasks
+            moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
+                                  lambda d: d.get("status") == "re-delegated", timeout=20.0)
+            assert "/u1" in moved["fail-reason"]
+            assert [t["unit"] for t in moved["tasks"]] in (["/u0"], ["/u2"])
+            end = final_status(col, root, timeout=90.0)
+            assert end["status"] == "succeeded", end
+            done = finished_per_goal(col)
+            assert list(done) == [GOAL["u1"]] and len(done[GOAL["u1"]]) == 1, done
+        finally:
+            col.stop()
+
+
+def test_an_engine_killed_mid_mission_fails_it_with_the_reason_within_a_bound(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    procs.sim("u0")
+    procs.engine()
+    with start_service(settings, prefix) as service:
+        ready(service, ["u0"])
+        col = watch(settings, prefix)
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u0"], "/u0")))
+            wait_running(col, {"u0"})
+            procs.kill("op0")
+            killed = time.monotonic()
+            end = final_status(col, root, timeout=20.0)
+            assert time.monotonic() - killed < 10.0  # 5 s without a heartbeat + a tick
+            assert end["status"] == "failed" and "engine op0 lost" in end["fail-reason"], end
+            starts = [d for d in col.json_on("+/unit/+/+/+/exec/command")
+                      if d.get("command") == "start-task"]
+            assert len({d["task-uuid"] for d in starts}) == 1  # started once, never again
+        finally:
+            col.stop()
+
+
+def test_the_broker_down_15_s_while_a_task_finishes_the_mission_still_ends(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    procs.sim("u0")
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, ["u0"])
+        col = watch(settings, prefix)
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u0"], "/u0")))
+            wait_running(col, {"u0"})
+            mosquitto.kill()  # the task (7.5 s wall) finishes while the broker is away
+            down = time.monotonic()
+            # Nothing to wait on while the broker is away: the outage itself is the test input.
+            time.sleep(15.0)
+            mosquitto.start(port=settings.port)
+            assert time.monotonic() - down >= 15.0
+            mission = query_until_ended(col, service, root, timeout=60.0)
+            assert mission["status"] == "succeeded", mission
+            assert [n["status"] for n in mission["nodes"] if n["name"] == "move-to"] == [
+                "succeeded"]
+            starts = {d["task-uuid"] for d in col.json_on("+/unit/+/+/+/exec/command")
+                      if d.get("command") == "start-task"}
+            assert len(starts) == 1  # never started again
+        finally:
+            col.stop()
+
+
+def query_until_ended(col: Collector, service: DelegationService, root: str,
+                      timeout: float) -> dict[str, Any]:
+    """``query-mission`` every second until the mission ended (the collector may have missed the
+    feedback while it was reconnecting)."""
+    deadline = time.monotonic() + timeout
+    last: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        com = str(uuid.uuid4())
+        try:
+            col.publish(f"{service.config.base_topic}/delegation/command",
+                        {"com-uuid": com, "command": "query-mission", "root-uuid": root})
+            answer = col.wait_json("+/unit/+/+/+/delegation/response",
+                                   lambda d, c=com: d.get("response-to") == c,  # type: ignore[misc]
+                                   timeout=1.0)
+        except (AssertionError, Exception):  # not reconnected yet: ask again
+            continue
+        last = answer["mission"]
+        if last["status"] in ("succeeded", "failed", "aborted"):
+            return last
+    raise AssertionError(f"mission {root} did not end within {timeout} s: {last}")
+
+
+def test_concurrent_missions_never_double_book_a_unit(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    for name in ("u0", "u1"):
+        procs.sim(name)
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, ["u0", "u1"])
+        col = watch(settings, prefix)
+        try:
+            first = delegate(col, service, conc(move_to(GOAL["u0"], "*")))
+            # Nearest to u0 as well: without commitments it would be planned onto u0 again.
+            second = delegate(col, service, conc(move_to(GOAL["near-u0"], "*")))
+            plans = {d["plan"]["tst"]["common_params"]["node-uuid"]: d["plan"]
+                     for d in col.json_on("+/unit/+/+/+/delegation/response") if "plan" in d}
+            used = [{a["execunit"] for a in plans[r]["assignments"]} for r in (first, second)]
+            assert used[0].isdisjoint(used[1]), used
+            assert any("busy in mission" in n for n in plans[second]["notes"]), plans[second]
+            for root in (first, second):
+                assert final_status(col, root, timeout=90.0)["status"] == "succeeded"
+            done = finished_per_goal(col)
+            assert sorted(len(v) for v in done.values()) == [1, 1], done
+        finally:
+            col.stop()
