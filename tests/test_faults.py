@@ -233,7 +233,7 @@ def test_a_rebooted_unit_is_re_delegated_at_once(
             procs.sim("u1")  # the same unit, a new process: a new agent-uuid, no tasks
             moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
                                   lambda d: d.get("status") == "re-delegated", timeout=20.0)
-            assert "/u1" in moved["fail-reason"]
+            assert "/u1 rebooted" in moved["fail-reason"], moved
             assert [t["unit"] for t in moved["tasks"]] in (["/u0"], ["/u2"])
             end = final_status(col, root, timeout=90.0)
             assert end["status"] == "succeeded", end

@@ -264,8 +264,24 @@ def test_delegate_with_start_and_cancel_waits_for_engine(core: ServiceCore) -> N
     assert sent[0]["command"] == "signal-tst-tree" and sent[0]["signal"] == "$abort"
     assert sent[0]["node-uuid"] == "root-1"
     assert on(cancel, "delegation/response") == []  # not before the engine confirmed
-    ok = engine_answers(core, cancel, "ok", 102.1)
-    assert on(ok, "delegation/response")[0]["response"] == "ok"
+    accepted = engine_answers(core, cancel, "ok", 102.1)
+    assert on(accepted, "delegation/response") == []  # the abort is not confirmed yet
+    aborted = core.on_message(f"{ENGINE}/tst/feedback", encode(TstFeedback(
+        node_uuid="root-1", root_flag=True, status="aborted")), 103.0)
+    assert on(aborted, "delegation/response")[0]["response"] == "ok"
+
+
+def test_a_cancel_the_engine_does_not_confirm_is_answered_pending(core: ServiceCore) -> None:
+    planned = delegation(core, {"command": "delegate", "tst": partial_tree(), "start": True})
+    engine_answers(core, planned, "started", 101.5)
+    cancel = delegation(core, {"command": "cancel-mission", "root-uuid": "root-1"}, 102.0)
+    engine_answers(core, cancel, "ok", 102.1)
+    feed_engine(core, 110.0)
+    feed_engine(core, 120.0)
+    assert on(core.on_tick(122.0), "delegation/response") == []
+    (pending,) = on(core.on_tick(122.1), "delegation/response")
+    assert pending["response"] == "pending" and "not confirmed within 20 s" in pending[
+        "fail-reason"]
 
 
 def test_signals_are_forwarded_and_answered(core: ServiceCore) -> None:

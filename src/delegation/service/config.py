@@ -25,6 +25,9 @@ class ServiceConfig:
     max_time_limit: float = 60.0
     #: Seconds to wait for the engine's answer before a command is answered ``failed``.
     engine_timeout: float = 15.0
+    #: Seconds a ``cancel-mission`` waits for the engine to confirm the abort before it is
+    #: answered ``pending`` (the engine's own abort timeout is 15 s).
+    cancel_timeout: float = 20.0
     #: Heartbeat / info rate (Hz).
     rate: float = 1.0
     #: Fleet profiles for what heartbeats do not carry (speeds, endurance, ...); see ``fleet``.

@@ -19,8 +19,9 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 * ``list-missions``: ``missions``: the summary fields above.
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
   ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
-* ``cancel-mission``: ``ok`` once the engine accepted the ``$abort`` of the tree (the mission
-  becomes ``aborted`` when the engine reports the root aborted, within its abort timeout); with no
+* ``cancel-mission``: ``ok`` once the abort is confirmed (the engine reported the tree's root
+  ``aborted``); ``pending`` (with the reason) when the engine accepted the ``$abort`` but did not
+  confirm it within ``cancel_timeout``; ``failed`` if the mission ended otherwise first. With no
   live engine the mission is ended ``aborted`` at once, saying so.
 
 Faults (DESIGN 3.9, docs/protocol.md §9): a unit lost (heartbeat stopped, or a new agent-uuid) or
@@ -46,6 +47,7 @@ from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, MessageError, Problem
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
 from delegation.messages import (
+    FINAL_MISSION_STATUSES,
     TERMINAL_NODE_STATUSES,
     CancelMission,
     Delegate,
@@ -157,6 +159,8 @@ class ServiceCore:
         self._replanned: dict[CommandKey, int] = {}
         self._replans: dict[str, Replan] = {}
         self._offline_since: float | None = None
+        #: Cancels the engine accepted, waiting for the mission to end: root -> (key, deadline).
+        self._cancels: dict[str, list[tuple[CommandKey, float]]] = {}
         #: Epoch seconds minus ``now`` (learnt from `status`): mission records are epoch stamps.
         self._epoch_offset = 0.0
         base = self.config.base_topic
@@ -573,6 +577,13 @@ class ServiceCore:
                                             got.fail_reason))
         if req.key[0] == INTERNAL:
             return effects  # the service's own command (re-delegation): nobody to answer
+        mission = self.book.find(req.root_uuid) if req.kind == "cancel" else None
+        if mission is not None and not mission.ended \
+                and getattr(got.answer, "response", "") == "ok":
+            # Answered when the engine confirms (the root ends), or `pending` at the deadline.
+            self._cancels.setdefault(req.root_uuid, []).append(
+                (req.key, now + self.config.cancel_timeout))
+            return effects
         return effects.extend(self._respond(req.face, req.key, got.answer))
 
     # ------------------------------------------------------------------ ticks and status
@@ -582,6 +593,7 @@ class ServiceCore:
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
+        effects.extend(self._cancel_deadlines(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
         return effects.extend(self._fleet_events(now))
@@ -620,12 +632,47 @@ class ServiceCore:
         event = self.book.set_status(root_uuid, status, self._epoch(now), fail_reason)
         return self._lifecycle([event] if event else [])
 
+    def _cancel_deadlines(self, now: float) -> Effects:
+        """Cancels whose abort the engine did not confirm in time: answered ``pending``."""
+        effects = Effects()
+        for root, waiting in list(self._cancels.items()):
+            due = [(k, d) for k, d in waiting if d <= now]
+            for key, _ in due:
+                why = (f"$abort accepted by engine {self.config.engine} but not confirmed within "
+                       f"{self.config.cancel_timeout:g} s; the mission ends when the engine "
+                       f"reports it (query-mission)")
+                effects.extend(self._respond("delegation", key, DelegationResponse(
+                    response="pending", response_to=key[1], fail_reason=why)))
+            rest = [w for w in waiting if w not in due]
+            if rest:
+                self._cancels[root] = rest
+            else:
+                del self._cancels[root]
+        return effects
+
+    def _cancels_answered(self, e: LifecycleEvent) -> Effects:
+        """A mission ended: answer the cancels waiting for it."""
+        effects = Effects()
+        for key, _ in self._cancels.pop(e.root_uuid, []):
+            if e.status is MissionStatus.ABORTED:
+                answer = DelegationResponse(response="ok", response_to=key[1])
+            else:
+                answer = DelegationResponse(
+                    response="failed", response_to=key[1],
+                    fail_reason=f"mission {e.root_uuid} ended {e.status.value} before the "
+                                f"abort took effect" + (f": {e.fail_reason}" if e.fail_reason
+                                                        else ""))
+            effects.extend(self._respond("delegation", key, answer))
+        return effects
+
     def _lifecycle(self, events: Iterable[LifecycleEvent]) -> Effects:
         effects = Effects()
         for e in events:
             effects.send(self.delegation_feedback_topic,
                          DelegationFeedback(root_uuid=e.root_uuid, status=e.status.value,
                                             fail_reason=e.fail_reason))
+            if e.status in FINAL_MISSION_STATUSES:
+                effects.extend(self._cancels_answered(e))
             log.info("mission %s %s%s", e.root_uuid, e.status.value,
                      f": {e.fail_reason}" if e.fail_reason else "")
         return effects
