@@ -256,3 +256,18 @@ def test_nobody_is_lost_while_the_service_itself_is_off_the_broker() -> None:
     gone = core.on_tick(121.0)  # the engine did not come back
     assert statuses(gone) == ["failed"] and "engine op0 lost" in core.book.get(
         "root-1").fail_reason
+
+
+def test_a_cancel_while_re_delegating_aborts_the_old_tree_and_ends_the_mission() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    fleet(core, 100.0)
+    started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
+    failed = feedback(core, "n0", "failed", 102.0, reason="motor fault")
+    assert len(failed.jobs) == 1
+    cmd = json.dumps({"com-uuid": "k-2", "command": "cancel-mission", "root-uuid": "root-1"})
+    out = core.on_message(f"{BASE}/delegation/command", cmd.encode(), 102.1)
+    assert on(out, "delegation/response")[0]["response"] == "ok"
+    assert [(c["node-uuid"], c["signal"]) for c in on(out, "op0/tst/command")] == [
+        ("root-1", "$abort")]
+    assert statuses(out) == ["aborted"]
+    assert run_jobs(core, Effects(jobs=failed.jobs), 102.2).publish == []  # nothing restarts

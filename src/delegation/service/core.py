@@ -414,8 +414,9 @@ class ServiceCore:
             why = f"cancelled ({problem})" if problem else "cancelled while re-delegating"
             out = self._respond("delegation", key,
                                 DelegationResponse(response="ok", response_to=key[1]))
-            if mission.redelegating:
-                self._replans.pop(mission.root_uuid, None)
+            replan = self._replans.pop(mission.root_uuid, None)
+            if replan is not None:  # the old tree may still run on a live engine
+                out.extend(self._abort_tree(replan.old_root, now))
             return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
                                                why))
         model = SignalTstTree(node_uuid=mission.current_root, signal="$abort",
