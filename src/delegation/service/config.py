@@ -35,6 +35,9 @@ class ServiceConfig:
     #: A unit (or the engine) is lost after at most this many seconds without a heartbeat,
     #: whatever rate it advertises (3 periods, at least 5 s).
     max_heartbeat_timeout: float = 15.0
+    #: ... and never before this many seconds (jitter on a loaded broker); lower it to hold
+    #: "3 heartbeat periods" for units faster than 0.6 Hz.
+    min_heartbeat_timeout: float = 5.0
     #: Units whose battery (state of charge, 0..1) is below this are not planned for.
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).

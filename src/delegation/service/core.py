@@ -149,6 +149,7 @@ class ServiceCore:
     ) -> None:
         self.config = config or ServiceConfig()
         self.fleet = fleet or FleetRegistry(profiles=self.config.profiles,
+                                            min_timeout=self.config.min_heartbeat_timeout,
                                             max_timeout=self.config.max_heartbeat_timeout)
         self.book = MissionBook()
         self.commands = CommandLog()
