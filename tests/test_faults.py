@@ -324,17 +324,35 @@ def test_concurrent_missions_never_double_book_a_unit(
         ready(service, ["u0", "u1"])
         col = watch(settings, prefix)
         try:
-            first = delegate(col, service, conc(move_to(GOAL["u0"], "*")))
-            # Nearest to u0 as well: without commitments it would be planned onto u0 again.
+            first = delegate(col, service, conc(move_to(GOAL["u0"], "/u0")))
+            # Nearest to u0 as well: without commitments it would be planned onto u0 at once.
             second = delegate(col, service, conc(move_to(GOAL["near-u0"], "*")))
             plans = {d["plan"]["tst"]["common_params"]["node-uuid"]: d["plan"]
                      for d in col.json_on("+/unit/+/+/+/delegation/response") if "plan" in d}
-            used = [{a["execunit"] for a in plans[r]["assignments"]} for r in (first, second)]
-            assert used[0].isdisjoint(used[1]), used
-            assert any("busy in mission" in n for n in plans[second]["notes"]), plans[second]
+            (a1,), (a2,) = plans[first]["assignments"], plans[second]["assignments"]
+            assert any("u0: busy in mission" in n for n in plans[second]["notes"]), plans[second]
+            # u0 free at the first goal (75 s) + 50 m beats u1 now (about 390 m): u0, after.
+            assert a2["execunit"] == "/u0", a2
+            assert a2["start"] >= a1["end"] - 5.0, (a1, a2)  # the first started < 5 s earlier
             for root in (first, second):
                 assert final_status(col, root, timeout=90.0)["status"] == "succeeded"
             done = finished_per_goal(col)
             assert sorted(len(v) for v in done.values()) == [1, 1], done
+            assert_one_task_at_a_time(col)
         finally:
             col.stop()
+
+
+def assert_one_task_at_a_time(col: Collector) -> None:
+    """On the wire: no unit got a start-task while a task of its was running (not finished)."""
+    running: dict[str, str] = {}
+    for m in list(col.messages):
+        unit = m.topic.split("/")[-3]
+        d = json.loads(m.payload)
+        if m.topic.endswith("exec/command") and d.get("command") == "start-task":
+            assert unit not in running, f"/{unit} got a start-task while {running[unit]} ran"
+        elif m.topic.endswith("exec/feedback") and d.get("status") == "running":
+            running[unit] = str(d.get("task-uuid"))
+        elif m.topic.endswith("exec/feedback") and d.get("status") in (
+                "finished", "failed", "aborted"):
+            running.pop(unit, None)

@@ -210,7 +210,7 @@ def test_cancel_without_a_live_engine_ends_the_mission_at_once() -> None:
 
 
 def test_units_busy_in_a_running_mission_or_low_on_battery_are_left_out_and_said() -> None:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, commitments="exclude"))
     fleet(core, 100.0)
     core.on_message(f"{PREFIX}/unit/air/simulation/u2/sensor/battery_state", b"0.1", 100.0)
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
@@ -226,7 +226,7 @@ def test_units_busy_in_a_running_mission_or_low_on_battery_are_left_out_and_said
 
 
 def test_a_plan_using_a_unit_that_got_busy_meanwhile_is_made_again() -> None:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, commitments="exclude"))
     fleet(core, 100.0, ("u0", "u1"))
     first = core.on_message(f"{BASE}/tst/command",
                             start_tst(_tree("conc", "root-1", _task("n0")), com="c-1"), 101.0)
@@ -271,3 +271,41 @@ def test_a_cancel_while_re_delegating_aborts_the_old_tree_and_ends_the_mission()
         ("root-1", "$abort")]
     assert statuses(out) == ["aborted"]
     assert run_jobs(core, Effects(jobs=failed.jobs), 102.2).publish == []  # nothing restarts
+
+
+def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))  # commitments: wait
+    feed_unit(core, "u0", 57.7600, 16.6800, MOVE, 100.0)
+    feed_engine(core, 100.0)
+    far = {"name": "move-to", "common_params": {"execunit": "/u0", "node-uuid": "n0"},
+           "params": {"waypoint": _wp(57.7700, 16.6800)}}  # about 1.1 km north
+    first = started_mission(core, _tree("conc", "root-1", far))
+    end1 = on(first, "op0/tst/command")[0]
+    plan1 = core.book.get("root-1").plan["assignments"][0]
+    assert end1 and plan1["execunit"] == "/u0"
+    second = core.on_message(f"{BASE}/tst/command", start_tst(
+        _tree("conc", "root-2", _task("m0")), com="c-2"), 101.0)  # mission 1 started at 101.0
+    (job,) = second.jobs
+    (u0,) = job.units
+    assert abs(u0.available_at - plan1["end"]) < 1e-6  # when it becomes free ...
+    assert (u0.position.latitude, u0.position.longitude) == (57.7700, 16.6800)  # ... and where
+    assert any("planned from when and where it becomes free" in n for n in job.notes)
+    done = run_jobs(core, second, 101.1)
+    plan2 = json.loads(next(o.payload for o in done.publish if b"start-tst" in o.payload))
+    assignment = core.book.get("root-2").plan["assignments"][0]
+    assert plan2 and assignment["execunit"] == "/u0"
+    assert assignment["start"] >= plan1["end"] - 1e-6  # never double-booked
+
+
+def test_the_schedule_starts_a_busy_units_first_task_when_it_is_free() -> None:
+    from delegation.allocation import plan_mission
+    from delegation.fleet import make_unit
+    from delegation.geo import GeoPoint
+
+    here = GeoPoint(latitude=57.76, longitude=16.68, altitude=20.0)
+    tree = parse_tree(_tree("conc", "r", _task("a", "/u0")))
+    free = plan_mission(tree, [make_unit("u0", "air", here, MOVE)])
+    busy = plan_mission(tree, [make_unit("u0", "air", here, MOVE, available_at=50.0)])
+    (a_free,), (a_busy,) = free.assignments, busy.assignments
+    assert a_free.start == 0.0 and a_busy.start == 50.0
+    assert abs(a_busy.end - (a_free.end + 50.0)) < 1e-9 and busy.makespan == a_busy.end

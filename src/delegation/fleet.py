@@ -110,6 +110,9 @@ class UnitState:
     camera_fov_deg: float = DEFAULT_CAMERA_FOV_DEG
     sweep_altitude: float | None = None
     base_topic: str | None = None
+    #: Seconds from now until the unit is free of earlier commitments (another mission); its
+    #: ``position`` is then where it will be. The schedule starts its first task no earlier.
+    available_at: float = 0.0
 
     @property
     def remaining_endurance(self) -> float | None:

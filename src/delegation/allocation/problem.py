@@ -164,6 +164,7 @@ class Problem:
     alias_groups: list[list[int]]
     structure: Structure
     to_home: np.ndarray | None = None  # (T,) bool: go-home (start and end are the unit's home)
+    ready: np.ndarray | None = None  # (U,) s until each unit is free (None: all free now)
     _before: np.ndarray | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)  # derived data, per problem
 
@@ -312,13 +313,16 @@ def build_problem(
         tables = cost_tables(list(units), [node for _, node in leaves])
     names = [u.name for u in units]
     home_speed = np.array([float(u.speeds.get("standard", 1.0)) for u in units], dtype=float)
-    return problem_from_arrays(
+    problem = problem_from_arrays(
         structure,
         leaves,
         names,
         tables=tables,
         home_speed=home_speed,
     )
+    if any(u.available_at > 0.0 for u in units):
+        problem.ready = np.array([max(0.0, u.available_at) for u in units], dtype=float)
+    return problem
 
 
 def problem_from_arrays(

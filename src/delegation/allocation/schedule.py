@@ -147,6 +147,7 @@ class _Static:
     home_y: list[float]
     home_speed: list[float]
     endurance: list[float]
+    ready: list[float]  # per unit: when it is free of earlier commitments (s)
 
 
 def _static_for(problem: Problem) -> _Static:
@@ -161,6 +162,8 @@ def _static_for(problem: Problem) -> _Static:
             has_home=problem.has_home.tolist(),
             home_x=problem.home_xy[:, 0].tolist(), home_y=problem.home_xy[:, 1].tolist(),
             home_speed=problem.home_speed.tolist(), endurance=problem.endurance.tolist(),
+            ready=(problem.ready.tolist() if problem.ready is not None
+                   else [0.0] * problem.n_units),
         )
     return static
 
@@ -328,6 +331,8 @@ def _simulate(
                     end_l[t] = end_t
                 else:
                     p = prev[t]
+                    if p < 0:  # its first task: not before the unit is free
+                        begin = max(begin, static.ready[u])
                     px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
                     if to_home[t] and has_home[u]:
                         hx, hy = home_x[u], home_y[u]

@@ -42,9 +42,10 @@ class ServiceConfig:
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).
     max_retries: int = 2
-    #: Plan around units busy in another running mission of this service (``exclude``: they
-    #: are left out, said in the plan's notes) or not (``share``: the engine queues the tasks).
-    commitments: str = "exclude"
+    #: Units busy in another running mission of this service: ``wait`` plans them from when and
+    #: where they become free (by that mission's plan), ``exclude`` leaves them out, ``share``
+    #: ignores commitments (the engine queues the tasks). Said in the plan's notes.
+    commitments: str = "wait"
 
     @property
     def base_topic(self) -> str:

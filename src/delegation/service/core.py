@@ -46,6 +46,7 @@ from typing import Any, Literal
 from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, MessageError, Problem
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
+from delegation.geo import GeoPoint
 from delegation.messages import (
     FINAL_MISSION_STATUSES,
     TERMINAL_NODE_STATUSES,
@@ -269,9 +270,12 @@ class ServiceCore:
         self, now: float, exclude: Iterable[str] = (), mission: str = ""
     ) -> tuple[tuple[UnitState, ...], tuple[str, ...]]:
         """The units to plan a mission with, and notes naming those left out: battery below
-        ``min_battery``, busy in another running mission (``commitments: exclude``), ``exclude``
-        (a lost or failing unit being re-delegated from)."""
-        busy = self._committed(mission) if self.config.commitments == "exclude" else {}
+        ``min_battery``, ``exclude`` (a lost or failing unit being re-delegated from). A unit busy
+        in another running mission is planned from when and where it becomes free
+        (``commitments: wait``, said in the notes), or left out (``exclude``, or when its end is
+        not known)."""
+        mode = self.config.commitments
+        busy = self._committed(mission) if mode != "share" else {}
         skip = set(exclude)
         units: list[UnitState] = []
         notes: list[str] = []
@@ -282,10 +286,41 @@ class ServiceCore:
                 notes.append(f"{unit.name}: left out, battery {unit.battery:.0%} is below "
                              f"{self.config.min_battery:.0%}")
             elif unit.name in busy:
-                notes.append(f"{unit.name}: left out, busy in mission {busy[unit.name]}")
+                free = self._free_at(unit, busy[unit.name], now) if mode == "wait" else None
+                if free is None:
+                    notes.append(f"{unit.name}: left out, busy in mission {busy[unit.name]}")
+                    continue
+                units.append(replace(unit, available_at=free[0], position=free[1]))
+                notes.append(f"{unit.name}: busy in mission {busy[unit.name]}, planned from when "
+                             f"and where it becomes free (in {free[0]:.0f} s)")
             else:
                 units.append(unit)
         return tuple(units), tuple(notes)
+
+    def _free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
+        """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
+        that mission's plan; None when the plan does not say (a re-delegated tree)."""
+        m = self.book.find(root)
+        if m is None:
+            return None
+        mine = [a for a in m.plan.get("assignments", [])
+                if a.get("execunit") == unit.execunit and m.node_status.get(
+                    a.get("node-uuid", "")) not in TERMINAL]
+        if not mine or any(a.get("node-uuid") not in m.current_nodes for a in mine):
+            return None
+        last = max(mine, key=lambda a: float(a.get("end", 0.0)))
+        began = m.started_at if m.started_at is not None else self._epoch(now)
+        wait = max(0.0, began + float(last.get("end", 0.0)) - self._epoch(now))
+        node = next((n for _, n in walk(parse_tree(m.current_tst))
+                     if n.node_uuid == last.get("node-uuid")), None)
+        points = ([node.params.get("waypoint")] if node is not None and node.name == "move-to"
+                  else list(node.params.get("waypoints", [])) if node is not None
+                  and node.name == "move-path" else [])
+        try:
+            where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
+        except ValueError:
+            where_then = unit.position
+        return wait, where_then
 
     def _committed(self, but: str = "") -> dict[str, str]:
         """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
@@ -479,7 +514,7 @@ class ServiceCore:
                 response="ok", response_to=job.com_uuid, bids=list(result.bids)))
         plan = result.plan
         plan_json = {**plan.to_json(), "notes": list(plan.notes)}
-        clash = self._clash(plan) if job.start and plan.feasible else set()
+        clash = self._clash(plan, job) if job.start and plan.feasible else set()
         if clash and self._replanned.get(job.key, 0) < MAX_REPLANS:
             # A unit it uses got busy in a mission started meanwhile: plan again around it.
             self._replanned[job.key] = self._replanned.get(job.key, 0) + 1
@@ -803,7 +838,11 @@ class ServiceCore:
         return effects.extend(self._set_status(mission.root_uuid, MissionStatus.FAILED, now,
                                                reason))
 
-    def _clash(self, plan: Any) -> set[str]:
-        """Units a start plan uses that are busy in a mission that started meanwhile."""
-        busy = self._committed() if self.config.commitments == "exclude" else {}
-        return {a.execunit.strip("/") for a in plan.assignments} & set(busy)
+    def _clash(self, plan: Any, job: Job) -> set[str]:
+        """Units a start plan uses that got busy in a mission started meanwhile (the plan did
+        not know: it used them as free now)."""
+        if self.config.commitments == "share":
+            return set()
+        known = {u.name for u in job.units if u.available_at > 0.0}
+        used = {a.execunit.strip("/") for a in plan.assignments}
+        return (used & set(self._committed())) - known
