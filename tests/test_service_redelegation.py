@@ -251,9 +251,10 @@ def test_nobody_is_lost_while_the_service_itself_is_off_the_broker() -> None:
     core.on_disconnect(101.0)
     assert core.on_tick(116.0) == Effects()  # 15 s of outage: nobody judged
     core.on_reconnect(116.0)
-    assert core.on_tick(120.9) == Effects()  # a full timeout from the reconnect
-    feed_unit(core, "u0", 57.76, 16.68, MOVE, 120.0)
-    gone = core.on_tick(121.0)  # the engine did not come back
+    # A full timeout (5 s) after the peers' reconnect back-off (reconnect_grace 10 s).
+    assert core.on_tick(130.9) == Effects()
+    feed_unit(core, "u0", 57.76, 16.68, MOVE, 130.0)
+    gone = core.on_tick(131.0)  # the engine did not come back
     assert statuses(gone) == ["failed"] and "engine op0 lost" in core.book.get(
         "root-1").fail_reason
 

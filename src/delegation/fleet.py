@@ -335,12 +335,13 @@ class FleetRegistry:
             return self.min_timeout
         return min(self.max_timeout, max(self.min_timeout, self.periods / rate))
 
-    def grace(self, now: float) -> None:
+    def grace(self, now: float, extra: float = 0.0) -> None:
         """After the observer's own outage: nobody is judged on the time it could not hear
-        them, so every unit not already lost counts as heard at ``now``."""
+        them, so every unit not already lost counts as heard at ``now + extra`` (``extra``: the
+        peers' own reconnect back-off, as they come back later than we may)."""
         for rec in self._units.values():
             if rec.last_heartbeat is not None and not rec.lost:
-                rec.last_heartbeat = max(rec.last_heartbeat, now)
+                rec.last_heartbeat = max(rec.last_heartbeat, now + extra)
 
     def check(self, now: float) -> list[FleetEvent]:
         """Record a ``lost`` event (see `drain_events`) for every unit whose heartbeat stopped

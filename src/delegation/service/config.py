@@ -38,6 +38,9 @@ class ServiceConfig:
     #: ... and never before this many seconds (jitter on a loaded broker); lower it to hold
     #: "3 heartbeat periods" for units faster than 0.6 Hz.
     min_heartbeat_timeout: float = 5.0
+    #: After the service's own reconnect, peers get this long on top of their timeout to be
+    #: heard again (MQTT clients here reconnect with a back-off of up to 8 s).
+    reconnect_grace: float = 10.0
     #: Units whose battery (state of charge, 0..1) is below this are not planned for.
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).

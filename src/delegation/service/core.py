@@ -644,7 +644,7 @@ class ServiceCore:
         """Back on the broker: every unit and the engine get a full timeout from now to be heard
         again (they reconnect too); whoever is not is lost then."""
         self._offline_since = None
-        self.fleet.grace(now)
+        self.fleet.grace(now, self.config.reconnect_grace)
         return Effects()
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:
