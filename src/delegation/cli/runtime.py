@@ -153,6 +153,17 @@ def register(subparsers: Any) -> None:
     agents.set_defaults(func=_agents)
 
 
+def _fraction(text: str) -> float:
+    """A number in 0..1 (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not in 0..1")
+    return value
+
+
 def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default="delegator0", help="the service's unit name")
     p.add_argument("--engine", default="op0", help="the TST engine's unit name")
@@ -174,6 +185,11 @@ def _service_args(p: argparse.ArgumentParser) -> None:
         "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
         "agent type",
     )
+    p.add_argument("--min-battery", type=_fraction, default=0.2, metavar="FRACTION",
+                   help="units with a battery below this (0..1) are not planned for")
+    p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
+                   help="a unit busy in another mission: planned from when and where it is free "
+                   "(wait), left out (exclude), or ignored (share)")
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -426,6 +442,8 @@ def _serve(args: argparse.Namespace) -> int:
         agent_type=args.agent_type,
         role=args.role,
         profiles=_read_profiles(args.profiles) if args.profiles else None,
+        min_battery=args.min_battery,
+        commitments=args.commitments,
     )
     service = DelegationService(settings, config)
     service.start()
