@@ -25,6 +25,7 @@ import pytest
 from conftest import Collector
 from delegation.engine import TstEngine
 from delegation.runtime.broker import PrivateMosquitto, free_port, mosquitto_binary
+from delegation.runtime.mqtt import MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, ServiceConfig
 
@@ -305,9 +306,8 @@ def query_until_ended(col: Collector, service: DelegationService, root: str,
             col.publish(f"{service.config.base_topic}/delegation/command",
                         {"com-uuid": com, "command": "query-mission", "root-uuid": root})
             answer = col.wait_json("+/unit/+/+/+/delegation/response",
-                                   lambda d, c=com: d.get("response-to") == c,  # type: ignore[misc]
-                                   timeout=1.0)
-        except (AssertionError, Exception):  # not reconnected yet: ask again
+                                   lambda d, c=com: d.get("response-to") == c, timeout=1.0)
+        except (AssertionError, MqttError):  # not reconnected yet, or no answer: ask again
             continue
         last = answer["mission"]
         if last["status"] in ("succeeded", "failed", "aborted"):
