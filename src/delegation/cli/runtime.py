@@ -11,15 +11,22 @@ import argparse
 import json
 import logging
 import os
-import signal
 import threading
 import time
 from contextlib import ExitStack, suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from delegation.cli.options import (
+    Stopped,
+    env_flag,
+    env_port,
+    port_number,
+    positive_float,
+)
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.errors import DelegationError, InputError, Problem
+from delegation.topics import AGENT_TYPES, ROLES
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -42,9 +49,11 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
     """``--broker/--port/--tls/--username/--password``, defaulting to ``WARAPS_*``."""
     g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
     g.add_argument(
-        "--broker", default=None, metavar="HOST", help="MQTT broker host [WARAPS_BROKER]"
+        "--broker", default=None, metavar="HOST",
+        help="MQTT broker host [WARAPS_BROKER, else 127.0.0.1]",
     )
-    g.add_argument("--port", default=None, help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
+    g.add_argument("--port", default=None, type=port_number,
+                   help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
     g.add_argument(
         "--tls", action="store_true", default=None, help="connect with TLS [WARAPS_TLS_CONNECTION]"
     )
@@ -54,20 +63,27 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
 
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
-    """Flags over environment; None when neither names a broker."""
-    from delegation.runtime.settings import BrokerSettings
-
-    env = BrokerSettings.from_env()
-    host = args.broker or (env.host if env else None)
+    """Flags over environment; None when neither names a broker host (``demo`` then starts its
+    own). Bad ``WARAPS_*`` values are a `UsageError` naming the variable."""
+    host = args.broker or (os.environ.get("WARAPS_BROKER") or "").strip()
     if not host:
         return None
-    tls = args.tls if args.tls is not None else (env.tls if env else False)
-    port = args.port or os.environ.get("WARAPS_PORT") or None
-    username = args.username if args.username is not None else (env.username if env else "")
-    password = args.password if args.password is not None else (env.password if env else "")
-    return BrokerSettings.from_values(
-        host=host, port=port, tls=bool(tls), username=username, password=password
-    )
+    return client_settings(args)
+
+
+def client_settings(args: argparse.Namespace) -> BrokerSettings:
+    """The one rule for every command that joins a broker: ``--broker``, else ``WARAPS_BROKER``,
+    else 127.0.0.1 (like ``mosquitto_sub``); port, TLS and login from flags over ``WARAPS_*``."""
+    from delegation.runtime.settings import BrokerSettings
+
+    env = os.environ
+    host = args.broker or (env.get("WARAPS_BROKER") or "").strip() or "127.0.0.1"
+    tls = args.tls if args.tls is not None else bool(env_flag(env, "WARAPS_TLS_CONNECTION"))
+    port = args.port or env_port(env) or (8883 if tls else 1883)
+    username = args.username if args.username is not None else env.get("WARAPS_USERNAME", "")
+    password = args.password if args.password is not None else env.get("WARAPS_PASSWORD", "")
+    return BrokerSettings(host=host, port=port, tls=bool(tls), username=username,
+                          password=password)
 
 
 def register(subparsers: Any) -> None:
@@ -126,13 +142,13 @@ def register(subparsers: Any) -> None:
     submit.add_argument("--time-limit", type=float, default=None)
     submit.add_argument(
         "--speedup",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="the fleet's time factor, to show actual times in mission seconds",
     )
     submit.add_argument(
         "--timeout",
-        type=float,
+        type=positive_float,
         default=3600.0,
         help="stop following after this many seconds (exit 1)",
     )
@@ -164,8 +180,10 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
     p.add_argument("--time-limit", type=float, default=2.0)
-    p.add_argument("--agent-type", default="ground", help="agent-type in the heartbeat topic")
-    p.add_argument("--role", default="simulation", help="role level of the topic (real, ...)")
+    p.add_argument("--agent-type", default="ground", choices=AGENT_TYPES,
+                   help="agent-type in the heartbeat topic (default ground)")
+    p.add_argument("--role", default="simulation", choices=ROLES,
+                   help="role level of the topic (default simulation)")
     p.add_argument(
         "--profiles",
         default=None,
@@ -222,45 +240,78 @@ def follow(
     timeout: float,
     tracks: dict[str, list[Any]] | None = None,
     enough: bool = False,
+    progress: MissionProgress | None = None,
 ) -> MissionProgress:
-    """Show a mission's progress live until it ends or ``timeout`` wall seconds pass.
+    """Show a mission's progress until it ends or ``timeout`` wall seconds pass: a live table on
+    a terminal, else one plain line per change (logs, CI, ``tee``).
 
     With ``enough``, open-ended tasks (look-at-*) that hold the mission up (nothing else
     running) get ``$enough``, as an operator would send it, so that the mission can finish.
+    ``progress`` continues a mission already under way (``delegation follow``).
     """
-    import queue
-
     from rich.live import Live
 
-    from delegation.render.progress import MissionProgress
+    from delegation.render.progress import MissionProgress, status_lines
 
-    progress = MissionProgress(plan, speedup=speedup)
-    root = progress.root_uuid
+    if progress is None:
+        progress = MissionProgress(plan, speedup=speedup)
     deadline = time.monotonic() + timeout
+    if not console.is_terminal:
+        shown: dict[str, str] = {}
+        refresh = lambda: [console.print(line, soft_wrap=True)  # noqa: E731
+                           for line in status_lines(progress, shown)]
+        refresh()
+        _pump(client, progress, deadline, refresh, tracks=tracks, enough=enough)
+        return progress
     with Live(
         progress.table(), console=console, refresh_per_second=6, transient=False, auto_refresh=True
     ) as live:
-        while not progress.done and time.monotonic() < deadline:
-            if enough:
-                _send_enough(client, progress, time.time())
-            try:
-                ev = client.events.get(timeout=0.25)
-            except queue.Empty:
-                continue
-            if ev.kind == "position":
-                if tracks is not None:
-                    tracks.setdefault(ev.unit, []).append(ev.data)
-                continue
-            data = ev.data
-            if ev.kind == "mission" and data.get("root-uuid") == root:
-                progress.on_mission(
-                    str(data.get("status")), str(data.get("fail-reason", "")), ev.at
-                )
-            elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
-                progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
-            live.update(progress.table())
+        _pump(client, progress, deadline, lambda: live.update(progress.table()),
+              tracks=tracks, enough=enough)
         live.update(progress.table())
     return progress
+
+
+def _pump(
+    client: ServiceClient,
+    progress: MissionProgress,
+    deadline: float,
+    refresh: Any,
+    *,
+    tracks: dict[str, list[Any]] | None,
+    enough: bool,
+) -> None:
+    """Feed the client's events to ``progress`` until the mission ends or the deadline."""
+    import queue
+
+    root = progress.root_uuid
+    while not progress.done and time.monotonic() < deadline:
+        if enough:
+            _send_enough(client, progress, time.time())
+        try:
+            ev = client.events.get(timeout=0.25)
+        except queue.Empty:
+            continue
+        if ev.kind == "position":
+            if tracks is not None:
+                tracks.setdefault(ev.unit, []).append(ev.data)
+            continue
+        data = ev.data
+        if ev.kind == "mission" and data.get("root-uuid") == root:
+            progress.on_mission(str(data.get("status")), str(data.get("fail-reason", "")), ev.at)
+        elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
+            progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
+        refresh()
+
+
+def still_running_hint(console: Console, root: str, status: str = "running") -> None:
+    """What an operator needs once a command stops following a mission that goes on."""
+    console.print(
+        f"mission {root} is still {status}; re-attach: delegation follow {root[:8]}; "
+        f"cancel: delegation cancel {root[:8]}; end open-ended tasks: "
+        f"delegation signal {root[:8]} '$enough'",
+        soft_wrap=True,
+    )
 
 
 def _send_enough(client: ServiceClient, progress: MissionProgress, now: float) -> None:
@@ -292,18 +343,26 @@ def run_mission(
         console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
         return None
     started = time.monotonic()
-    progress = follow(
-        client,
-        answer["plan"],
-        speedup=speedup,
-        console=console,
-        timeout=timeout,
-        tracks=tracks,
-        enough=enough,
-    )
+    root = str(answer["plan"]["tst"].get("common_params", {}).get("node-uuid", ""))
+    console.print(f"mission {root} started", soft_wrap=True)
+    try:
+        progress = follow(
+            client,
+            answer["plan"],
+            speedup=speedup,
+            console=console,
+            timeout=timeout,
+            tracks=tracks,
+            enough=enough,
+        )
+    except (KeyboardInterrupt, Stopped):
+        console.print()
+        still_running_hint(console, root)
+        raise
     _print_summary(console, progress, time.monotonic() - started)
     if not progress.done:
         console.print(f"[red]gave up following after {timeout:g} s[/]")
+        still_running_hint(console, root, progress.status)
     return progress
 
 
@@ -412,10 +471,9 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from delegation.runtime.settings import BrokerSettings
     from delegation.service import DelegationService, ServiceConfig
 
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     config = ServiceConfig(
         name=args.name,
         prefix=args.prefix,
@@ -434,11 +492,8 @@ def _serve(args: argparse.Namespace) -> int:
         f"(engine {config.engine}); Ctrl-C stops",
         flush=True,
     )
-    stop = threading.Event()
-    with suppress(ValueError):  # not the main thread (tests): Ctrl-C still works there
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        stop.wait()
+        threading.Event().wait()  # until SIGINT/SIGTERM (`cli.options.Stopped`)
     finally:
         service.stop()
         print(f"{config.name} stopped", flush=True)
@@ -495,7 +550,6 @@ def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from delegation.runtime.client import ServiceClient
-    from delegation.runtime.settings import BrokerSettings
 
     command: dict[str, Any] = {"tst": _read_mission(args.mission)}
     for key, value in (
@@ -505,7 +559,7 @@ def _submit(args: argparse.Namespace) -> int:
     ):
         if value is not None:
             command[key] = value
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     with ServiceClient(
         settings, prefix=args.prefix, service=args.service, service_timeout=args.wait
     ) as client:
@@ -530,9 +584,8 @@ def _agents(args: argparse.Namespace) -> int:
     from delegation.fleet import FleetRegistry
     from delegation.messages import decode
     from delegation.runtime.mqtt import MqttClient
-    from delegation.runtime.settings import BrokerSettings
 
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     registry = FleetRegistry()
     lock = threading.Lock()
 

@@ -215,3 +215,24 @@ def _is_open_ended(node: TstNode) -> bool:
 
 def _fmt(value: float | None) -> str:
     return "" if value is None else f"{value:.0f}"
+
+
+def status_lines(progress: MissionProgress, shown: dict[str, str]) -> list[str]:
+    """Plain lines for what changed since the last call (``shown`` remembers what was printed):
+    for output that is not a terminal, where a live table cannot redraw."""
+    lines: list[str] = []
+    key = f"mission:{progress.root_uuid}"
+    if shown.get(key) != progress.status:
+        shown[key] = progress.status
+        reason = f": {progress.fail_reason}" if progress.fail_reason else ""
+        lines.append(f"mission {progress.root_uuid[:8]} {progress.status}{reason}")
+    for row in progress.rows.values():
+        if shown.get(row.node_uuid, "not-active") == row.status:
+            continue
+        shown[row.node_uuid] = row.status
+        actual = "" if row.started is None else f", actual {_fmt(row.started)}-{_fmt(row.ended)}"
+        lines.append(
+            f"  {row.name} {row.unit} {row.status} "
+            f"(plan {row.planned_start:.0f}-{row.planned_end:.0f} s{actual})"
+        )
+    return lines
