@@ -139,7 +139,8 @@ def register(subparsers: Any) -> None:
     )
     submit.add_argument("--strategy", default=None, choices=STRATEGY_CHOICES)
     submit.add_argument("--objective", default=None, choices=OBJECTIVE_CHOICES)
-    submit.add_argument("--time-limit", type=float, default=None)
+    submit.add_argument("--time-limit", type=positive_float, default=None,
+                        help="planner time limit (s; default: the service's)")
     submit.add_argument(
         "--speedup",
         type=positive_float,
@@ -258,10 +259,13 @@ def follow(
     deadline = time.monotonic() + timeout
     if not console.is_terminal:
         shown: dict[str, str] = {}
-        refresh = lambda: [console.print(line, soft_wrap=True)  # noqa: E731
-                           for line in status_lines(progress, shown)]
-        refresh()
-        _pump(client, progress, deadline, refresh, tracks=tracks, enough=enough)
+
+        def lines() -> None:
+            for line in status_lines(progress, shown):
+                console.print(line, soft_wrap=True, highlight=False)
+
+        lines()
+        _pump(client, progress, deadline, lines, tracks=tracks, enough=enough)
         return progress
     with Live(
         progress.table(), console=console, refresh_per_second=6, transient=False, auto_refresh=True
@@ -551,7 +555,11 @@ def _submit(args: argparse.Namespace) -> int:
 
     from delegation.runtime.client import ServiceClient
 
-    command: dict[str, Any] = {"tst": _read_mission(args.mission)}
+    from delegation.tst.validate import parse_and_validate
+
+    tree = _read_mission(args.mission)
+    parse_and_validate(tree)  # a bad tree is answered here, before any broker is needed
+    command: dict[str, Any] = {"tst": tree}
     for key, value in (
         ("strategy", args.strategy),
         ("objective", args.objective),
@@ -617,9 +625,8 @@ def _agents(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     table = Table(title=f"live units on {settings.describe()} under {args.prefix}/")
-    for col in ("name", "type", "state", "position", "seen"):
-        table.add_column(col, no_wrap=True)
-    table.add_column("tasks-available")
+    for col in ("name", "type", "state", "position", "seen", "tasks-available"):
+        table.add_column(col, no_wrap=col in ("name", "seen"), overflow="fold")
     now = time.time()
     for r in rows:
         pos = r["position"]
@@ -630,8 +637,8 @@ def _agents(args: argparse.Namespace) -> int:
             r["name"],
             str(r.get("type") or "?"),
             state,
-            f"{pos['latitude']:.5f}, {pos['longitude']:.5f}" if pos else "-",
-            f"{now - seen:.1f} s ago" if isinstance(seen, int | float) else "-",
+            f"{pos['latitude']:.5f},{pos['longitude']:.5f}" if pos else "-",
+            f"{now - seen:.0f}s ago" if isinstance(seen, int | float) else "-",
             ", ".join(r.get("tasks-available", [])) or "-",
         )
     Console().print(table)
