@@ -111,6 +111,11 @@ def register(subparsers: Any) -> None:
     )
     demo.add_argument("--out", default="demo-out", help="directory for map.png and plan.json")
     demo.add_argument(
+        "--no-profiles", action="store_true",
+        help="the service starts without the fleet's profile (type default speeds) and learns "
+        "the speeds while it flies (benchmarks/learning.py runs several missions)",
+    )
+    demo.add_argument(
         "--timeout",
         type=float,
         default=50.0,
@@ -420,7 +425,7 @@ def _demo(args: argparse.Namespace) -> int:
             strategy=args.strategy,
             objective=args.objective,
             time_limit=args.time_limit,
-            profiles=scenario.profiles(),
+            profiles=None if args.no_profiles else scenario.profiles(),
         )
         system = LocalSystem(
             units, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
