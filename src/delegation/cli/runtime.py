@@ -559,7 +559,6 @@ def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from delegation.runtime.client import ServiceClient
-
     from delegation.tst.validate import parse_and_validate
 
     tree = _read_mission(args.mission)
