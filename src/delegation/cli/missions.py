@@ -272,15 +272,12 @@ def resume_progress(mission: dict[str, Any], speedup: float) -> MissionProgress:
     started = mission.get("started")
     if isinstance(started, int | float):
         progress.started_at = float(started)
+    now = time.time()
     for node in mission.get("nodes", []):
-        row = progress.rows.get(node.get("node-uuid"))
-        if row is None:
-            continue
-        row.status = str(node.get("status", row.status))
-        if node.get("started") is not None:
-            row.started = float(node["started"]) * speedup
-        if node.get("ended") is not None:
-            row.ended = float(node["ended"]) * speedup
+        started, ended = node.get("started"), node.get("ended")
+        progress.resume(str(node.get("node-uuid")), str(node.get("status", "not-active")),
+                        None if started is None else float(started) * speedup,
+                        None if ended is None else float(ended) * speedup, now)
     progress.status = str(mission.get("status", "planned"))
     progress.fail_reason = str(mission.get("fail-reason") or "")
     ended = mission.get("ended")

@@ -104,6 +104,17 @@ class MissionProgress:
             row.ended = t
         return True
 
+    def resume(self, node_uuid: str, status: str, started: float | None, ended: float | None,
+               now: float) -> None:
+        """A task's state as the service reported it (re-attaching to a running mission):
+        ``started``/``ended`` in mission seconds."""
+        row = self.rows.get(node_uuid)
+        if row is None:
+            return
+        row.status, row.started, row.ended = status, started, ended
+        if status == "running":
+            self._running_since.setdefault(node_uuid, now)
+
     def on_mission(self, status: str, fail_reason: str, now: float) -> None:
         """A lifecycle event from ``delegation/feedback``."""
         if self.status in _FINAL_MISSION:

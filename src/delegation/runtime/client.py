@@ -239,7 +239,7 @@ class ServiceClient:
                 f"no mission id starts with {prefix!r} ({len(ids)} missions known to "
                 f"{self.service}; list them with 'delegation missions')"
             )
-        shown = ", ".join(i[:13] for i in found[:5]) + (", ..." if len(found) > 5 else "")
+        shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
         raise CommandFailed(f"{prefix!r} is ambiguous: {len(found)} missions match ({shown})")
 
 

@@ -413,6 +413,7 @@ class ServiceCore:
             log.info("mission %s: %s", plan.tst.node_uuid, note)
         if not plan.feasible:
             reason = infeasible_reason(plan, job.tree)
+            log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
             if job.face == "tst":
                 return self._fail("tst", job.key, job.com_uuid, reason)
             return self._respond("delegation", job.key, DelegationResponse(
