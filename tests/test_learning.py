@@ -81,3 +81,61 @@ def test_warnings_for_a_bare_unit_name_and_far_away_tasks() -> None:
     near = parse_and_validate({"name": "move-to", "common_params": {"execunit": "/dji0"},
                                "params": {"waypoint": {"latitude": 57.761, "longitude": 16.681}}})
     assert input_warnings(near, [DJI]) == []
+
+
+def test_the_service_plans_with_what_it_learnt() -> None:
+    """Message by message through `ServiceCore`: the first plan uses the air defaults and says
+    so; dji0 reports 12 m/s while it runs a standard-speed move-to; the next plan uses 12 m/s
+    and says the speeds were learnt."""
+    import json
+
+    from delegation.messages import TstFeedback, encode
+    from delegation.service import ServiceConfig, ServiceCore
+    from test_service_core import (
+        BASE,
+        ENGINE,
+        PREFIX,
+        _unit_topic,
+        engine_answers,
+        feed_engine,
+        feed_unit,
+        on,
+        run_jobs,
+        start_tst,
+    )
+
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to"], 100.0)
+    feed_engine(core, 100.0)
+
+    def mission(root: str, com: str, now: float) -> dict[str, object]:
+        tree = {"name": "move-to", "common_params": {"execunit": "/dji0", "node-uuid": root},
+                "params": {"waypoint": {"latitude": 57.7625, "longitude": 16.6815}}}
+        planned = run_jobs(core, core.on_message(f"{BASE}/tst/command", start_tst(tree, com), now),
+                           now)
+        engine_answers(core, planned, "started", now)
+        return on(planned, "op0/tst/command")[0]
+
+    first = mission("m1", "c1", 101.0)
+    (a,) = core.book.get("m1").plan["assignments"]
+    assert a["travel-time"] == pytest.approx(222.6 / 3.0, rel=0.01)  # air default standard
+    assert any("speeds are the air defaults" in n for n in core.book.get("m1").plan["notes"])
+    assert first["tst"]["common_params"]["node-uuid"] == "m1"
+
+    core.on_message(f"{ENGINE}/tst/feedback",
+                    encode(TstFeedback(node_uuid="m1", root_flag=True, status="running")), 102.0)
+    for t in (103.0, 104.0, 105.0):
+        core.on_message(_unit_topic("dji0", "sensor/speed"), json.dumps({"value": 12.0}).encode(),
+                        t)
+    core.on_message(f"{ENGINE}/tst/feedback",
+                    encode(TstFeedback(node_uuid="m1", root_flag=True, status="succeeded")),
+                    120.0)
+
+    feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to"], 121.0)  # back home, still live
+    feed_engine(core, 121.0)
+    mission("m2", "c2", 121.0)
+    (b,) = core.book.get("m2").plan["assignments"]
+    assert b["travel-time"] == pytest.approx(222.6 / 12.0, rel=0.01)
+    assert any("speeds learnt" in n for n in core.book.get("m2").plan["notes"])
+    row = next(r for r in core.agents(121.0) if r["name"] == "dji0")
+    assert row["speeds"]["standard"] == pytest.approx(12.0) and row["speeds-source"] == "learnt"
