@@ -179,6 +179,12 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
     assert all(len(line) <= 80 for line in r.stdout.splitlines())
     bids = json.loads(cli(live, ["bids", f, "--json"]).stdout)
     assert {b["unit"] for b in bids} >= {"/dji0", "/dji1", "/usv0"}
+    r = cli(live, ["submit", f, "--json", "--speedup", str(SPEEDUP), "--timeout", "60"])
+    assert r.returncode == 0, r.stderr
+    done = json.loads(r.stdout)  # the JSON alone on stdout; progress went to stderr
+    assert done["status"] == "succeeded" and "running" in r.stderr
+    r = cli(live, ["follow", done["root-uuid"][:8], "--json"])
+    assert r.returncode == 0 and json.loads(r.stdout)["status"] == "succeeded"
     r = cli(live, ["plan", f, "--live", "--format", "json"])
     assert r.returncode == 0, r.stderr
     plan = json.loads(r.stdout)

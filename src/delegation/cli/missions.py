@@ -216,50 +216,36 @@ def _signal(args: argparse.Namespace) -> int:
 
 
 def _follow(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
     from delegation.cli.options import Stopped
     from delegation.cli.runtime import follow, still_running_hint
 
-    console = _console()
+    console = Console(stderr=bool(args.json))  # with --json, stdout holds the JSON alone
     with _client(args) as client:
         root = client.resolve_mission(args.mission_id)
         mission = client.query_mission(root)
         progress = resume_progress(mission, args.speedup)
         if not progress.done:
             try:
-                follow(client, progress.plan, speedup=args.speedup,
-                       console=_console() if not args.json else _quiet_console(),
+                follow(client, progress.plan, speedup=args.speedup, console=console,
                        timeout=args.timeout, enough=args.enough, progress=progress)
             except (KeyboardInterrupt, Stopped):
-                if not args.json:
-                    console.print()
-                    still_running_hint(console, root, progress.status)
+                console.print()
+                still_running_hint(console, root, progress.status)
                 raise
         final = client.query_mission(root) if args.json else None
+    console.print(progress.summary_table())
+    console.print(f"mission {root} {progress.status}"
+                  + (f": {progress.fail_reason}" if progress.fail_reason else ""), soft_wrap=True)
+    if not progress.done:
+        console.print(f"gave up following after {args.timeout:g} s")
+        still_running_hint(console, root, progress.status)
     if args.json:
         _print_json(final)
-    else:
-        console.print(progress.summary_table())
-        console.print(f"mission {root} {progress.status}"
-                      + (f": {progress.fail_reason}" if progress.fail_reason else ""),
-                      soft_wrap=True)
-        if not progress.done:
-            console.print(f"gave up following after {args.timeout:g} s")
-            still_running_hint(console, root, progress.status)
     if not progress.done:
         return 1
     return 0 if progress.succeeded else 1
-
-
-def _quiet_console() -> Console:
-    from rich.console import Console
-
-    return Console(file=open_devnull(), force_terminal=False)
-
-
-def open_devnull() -> Any:
-    import os
-
-    return open(os.devnull, "w")
 
 
 def resume_progress(mission: dict[str, Any], speedup: float) -> MissionProgress:

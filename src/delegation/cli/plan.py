@@ -52,6 +52,8 @@ def register(subparsers: Any) -> None:
                         help="the TST engine that runs control nodes (default: op0)")
     parser.add_argument("--format", default="table", choices=("table", "json"),
                         help="output format (default: table)")
+    parser.add_argument("--json", dest="format", action="store_const", const="json",
+                        help="same as --format json")
     from delegation.cli.runtime import add_broker_args
 
     add_broker_args(parser)

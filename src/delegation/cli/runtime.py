@@ -163,6 +163,8 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="send $enough to open-ended tasks (look-at-*) once all others ended",
     )
+    submit.add_argument("--json", action="store_true",
+                        help="progress on stderr; the mission (query-mission) as JSON on stdout")
     add_broker_args(submit)
     submit.set_defaults(func=_submit)
 
@@ -171,6 +173,8 @@ def register(subparsers: Any) -> None:
         "--wait", type=float, default=3.0, help="seconds to listen for heartbeats (default 3)"
     )
     agents.add_argument("--format", choices=("table", "json"), default="table")
+    agents.add_argument("--json", dest="format", action="store_const", const="json",
+                        help="same as --format json")
     add_broker_args(agents)
     agents.set_defaults(func=_agents)
 
@@ -578,11 +582,13 @@ def _submit(args: argparse.Namespace) -> int:
         progress = run_mission(
             client,
             command,
-            Console(),
+            Console(stderr=bool(args.json)),  # with --json, stdout holds the JSON alone
             speedup=args.speedup,
             timeout=args.timeout,
             enough=args.enough,
         )
+        if args.json and progress is not None:
+            print(json.dumps(client.query_mission(progress.root_uuid), indent=2))
     return 0 if progress is not None and progress.succeeded else 1
 
 

@@ -15,10 +15,12 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 * ``query-mission``: ``mission``: ``root-uuid``, ``name``, ``source``, ``status``,
   ``fail-reason``, ``created``/``started``/``ended`` (epoch s), ``nodes`` (``node-uuid``, ``name``,
   ``execunit``, ``path``, ``status``, ``started``/``ended`` in s since the mission started),
-  ``assignments``, ``unassigned``, ``makespan``, ``strategy``.
+  ``assignments``, ``unassigned``, ``makespan``, ``strategy``, ``notes`` (the plan's), ``tst``
+  (the instantiated tree, so that a client can re-attach).
 * ``list-missions``: ``missions``: the summary fields above.
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
-  ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
+  ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...) plus the ``speeds``
+  the service plans with and their ``speeds-source`` (``learnt``/``profile``/``default``).
 * ``cancel-mission``: ``ok`` once the engine confirmed the ``$abort`` of the tree.
 
 Planning is a job (`Effects.jobs`) the unit runs on its worker, in arrival order: a long
