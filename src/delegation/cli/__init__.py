@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="delegation",
         description="Delegation service for WARA-PS: allocate units to Task Specification Trees.",
         epilog="Exit codes: 0 done, 1 bad input or the mission/plan failed, 2 bad usage (flag or "
-        "WARAPS_* value), 130 stopped by SIGINT, 143 stopped by SIGTERM. No --broker and no "
+        "WARAPS_* value), 130 stopped by SIGINT, 0 stopped by SIGTERM (a requested stop). No --broker and no "
         "WARAPS_BROKER: every command uses 127.0.0.1 (demo starts its own broker).",
     )
     parser.add_argument("--version", action="version", version=f"delegation {__version__}")

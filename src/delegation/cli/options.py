@@ -4,7 +4,8 @@
 * A bad flag or environment value is one line naming it and exit 2 (`UsageError`); bad input
   (a file, a mission) is exit 1. Never a traceback.
 * SIGINT and SIGTERM both stop a command through its ``finally`` blocks (`Stopped`), with a log
-  line; the exit code is 128 + the signal number (130 / 143).
+  line; exit 130 after SIGINT (the shell's convention for Ctrl-C) and 0 after SIGTERM (a
+  requested stop, as systemd and docker expect of a service).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ EXIT_OK = 0
 EXIT_INPUT = 1
 EXIT_USAGE = 2
 EXIT_SIGINT = 130
-EXIT_SIGTERM = 143
+EXIT_SIGTERM = 0
 
 #: Commands that run until stopped: they log at INFO unless told otherwise.
 DAEMONS: frozenset[str] = frozenset({"serve", "engine", "sim"})
@@ -46,7 +47,7 @@ class Stopped(BaseException):
 
     @property
     def exit_code(self) -> int:
-        return 128 + self.signum
+        return EXIT_SIGINT if self.signum == signal.SIGINT else EXIT_SIGTERM
 
 
 class Parser(argparse.ArgumentParser):

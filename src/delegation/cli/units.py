@@ -71,7 +71,7 @@ def _settings(args: argparse.Namespace) -> Any:
 
 def _wait(duration: float | None) -> None:
     """Block until ``duration`` passes, or SIGINT/SIGTERM (`cli.options.Stopped`, which the
-    caller's ``finally`` turns into a clean stop and ``main`` into exit 130/143)."""
+    caller's ``finally`` turns into a clean stop and ``main`` into exit 130/0)."""
     threading.Event().wait(duration)
 
 
