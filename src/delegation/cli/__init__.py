@@ -44,9 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="delegation",
         description="Delegation service for WARA-PS: allocate units to Task Specification Trees.",
-        epilog="Exit codes: 0 done, 1 bad input or the mission/plan failed, 2 bad usage (flag or "
-        "WARAPS_* value), 130 stopped by SIGINT, 0 stopped by SIGTERM (a requested stop). No --broker and no "
-        "WARAPS_BROKER: every command uses 127.0.0.1 (demo starts its own broker).",
+        epilog="Exit codes: 0 done (also when stopped by SIGTERM), 1 bad input or the "
+        "mission/plan failed, 2 bad usage (flag or WARAPS_* value), 130 stopped by SIGINT. No "
+        "--broker and no WARAPS_BROKER: every command uses 127.0.0.1 (demo starts its own "
+        "broker). Details: docs/deployment.md.",
     )
     parser.add_argument("--version", action="version", version=f"delegation {__version__}")
     add_logging_args(parser, top=True)
