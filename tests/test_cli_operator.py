@@ -179,6 +179,9 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
     assert all(len(line) <= 80 for line in r.stdout.splitlines())
     bids = json.loads(cli(live, ["bids", f, "--json"]).stdout)
     assert {b["unit"] for b in bids} >= {"/dji0", "/dji1", "/usv0"}
+    r = cli(live, ["agents", "--wait", "2"])  # piped: 80 columns, nothing dropped
+    assert r.returncode == 0 and all(len(line) <= 80 for line in r.stdout.splitlines())
+    assert "move-to" in r.stdout and "usv0" in r.stdout
     r = cli(live, ["submit", f, "--json", "--speedup", str(SPEEDUP), "--timeout", "60"])
     assert r.returncode == 0, r.stderr
     done = json.loads(r.stdout)  # the JSON alone on stdout; progress went to stderr

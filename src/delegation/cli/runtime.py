@@ -348,9 +348,11 @@ def run_mission(
     timeout: float,
     tracks: dict[str, list[Any]] | None = None,
     enough: bool = False,
+    hint: bool = True,
 ) -> MissionProgress | None:
     """Send a ``delegate`` with ``start``, follow the mission live and print the summary; None
-    (after saying why) when it was not started."""
+    (after saying why) when it was not started. With ``hint``, stopping early says how to
+    re-attach to or cancel the mission, which goes on."""
     answer = client.request({**command, "command": "delegate", "start": True}, timeout=120.0)
     if answer.get("response") != "started":
         console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
@@ -370,12 +372,14 @@ def run_mission(
         )
     except (KeyboardInterrupt, Stopped):
         console.print()
-        still_running_hint(console, root)
+        if hint:
+            still_running_hint(console, root)
         raise
     _print_summary(console, progress, time.monotonic() - started)
     if not progress.done:
         console.print(f"[red]gave up following after {timeout:g} s[/]")
-        still_running_hint(console, root, progress.status)
+        if hint:
+            still_running_hint(console, root, progress.status)
     return progress
 
 
@@ -459,6 +463,7 @@ def _demo(args: argparse.Namespace) -> int:
             timeout=args.timeout,
             tracks=tracks,
             enough=True,
+            hint=False,  # the demo stops the whole system: nothing goes on to re-attach to
         )
         if progress is None:
             return 1

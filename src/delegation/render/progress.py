@@ -209,7 +209,7 @@ class MissionProgress:
             table.add_column(col, justify="left" if col == "unit" else "right")
         for u in self.unit_summary():
             actual = u["actual-end"]
-            diff = "-" if actual is None else f"{actual - u['planned-end']:+.0f}"
+            diff = "-" if actual is None else _signed(actual - u["planned-end"])
             table.add_row(u["unit"], str(u["tasks"]), str(u["succeeded"]),
                           f"{u['planned-end']:.0f}", _fmt(actual), diff)
         return table
@@ -222,6 +222,11 @@ def _is_open_ended(node: TstNode) -> bool:
         return task_geometry(node).open_ended
     except (KeyError, ValueError, TypeError, InputError):
         return False
+
+
+def _signed(value: float) -> str:
+    """``+12``, ``-3``, and ``0`` (never ``-0``)."""
+    return "0" if round(value) == 0 else f"{value:+.0f}"
 
 
 def _fmt(value: float | None) -> str:
