@@ -209,6 +209,20 @@ def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
     assert cli(live, ["cancel", root]).returncode == 0
 
 
+def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
+                                                        tmp_path: Path) -> None:
+    root = str(uuid.uuid4())
+    f = _mission_file(tmp_path, "d.json", open_ended(root, "/dji1"))
+    child = Child(_argv(live, ["submit", f]))
+    child.wait_line(f"mission {root} started")
+    code, took = child.stop(signal.SIGTERM)
+    assert code == 0 and took < 5.0
+    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out)
+    status = json.loads(cli(live, ["status", root, "--json"]).stdout)["status"]
+    assert status in ("started", "running")
+    assert cli(live, ["cancel", root]).returncode == 0
+
+
 def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
                                                         tmp_path: Path) -> None:
     """A second service (no profiles) on the same fleet: its log, in JSON, at INFO by default,
@@ -227,6 +241,7 @@ def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
         bad = _mission_file(tmp_path, "bad.json", {
             "name": "move-to", "common_params": {"execunit": "/dji9"},
             "params": {"waypoint": WP}})
+        assert "note: root (move-to" in r.stdout and "is an alias" in r.stdout  # notes shown
         assert cli(live, ["submit", bad, "--service", name]).returncode == 1
         serve.wait_line("refused")
     finally:
