@@ -3,9 +3,9 @@
 * ``-v``/``-q``/``--log-level``/``--log-json`` are accepted before and after the sub-command.
 * A bad flag or environment value is one line naming it and exit 2 (`UsageError`); bad input
   (a file, a mission) is exit 1. Never a traceback.
-* SIGINT and SIGTERM both stop a command through its ``finally`` blocks (`Stopped`), with a log
-  line; exit 130 after SIGINT (the shell's convention for Ctrl-C) and 0 after SIGTERM (a
-  requested stop, as systemd and docker expect of a service).
+* SIGINT (``KeyboardInterrupt``) and SIGTERM (`Stopped`) both stop a command through its
+  ``finally`` blocks, with a log line; exit 130 after SIGINT (the shell's convention for
+  Ctrl-C) and 0 after SIGTERM (a requested stop, as systemd and docker expect of a service).
 """
 
 from __future__ import annotations
@@ -116,16 +116,17 @@ def setup_logging(args: argparse.Namespace) -> None:
 
 
 def install_signal_handlers() -> None:
-    """SIGTERM (docker stop, systemd) and SIGINT (Ctrl-C) raise `Stopped` in the main thread."""
+    """SIGTERM (docker stop, systemd) raises `Stopped` in the main thread, as SIGINT (Ctrl-C)
+    raises ``KeyboardInterrupt``: both unwind through the command's ``finally`` blocks. SIGINT
+    keeps Python's handler, so code that keeps partial results on ``KeyboardInterrupt`` works."""
 
     def handler(signum: int, _frame: object) -> None:
         raise Stopped(signum)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            signal.signal(sig, handler)
-        except ValueError:  # not the main thread (tests calling main()): leave the default
-            return
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (tests calling main()): leave the default
+        return
 
 
 # --------------------------------------------------------------------------- values
