@@ -4,8 +4,8 @@ each gives one line naming what is wrong and exit 2 (usage) or 1 (input), never 
 Run as a user would: ``python -m delegation`` in a child process. Rows that need a broker use a
 closed local port ({closed}); the one that needs a live broker is a test of its own. Left out of
 the findings' table: rows that need a full mission run (impossible mission, no engine: unchanged
-and rated 5), the unreachable-host row (a 10 s connect deadline), ``validate`` of YAML files
-(B11, not this issue's), and ``demo`` rows (another engineer edits ``demo``).
+and rated 5), the unreachable-host row (a 10 s connect deadline) and ``demo`` rows (another
+engineer edits ``demo``). Rows that were wrong and now work (B10, B11, B12) expect exit 0.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from delegation.runtime.broker import LOOPBACK, free_port
 
@@ -34,6 +35,7 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("bogus", {}, 2, "invalid choice: 'bogus'"),
     ("serve -v --port {closed}", {}, 1, "cannot connect to mqtt://127.0.0.1:{closed}"),
     ("plan nope.yaml", {}, 1, "nope.yaml"),
+    ("plan demo --format json", {}, 0, ""),  # scenario names resolve in every command (B12)
     ("plan scenarios/", {}, 1, "scenarios"),
     (f"plan {DEMO} --strategy greedy", {}, 2, "invalid choice: 'greedy'"),
     (f"plan {DEMO} --time-limit abc", {}, 2, "--time-limit"),
@@ -77,6 +79,10 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("submit free.json --time-limit -3 --strategy optimal", {}, 2, "--time-limit"),
     ("submit free.json --speedup 0", {}, 2, "--speedup: must be a positive number"),
     ("validate", {}, 2, "FILE"),
+    ("validate free.yaml", {}, 0, ""),  # YAML, as submit and plan read it (B11)
+    (f"validate {DEMO}", {}, 0, ""),  # a scenario: checked as one (B11)
+    ("validate nodesc.yaml", {}, 0, ""),  # description is optional (B10)
+    ("plan nodesc.yaml", {}, 0, ""),
     # new commands and flags
     ("serve --log-level loud", {}, 2, "--log-level: invalid choice: 'loud'"),
     ("missions --status lost", {}, 2, "--status: invalid choice: 'lost'"),
@@ -93,6 +99,11 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("operator")
     (d / "free.json").write_text(json.dumps(FREE))
+    (d / "free.yaml").write_text(yaml.safe_dump(FREE))
+    (d / "nodesc.yaml").write_text(yaml.safe_dump({
+        "name": "tiny", "mission": FREE, "agents": [{
+            "name": "dji0", "type": "air", "tasks": ["move-to"],
+            "position": {"latitude": 57.76, "longitude": 16.68}}]}))
     (d / "badparam.json").write_text(json.dumps(BADPARAM))
     (d / "typo.json").write_text(json.dumps(TYPO))
     (d / "list.json").write_text("[1, 2]")
