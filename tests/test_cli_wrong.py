@@ -43,6 +43,8 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("plan free.json", {}, 1, "this is a mission (a TST), not a scenario"),
     ("plan bad.yaml", {}, 1, "not valid YAML"),
     ("plan free.json --fleet nope.yaml", {}, 1, "nope.yaml"),
+    ("plan free.json --fleet nodesc.yaml --json", {}, 0, ""),  # a mission for a fleet file (B13)
+    ("plan free.json --fleet demo", {}, 0, ""),
     ("plan free.json --fleet free.json", {}, 1, "agents"),
     ("plan impossible.yaml --format json", {}, 1, ""),  # infeasible: the plan, and exit 1
     ("bench", {}, 1, "give scenario files/folders"),
