@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "scenarios" / "demo.yaml")
 
 PLAN_KEYS = {"strategy", "objective", "feasible", "makespan", "total-time", "total-distance",
-             "solve-time", "bound", "gap", "assignments", "unassigned", "tst"}
+             "solve-time", "bound", "gap", "assignments", "unassigned", "tst", "notes"}
 ASSIGNMENT_KEYS = {"node-uuid", "name", "execunit", "start", "end", "travel-time", "work-time",
                    "distance"}
 
@@ -36,7 +36,7 @@ def test_json_is_exactly_the_plan(strategy: str, capsys: pytest.CaptureFixture[s
 def test_unassigned_tasks_are_listed_with_reasons(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["plan", str(ROOT / "scenarios" / "granso-impossible.yaml"), "--format", "json"])
     plan = json.loads(capsys.readouterr().out)
-    assert code == 0
+    assert code == 1  # an infeasible plan is printed, and the exit code says so
     assert plan["feasible"] is False
     assert plan["unassigned"] and all(u["reason"] for u in plan["unassigned"])
 

@@ -130,7 +130,7 @@ class Scenario(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(min_length=1)
-    description: str = Field(min_length=1)
+    description: str = ""  # optional: a scenario needs a fleet and a mission, not prose
     agents: list[AgentSpec]
     mission: dict[str, Any]
     #: Where the scenario came from (a file path or ``<dict>``), for messages.

@@ -8,12 +8,14 @@ instead of a dead worker.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, compute_bids, plan_mission
 from delegation.errors import InputError, Problem
 from delegation.fleet import UnitState
+from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
 from delegation.tst.node import TstNode, walk, where
@@ -74,6 +76,10 @@ class Job:
     source: str
     #: When the command arrived (core clock), for `Timing`.
     received: float
+    #: Per unit: where its speeds come from (``learnt``/``profile``/``default``) for the notes.
+    speed_sources: Mapping[str, str] = field(default_factory=dict)
+    #: Suspicious input (`delegation.learning.input_warnings`), added to the plan's notes.
+    warnings: tuple[str, ...] = ()
 
     @property
     def com_uuid(self) -> str:
@@ -110,14 +116,17 @@ def run_job(job: Job) -> JobResult:
     try:
         if job.kind == "bids":
             return BidsDone(compute_bids(job.tree, job.units))
-        return PlanDone(plan_mission(
+        plan = plan_mission(
             job.tree,
             job.units,
             strategy=job.options.strategy,
             objective=job.options.objective,
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
-        ))
+        )
+        used = {a.execunit.strip("/") for a in plan.assignments}
+        plan.notes.extend([*job.warnings, *speed_notes(job.units, job.speed_sources, used)])
+        return PlanDone(plan)
     except InputError as exc:
         return JobFailed(exc.fail_reason)
     except Exception as exc:  # a planner bug must not kill the service: answer it

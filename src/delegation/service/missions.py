@@ -111,6 +111,8 @@ class Mission:
             "unassigned": list(self.plan.get("unassigned", [])),
             "makespan": self.plan.get("makespan"),
             "strategy": self.plan.get("strategy"),
+            "notes": list(self.plan.get("notes", [])),
+            "tst": self.tst,
         }
 
 
