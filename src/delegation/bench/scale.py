@@ -13,12 +13,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from delegation.allocation.strategies import resolve_strategy
 from delegation.bench.generate import GeneratorOptions, generate_scenario
-from delegation.bench.isolate import call_isolated
+from delegation.bench.isolate import Outcome
 from delegation.bench.report import write_rows_csv
 from delegation.bench.runner import (
     ProgressFn,
@@ -28,7 +29,10 @@ from delegation.bench.runner import (
     scenarios_from_dicts,
     warm_up,
 )
-from delegation.errors import DelegationError, InputError, Problem
+from delegation.errors import InputError, Problem
+
+if TYPE_CHECKING:
+    from delegation.bench.executor import Executor
 
 #: The default grid: runs in a few minutes on 2 cores with the default budget and time limit.
 DEFAULT_UNITS: tuple[int, ...] = (5, 20, 50, 200)
@@ -97,70 +101,116 @@ def run_scale(
     generator: GeneratorOptions | None = None,
     progress: ProgressFn | None = None,
     isolate: bool = True,
+    executor: Executor | None = None,
 ) -> list[ScaleRecord]:
     """Run the sweep; one record per strategy x objective x cell, skipped cells included.
 
     With ``isolate`` (the default) each plan runs in a child process that is stopped when the
     budget is up, so one slow strategy cannot hold the sweep up for longer than its budget.
+    A run starts once every smaller cell that could stop it (no more units and no more tasks)
+    has finished for its strategy and objective, so an ``executor`` with several workers runs
+    independent cells at once and the records are those of the one-by-one sweep.
     """
     from delegation.allocation import OBJECTIVES, STRATEGIES
+    from delegation.bench.executor import LocalExecutor
 
-    strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
+    strategies = [resolve_strategy(s) for s in strategies or list(STRATEGIES)]
+    strategies = check_choice("strategies", strategies, STRATEGIES)
     objectives = check_choice("objectives", objectives, OBJECTIVES)
     if not budget > 0:
         raise InputError(Problem("budget", "", f"must be > 0 seconds, not {budget}"))
     base = generator or GeneratorOptions()
     cells = grid(units, tasks)
-    warm_up(strategies, objectives)
-    total = len(cells) * len(strategies) * len(objectives)
-    done = 0
-    #: (strategy, objective) -> the cells (units, tasks) where it exceeded the budget.
-    stopped: dict[tuple[str, str], list[tuple[int, int]]] = {}
-    records: list[ScaleRecord] = []
-    for n_units, n_tasks in cells:
-        options = GeneratorOptions(**{**base.__dict__, "units": n_units, "tasks": n_tasks})
-        cell_records: list[ScaleRecord] = []
-        needed = [
-            (s, o)
-            for o in objectives
-            for s in strategies
-            if _blocker(stopped.get((s, o), []), n_units, n_tasks) is None
-        ]
-        item = tree = unit_states = None
-        if needed:
+    executor = executor or LocalExecutor(isolate)
+    executor.prepare(warm_up, strategies, objectives)
+    pairs = [(s, o) for o in objectives for s in strategies]
+    records = {
+        (cell, pair): ScaleRecord(pair[0], pair[1], cell[0], cell[1], base.seed, SKIPPED)
+        for cell in cells for pair in pairs
+    }
+    sweep = _Sweep(cells, pairs, base, time_limit)
+    total, done = len(records), 0
+    while not sweep.finished:
+        batch = sweep.ready(records, budget)
+        for key in batch.skipped:
+            done += 1
+            if progress:
+                progress(done, total, f"{key[0][0]}x{key[0][1]} {key[1][0]}/{key[1][1]} skipped")
+        if not batch.runs:
+            continue
+        for index, outcome in executor.run(_record_only, batch.kwargs, budget if isolate else None):
+            key = batch.runs[index]
+            _fill(records[key], outcome, budget=budget, isolate=isolate)
+            sweep.finish(key, records[key].status == OVER_BUDGET)
+            done += 1
+            if progress:
+                progress(done, total, f"{key[0][0]}x{key[0][1]} {key[1][0]}/{key[1][1]}")
+    out: list[ScaleRecord] = []
+    for cell in cells:
+        mine = [records[(cell, pair)] for pair in pairs]
+        _relative(mine)
+        out.extend(mine)
+    return out
+
+
+_Key = tuple[tuple[int, int], tuple[str, str]]
+
+
+@dataclass
+class _Batch:
+    runs: list[_Key]
+    kwargs: list[dict[str, Any]]
+    skipped: list[_Key]
+
+
+class _Sweep:
+    """Which runs may start: those whose dominated cells (<= units and <= tasks) are settled."""
+
+    def __init__(self, cells: list[tuple[int, int]], pairs: list[tuple[str, str]],
+                 base: GeneratorOptions, time_limit: float) -> None:
+        self.cells, self.pairs, self.base, self.time_limit = cells, pairs, base, time_limit
+        self.pending = {(c, p) for c in cells for p in pairs}
+        self.stopped: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        self._scenarios: dict[tuple[int, int], Any] = {}
+
+    @property
+    def finished(self) -> bool:
+        return not self.pending
+
+    def finish(self, key: _Key, over: bool) -> None:
+        if over:
+            self.stopped.setdefault(key[1], []).append(key[0])
+
+    def _scenario(self, cell: tuple[int, int]) -> Any:
+        if cell not in self._scenarios:
+            options = GeneratorOptions(**{**self.base.__dict__, "units": cell[0],
+                                          "tasks": cell[1]})
             item = scenarios_from_dicts([generate_scenario(options)])[0]
-            tree, unit_states = item.scenario.tree(), item.scenario.units()
-        for objective in objectives:
-            for strategy in strategies:
-                record = ScaleRecord(strategy, objective, n_units, n_tasks, options.seed, SKIPPED)
-                block = _blocker(stopped.get((strategy, objective), []), n_units, n_tasks)
-                if block is not None:
-                    bu, bt = block
-                    record.note = f"skipped: exceeded the budget ({budget:g} s) at {bu}x{bt}"
-                else:
-                    assert item is not None and tree is not None and unit_states is not None
-                    _measure(
-                        record,
-                        dict(
-                            item=item,
-                            tree=tree,
-                            units=unit_states,
-                            strategy=strategy,
-                            objective=objective,
-                            time_limit=time_limit,
-                        ),
-                        budget=budget,
-                        isolate=isolate,
-                    )
-                    if record.status == OVER_BUDGET:
-                        stopped.setdefault((strategy, objective), []).append((n_units, n_tasks))
-                cell_records.append(record)
-                done += 1
-                if progress:
-                    progress(done, total, f"{n_units}x{n_tasks} {strategy}/{objective}")
-        _relative(cell_records)
-        records.extend(cell_records)
-    return records
+            self._scenarios[cell] = (item, item.scenario.tree(), item.scenario.units())
+        return self._scenarios[cell]
+
+    def ready(self, records: dict[_Key, ScaleRecord], budget: float) -> _Batch:
+        batch = _Batch([], [], [])
+        for key in sorted(self.pending, key=lambda k: (self.cells.index(k[0]),
+                                                       self.pairs.index(k[1]))):
+            (u, t), pair = key
+            below = [k for k in self.pending if k[1] == pair and k != key
+                     and k[0][0] <= u and k[0][1] <= t]
+            if below:
+                continue
+            block = _blocker(self.stopped.get(pair, []), u, t)
+            if block is not None:
+                records[key].note = (f"skipped: exceeded the budget ({budget:g} s) at "
+                                     f"{block[0]}x{block[1]}")
+                batch.skipped.append(key)
+                continue
+            item, tree, unit_states = self._scenario((u, t))
+            batch.runs.append(key)
+            batch.kwargs.append(dict(item=item, tree=tree, units=unit_states, strategy=pair[0],
+                                     objective=pair[1], time_limit=self.time_limit))
+        for key in batch.runs + batch.skipped:
+            self.pending.discard(key)
+        return batch
 
 
 def _record_only(**kwargs: Any) -> RunRecord:
@@ -168,24 +218,16 @@ def _record_only(**kwargs: Any) -> RunRecord:
     return run_one(**kwargs)[0]
 
 
-def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isolate: bool) -> None:
-    """Run one plan and fill ``record``: ok, over budget (finished late or stopped), failed."""
-    if isolate:
-        outcome = call_isolated(_record_only, kwargs, timeout=budget)
-        if outcome.timed_out:
-            record.status = OVER_BUDGET
-            record.note = f"stopped at the budget ({budget:g} s)"
-            return
-        if not outcome.ok:
-            record.status, record.note = FAILED, str(outcome.input_error or outcome.crashed)
-            return
-        run: RunRecord = outcome.value
-    else:
-        try:
-            run = _record_only(**kwargs)
-        except DelegationError as exc:
-            record.status, record.note = FAILED, str(exc)
-            return
+def _fill(record: ScaleRecord, outcome: Outcome, *, budget: float, isolate: bool) -> None:
+    """Fill ``record`` from a run's outcome: ok, over budget (finished late or stopped), failed."""
+    if outcome.timed_out:
+        record.status = OVER_BUDGET
+        record.note = f"stopped at the budget ({budget:g} s)"
+        return
+    if not outcome.ok:
+        record.status, record.note = FAILED, str(outcome.input_error or outcome.crashed)
+        return
+    run: RunRecord = outcome.value
     record.wall_time, record.solve_time = run.wall_time, run.solve_time
     record.objective_value, record.unassigned = run.objective_value, run.unassigned
     record.problems = run.problems

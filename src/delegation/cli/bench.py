@@ -439,7 +439,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
             f"{budget:g} s: optimal will exceed it at the first size"
         )
-    with _progress(err, "scale sweep") as update:
+    with _executor(args) as executor, _progress(err, "scale sweep") as update:
         records = run_scale(
             args.strategies,
             objectives=args.objectives or ["makespan"],
@@ -450,6 +450,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             generator=generator,
             progress=update,
             isolate=not args.in_process,
+            executor=executor,
         )
     rows = summary_rows(records)
     table = compact_table(
