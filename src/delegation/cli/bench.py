@@ -327,8 +327,9 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
         loaded += scenarios_from_dicts(generated)
     for failure in failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
-    if not loaded:
-        err.print("error: no scenario to run; nothing written")
+    if not loaded:  # each bad file was named above: one line each, and no empty outputs
+        if not failures:
+            err.print("error: no scenario to run; nothing written")
         return 1
 
     with _executor(args) as executor, _progress(err, "planning") as update:
