@@ -13,12 +13,10 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("distributed")
-
-from delegation.bench.executor import DaskExecutor, LocalExecutor  # noqa: E402
-from delegation.bench.generate import GeneratorOptions, generate_scenario  # noqa: E402
-from delegation.bench.runner import RunRecord, run_bench, scenarios_from_dicts  # noqa: E402
-from delegation.bench.scale import run_scale  # noqa: E402
+from delegation.bench.executor import DaskExecutor, LocalExecutor
+from delegation.bench.generate import GeneratorOptions, generate_scenario
+from delegation.bench.runner import RunRecord, run_bench, scenarios_from_dicts
+from delegation.bench.scale import run_scale
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Fields that measure time: the only ones allowed to differ between executors.
