@@ -2,10 +2,10 @@
 
 A bar's light part is the travel to the task, its solid part the work; a dotted grey line is a
 unit waiting before its next task (for the tasks that must finish first: the tree's precedence);
-a diamond is a task done in place (``look-at-*``). With ``flown`` (from a followed mission, see
-``flown_bars``) each unit gets a second, hatched lane with what it actually did. Figures are
-bare ``Figure`` objects on the Agg canvas (no pyplot state), so this runs headless and off the
-main thread.
+a diamond is a task done in place (``look-at-*``; flown, a thin strip). With ``flown`` (from a
+followed mission, see ``flown_bars``) each unit gets a second, hatched lane with what it did.
+Figures are bare ``Figure`` objects on the Agg canvas (no pyplot state), so this runs headless
+and off the main thread.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ class Bar:
     start: float
     end: float
     travel: float = 0.0
+    node: str = ""
 
 
 def plan_bars(plan: Plan | Mapping[str, Any]) -> list[Bar]:
@@ -40,10 +41,10 @@ def plan_bars(plan: Plan | Mapping[str, Any]) -> list[Bar]:
     if isinstance(plan, Mapping):
         return [
             Bar(str(a["execunit"]).lstrip("/"), str(a.get("name", "")), float(a["start"]),
-                float(a["end"]), float(a.get("travel-time") or 0.0))
+                float(a["end"]), float(a.get("travel-time") or 0.0), str(a.get("node-uuid", "")))
             for a in plan.get("assignments", [])
         ]
-    return [Bar(a.execunit.lstrip("/"), a.name, a.start, a.end, a.travel_time)
+    return [Bar(a.execunit.lstrip("/"), a.name, a.start, a.end, a.travel_time, a.node_uuid)
             for a in plan.assignments]
 
 
@@ -57,7 +58,8 @@ def flown_bars(rows: Iterable[TaskRow], now: float | None = None) -> list[Bar]:
         end = row.ended if row.ended is not None else now
         if end is None:
             continue
-        bars.append(Bar(row.unit.lstrip("/"), row.name, row.started, max(end, row.started)))
+        bars.append(Bar(row.unit.lstrip("/"), row.name, row.started, max(end, row.started),
+                        node=row.node_uuid))
     return bars
 
 
@@ -98,10 +100,18 @@ def render_gantt(
     fig = Figure(figsize=(10.0, 1.2 + 0.45 * max(1, len(lanes))), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.subplots()
+    # Tasks done in place (planned with no duration, e.g. look-at-*): a diamond in the plan and a
+    # thin strip along the flown lane's top, so that they never hide the unit's other tasks.
+    in_place = {b.node for b in planned if b.end - b.start <= MIN_WAIT and b.node}
     waited = passive = False
     for y, (_, kind, bars) in enumerate(lanes):
         hatch = "xx" if kind == "flown" else None
         for b in bars:
+            if b.node in in_place and b.end - b.start > MIN_WAIT:
+                ax.barh(y - 0.38, b.end - b.start, left=b.start, height=0.14,
+                        color=colour[b.name], edgecolor="black", linewidth=0.5)
+                passive = True
+                continue
             if b.end - b.start <= MIN_WAIT:
                 ax.plot([b.start], [y], marker="D", ms=6, color=colour[b.name],
                         markeredgecolor="black")
@@ -113,7 +123,7 @@ def render_gantt(
                         edgecolor="black", linewidth=0.5, hatch=hatch)
             ax.barh(y, b.end - b.start - travel, left=b.start + travel, height=0.6,
                     color=colour[b.name], edgecolor="black", linewidth=0.5, hatch=hatch)
-        for since, until in _waits(bars):
+        for since, until in _waits([b for b in bars if b.node not in in_place]):
             ax.plot([since, until], [y, y], color="0.5", ls=":", lw=1.5)
             waited = True
     ax.set_yticks(range(len(lanes)),
@@ -128,7 +138,7 @@ def render_gantt(
         handles.append(Line2D([], [], color="0.5", ls=":", label="waiting for earlier tasks"))
     if passive:
         handles.append(Line2D([], [], marker="D", ls="", color="0.5", markeredgecolor="black",
-                              label="task done in place"))
+                              label="task done in place (flown: thin strip)"))
     if flown is not None:
         handles.append(Patch(facecolor="white", edgecolor="black", hatch="xx",
                              label="flown (from feedback)"))
