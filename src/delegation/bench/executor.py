@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
 from typing import Any, Protocol
@@ -95,6 +96,10 @@ class DaskExecutor:
         self.client: Any = None
 
     def __enter__(self) -> DaskExecutor:
+        # Dask logs every worker's start at INFO on stderr; the CLI's -v decides what is shown.
+        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+        logging.getLogger("distributed").setLevel(
+            max(logging.WARNING, logging.getLogger().getEffectiveLevel()))
         try:
             import dask
             from distributed import Client, LocalCluster
@@ -111,7 +116,7 @@ class DaskExecutor:
                 self._stack.enter_context(dask.config.set({"distributed.worker.daemon": False}))
                 cluster = self._stack.enter_context(LocalCluster(
                     n_workers=self.workers or multiprocessing.cpu_count(), threads_per_worker=1,
-                    host="127.0.0.1", dashboard_address=None, processes=True,
+                    host="127.0.0.1", processes=True, scheduler_kwargs={"dashboard": False},
                 ))
                 self.client = self._stack.enter_context(Client(cluster))
         except OSError as exc:
