@@ -504,6 +504,10 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
 def _command_line(args: argparse.Namespace) -> str:
     """The bench command that reproduces this run (for the results page)."""
     words = ["delegation", "bench", *(str(p) for p in args.scenarios)]
+    for path in args.tsplib:
+        words += ["--tsplib", str(path)]
+    if args.tsplib and not args.generate:
+        words += ["--units", ",".join(map(str, args.units or [3]))]
     if args.generate:
         words += ["--generate", "--seed", str(args.seed), "--site", args.site]
         words += ["--units", ",".join(map(str, args.units or [5]))]
@@ -514,6 +518,8 @@ def _command_line(args: argparse.Namespace) -> str:
         words += ["--objectives", ",".join(args.objectives)]
     if args.repeat != 1:
         words += ["--repeat", str(args.repeat)]
+    if args.baseline:
+        words += ["--baseline", args.baseline]
     words += ["--time-limit", f"{args.time_limit:g}"]
     if args.out:
         words += ["--out", args.out.as_posix()]
