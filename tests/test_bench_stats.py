@@ -129,3 +129,17 @@ def test_compare_refuses_files_that_are_not_results(tmp_path: Path) -> None:
     bad.write_text("{}")
     assert main(["bench", "compare", str(bad), str(bad)]) == 1
     assert main(["bench", "compare", str(bad)]) == 1
+
+
+def test_scale_sweep_shows_a_copied_plan_and_never_counts_it_best() -> None:
+    from delegation.bench.generate import GeneratorOptions
+    from delegation.bench.scale import run_scale, summary_rows
+
+    records = run_scale(["auction", "optimal"], units=[2], tasks=[4], budget=60.0,
+                        time_limit=1.0, generator=GeneratorOptions(seed=0), isolate=False)
+    by = {r.strategy: r for r in records}
+    assert by["optimal"].plan_digest == by["auction"].plan_digest  # CP-SAT kept this plan
+    assert by["optimal"].same_plan_as == "auction" and by["auction"].same_plan_as is None
+    rows = {row["strategy"]: row for row in summary_rows(records)}
+    assert rows["optimal"]["copied"] == 1 and rows["optimal"]["strictly_best"] == 0
+    assert rows["auction"]["strictly_best"] == 0  # nobody else planned: nothing was beaten

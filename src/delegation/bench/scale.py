@@ -63,6 +63,10 @@ class ScaleRecord:
     problems: list[str] = field(default_factory=list)
     #: what the strategy reported doing (``Plan.notes``)
     notes: list[str] = field(default_factory=list)
+    #: the plan's digest, and the strategy listed before it whose plan this very plan is
+    #: (optimal keeping the auction's): such a record is never "best"
+    plan_digest: str = ""
+    same_plan_as: str | None = None
 
     @property
     def size(self) -> int:
@@ -149,6 +153,7 @@ def run_scale(
     for cell in cells:
         mine = [records[(cell, pair)] for pair in pairs]
         _relative(mine)
+        _mark_copies(mine)
         out.extend(mine)
     return out
 
@@ -232,6 +237,7 @@ def _fill(record: ScaleRecord, outcome: Outcome, *, budget: float, isolate: bool
     record.objective_value, record.unassigned = run.objective_value, run.unassigned
     record.problems = run.problems
     record.notes = run.notes
+    record.plan_digest = run.plan_digest
     record.status = OK
     if run.wall_time > budget:
         record.status = OVER_BUDGET
@@ -241,6 +247,16 @@ def _fill(record: ScaleRecord, outcome: Outcome, *, budget: float, isolate: bool
 def _blocker(blocks: list[tuple[int, int]], units: int, tasks: int) -> tuple[int, int] | None:
     """The first cell that exceeded the budget and is no larger than this one, if any."""
     return next((b for b in blocks if units >= b[0] and tasks >= b[1]), None)
+
+
+def _mark_copies(records: Sequence[ScaleRecord]) -> None:
+    """``same_plan_as`` within one cell: the first strategy (in order) with this very plan."""
+    first: dict[tuple[str, str], str] = {}
+    for r in records:
+        if not r.plan_digest:
+            continue
+        owner = first.setdefault((r.objective, r.plan_digest), r.strategy)
+        r.same_plan_as = owner if owner != r.strategy else None
 
 
 def _relative(records: Sequence[ScaleRecord]) -> None:
@@ -336,6 +352,15 @@ def scale_plot(
                         color=colour,
                         ms=7,
                     )
+                copied = [r for r in mine if r.same_plan_as and r.relative_to_best is not None]
+                ax_rel.plot(
+                    [r.tasks for r in copied],
+                    [r.relative_to_best for r in copied],
+                    "s",
+                    ms=11,
+                    mfc="none",
+                    mec="black",
+                )
                 rel = [r for r in mine if r.relative_to_best is not None]
                 ax_rel.plot(
                     [r.tasks for r in rel],
@@ -384,7 +409,9 @@ def scale_plot(
     ax_rel.set_ylabel("objective / best strategy's on the same scenario")
     ax_rel.set_title("plan quality (1 = best; plans with the fewest unassigned)", fontsize=10)
     ax_rel.grid(True, which="both", alpha=0.3)
-    ax_rel.legend(handles=handles, fontsize=7, loc="upper left")
+    rel_handles = [*handles, Line2D([], [], color="black", ls="", marker="s", mfc="none", ms=9,
+                                    label="returned an earlier strategy's plan")]
+    ax_rel.legend(handles=rel_handles, fontsize=7, loc="upper left")
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -393,8 +420,11 @@ def scale_plot(
 
 
 def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
-    """True when ``record`` beat every other strategy on its cell (same objective)."""
-    if record.relative_to_best is None or record.relative_to_best > 1.0 + 1e-9:
+    """True when ``record`` beat every other strategy on its cell (same objective); a plan that
+    was another strategy's is not its own, so it neither wins nor ties."""
+    if record.same_plan_as or record.relative_to_best is None:
+        return False
+    if record.relative_to_best > 1.0 + 1e-9:
         return False
     rivals = [
         r
@@ -402,8 +432,11 @@ def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
         if (r.units, r.tasks, r.objective) == (record.units, record.tasks, record.objective)
         and r is not record
         and r.relative_to_best is not None
+        and not r.same_plan_as
     ]
-    return all(r.relative_to_best is not None and r.relative_to_best > 1.0 + 1e-9 for r in rivals)
+    return bool(rivals) and all(
+        r.relative_to_best is not None and r.relative_to_best > 1.0 + 1e-9 for r in rivals
+    )
 
 
 def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
@@ -428,6 +461,7 @@ def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
                 "median_relative": float(np.median(rel)) if rel else None,
                 "compared": len(rel),
                 "strictly_best": sum(_strictly_best(records, r) for r in ok),
+                "copied": sum(1 for r in mine if r.same_plan_as),
             }
         )
     return rows

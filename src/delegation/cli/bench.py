@@ -472,7 +472,8 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     console.print(
         "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
         "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
-        "where it beat every other strategy",
+        "where it beat every other strategy (a returned plan of another never counts); copied: "
+        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
         style="dim",
     )
     written = [write_scale_csv(records, out / "scale.csv")]
@@ -541,6 +542,7 @@ _SCALE_HEADERS = (
     "failed",
     "vs best",
     "best on",
+    "copied",
 )
 
 
@@ -555,6 +557,7 @@ def _scale_cells(row: dict[str, Any]) -> list[str]:
         str(row["failed"]),
         "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
         f"{row['strictly_best']} of {row['compared']}",
+        str(row["copied"]),
     ]
 
 
@@ -569,10 +572,11 @@ def _scale_markdown(rows: list[dict[str, Any]]) -> str:
         "failed",
         "median objective / best",
         "strictly best on",
+        "returned an earlier strategy's plan",
     ]
     lines = [
         "| " + " | ".join(headers) + " |",
-        "|---|---|---|---:|---|---:|---:|---:|---:|",
+        "|---|---|---|---:|---|---:|---:|---:|---:|---:|",
     ]
     lines += ["| " + " | ".join(_scale_cells(row)) + " |" for row in rows]
     return "\n".join(lines)
