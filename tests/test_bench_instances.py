@@ -129,3 +129,31 @@ def test_ctrl_c_writes_the_finished_runs_and_exits_130(tmp_path: Path) -> None:
     assert [r["strategy"] for r in data["records"]] == ["nearest", "auction"]
     assert data["meta"]["interrupted"] is True and data["meta"]["runs_asked"] == 3
     assert (out / "results.md").read_text().startswith("**Interrupted: partial results.**")
+
+
+def test_ctrl_c_in_the_scale_sweep_writes_the_finished_runs(tmp_path: Path) -> None:
+    marker, out = tmp_path / "started", tmp_path / "out"
+    env = {**os.environ, "BENCH_TEST_MARKER": str(marker),
+           "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])}
+    process = subprocess.Popen(
+        [sys.executable, "-m", "delegation", "bench", "--scale", "--units", "2", "--tasks", "3",
+         "--strategies", "nearest,bench_crash_strategy:sleepy", "--budget", "100", "--no-plots",
+         "--out", str(out)],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert marker.exists(), "the sleepy run never started"
+        os.killpg(process.pid, signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
+    assert process.returncode == 130, stderr
+    assert "interrupted: wrote the 1 runs that finished" in stderr
+    rows = list(csv.DictReader((out / "scale.csv").open()))
+    assert [(r["strategy"], r["status"]) for r in rows] == [("nearest", "ok")]

@@ -134,24 +134,50 @@ def run_scale(
     }
     sweep = _Sweep(cells, pairs, base, time_limit)
     total, done = len(records), 0
-    while not sweep.finished:
-        batch = sweep.ready(records, budget)
-        for key in batch.skipped:
-            done += 1
-            if progress:
-                progress(done, total, f"{key[0][0]}x{key[0][1]} {key[1][0]}/{key[1][1]} skipped")
-        if not batch.runs:
-            continue
-        for index, outcome in executor.run(_record_only, batch.kwargs, budget if isolate else None):
-            key = batch.runs[index]
-            _fill(records[key], outcome, budget=budget, isolate=isolate)
-            sweep.finish(key, records[key].status == OVER_BUDGET)
-            done += 1
-            if progress:
-                progress(done, total, f"{key[0][0]}x{key[0][1]} {key[1][0]}/{key[1][1]}")
+    settled: set[_Key] = set()
+    try:
+        while not sweep.finished:
+            batch = sweep.ready(records, budget)
+            for key in batch.skipped:
+                settled.add(key)
+                done += 1
+                if progress:
+                    progress(done, total, f"{_label(key)} skipped")
+            if not batch.runs:
+                continue
+            timeout = budget if isolate else None
+            for index, outcome in executor.run(_record_only, batch.kwargs, timeout):
+                key = batch.runs[index]
+                _fill(records[key], outcome, budget=budget, isolate=isolate)
+                sweep.finish(key, records[key].status == OVER_BUDGET)
+                settled.add(key)
+                done += 1
+                if progress:
+                    progress(done, total, _label(key))
+    except KeyboardInterrupt:
+        raise ScaleInterrupted(_ordered(cells, pairs, records, settled)) from None
+    return _ordered(cells, pairs, records, settled)
+
+
+class ScaleInterrupted(KeyboardInterrupt):
+    """Ctrl-C during the sweep, with the records of the runs that were settled by then."""
+
+    def __init__(self, records: list[ScaleRecord]) -> None:
+        super().__init__()
+        self.records = records
+
+
+def _label(key: _Key) -> str:
+    (units, tasks), (strategy, objective) = key
+    return f"{units}x{tasks} {strategy}/{objective}"
+
+
+def _ordered(cells: list[tuple[int, int]], pairs: list[tuple[str, str]],
+             records: dict[_Key, ScaleRecord], settled: set[_Key]) -> list[ScaleRecord]:
+    """The settled records cell by cell (small to large), compared within each cell."""
     out: list[ScaleRecord] = []
     for cell in cells:
-        mine = [records[(cell, pair)] for pair in pairs]
+        mine = [records[(cell, pair)] for pair in pairs if (cell, pair) in settled]
         _relative(mine)
         _mark_copies(mine)
         out.extend(mine)

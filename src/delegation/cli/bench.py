@@ -425,6 +425,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         DEFAULT_BUDGET,
         DEFAULT_TASKS,
         DEFAULT_UNITS,
+        ScaleInterrupted,
         run_scale,
         scale_plot,
         summary_rows,
@@ -440,19 +441,26 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
             f"{budget:g} s: optimal will exceed it at the first size"
         )
-    with _executor(args) as executor, _progress(err, "scale sweep") as update:
-        records = run_scale(
-            args.strategies,
-            objectives=args.objectives or ["makespan"],
-            units=units,
-            tasks=tasks,
-            budget=budget,
-            time_limit=args.time_limit,
-            generator=generator,
-            progress=update,
-            isolate=not args.in_process,
-            executor=executor,
-        )
+    interrupted = False
+    try:
+        with _executor(args) as executor, _progress(err, "scale sweep") as update:
+            records = run_scale(
+                args.strategies,
+                objectives=args.objectives or ["makespan"],
+                units=units,
+                tasks=tasks,
+                budget=budget,
+                time_limit=args.time_limit,
+                generator=generator,
+                progress=update,
+                isolate=not args.in_process,
+                executor=executor,
+            )
+    except ScaleInterrupted as stop:  # Ctrl-C: write what finished, then exit 130
+        records, interrupted = stop.records, True
+        if not records:
+            err.print("interrupted: no run had finished; nothing written")
+            return 130
     rows = summary_rows(records)
     table = compact_table(
         f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s"
@@ -499,6 +507,9 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     failed = [r for r in records if r.status == "failed"]
     for r in failed:
         err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
+    if interrupted:
+        err.print(f"interrupted: wrote the {len(records)} runs that finished")
+        return 130
     return 1 if violations or failed else 0
 
 
