@@ -96,10 +96,15 @@ def test_dask_cluster_gives_the_local_records(scheduler: str) -> None:
 
 
 def test_a_crash_on_a_worker_costs_one_run(scheduler: str) -> None:
-    with DaskExecutor(scheduler) as executor:
-        result = run_bench(_scenarios()[:1], executor=executor, objectives=["makespan"],
-                           strategies=["nearest", "bench_crash_strategy:abort"],
-                           run_timeout=120)
+    from delegation.allocation import STRATEGIES
+
+    crash = "bench_crash_strategy:abort"
+    try:
+        with DaskExecutor(scheduler) as executor:
+            result = run_bench(_scenarios()[:1], executor=executor, objectives=["makespan"],
+                               strategies=["nearest", crash], run_timeout=120)
+    finally:
+        STRATEGIES.unregister(crash)  # registered in this process by the spec
     assert [r.strategy for r in result.records] == ["nearest"]
     assert len(result.failed) == 1
     assert "planner process died (SIGABRT" in result.failed[0].reason
