@@ -67,7 +67,7 @@ def test_cli_choices_are_the_planners_names() -> None:
     from delegation.allocation import OBJECTIVES, STRATEGIES
     from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 
-    assert STRATEGY_CHOICES == ("nearest", "auction", "optimal") == tuple(STRATEGIES)
+    assert tuple(STRATEGY_CHOICES) == ("nearest", "auction", "optimal") == tuple(STRATEGIES)
     assert OBJECTIVE_CHOICES == ("makespan", "total") == tuple(OBJECTIVES)
     assert "--objective {makespan,total}" in _help(["plan", "--help"])
     # The names alone do not load the planner (numpy, OR-Tools): the CLI starts quickly.

@@ -64,6 +64,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     setup_logging(args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # for results' provenance
     handler = getattr(args, "func", None)
     if handler is None:
         parser.print_help()

@@ -9,16 +9,44 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
+from delegation.allocation.strategies import resolve_strategy
+from delegation.errors import DelegationError
 
 if TYPE_CHECKING:
     from delegation.allocation import Plan
 
+
+
+class StrategyChoices:
+    """argparse ``choices`` for ``--strategy``: the registry's names (listed in help), and any
+    ``package.module:function`` spec, imported and registered when argparse checks it; a spec
+    that cannot be used is refused with its reason (docs/strategies.md)."""
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(list(STRATEGIES))
+
+    def __len__(self) -> int:
+        return len(STRATEGIES)
+
+    def __contains__(self, value: object) -> bool:
+        if not isinstance(value, str):
+            return False
+        if value in STRATEGIES or ":" not in value:
+            return value in STRATEGIES
+        try:
+            resolve_strategy(value)
+        except DelegationError as exc:
+            raise argparse.ArgumentError(None, str(exc)) from None
+        return True
+
+
 #: The planner's names (``delegation.allocation``), for argparse ``choices``; ``cli.runtime``
-#: imports these two.
-STRATEGY_CHOICES: tuple[str, ...] = tuple(STRATEGIES)
+#: imports these two, so ``plan``, ``serve``, ``submit`` and ``demo`` accept the same strategies.
+STRATEGY_CHOICES = StrategyChoices()
 OBJECTIVE_CHOICES: tuple[str, ...] = tuple(o.value for o in OBJECTIVES)
 
 
@@ -43,7 +71,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--service", default="delegator0",
                         help="the service asked for the live fleet (default delegator0)")
     parser.add_argument("--strategy", default="auction", choices=STRATEGY_CHOICES,
-                        help="allocation strategy (default: auction)")
+                        metavar="STRATEGY",
+                        help="allocation strategy: " + ", ".join(STRATEGY_CHOICES)
+                        + " or package.module:function (default: auction)")
     parser.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES,
                         help="what to minimise (default: makespan, ties broken by total time)")
     parser.add_argument("--time-limit", type=float, default=5.0, metavar="S",

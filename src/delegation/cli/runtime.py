@@ -481,8 +481,17 @@ def _demo(args: argparse.Namespace) -> int:
             title=f"{scenario.name}: {plan.get('strategy')} plan, "
             f"makespan {float(plan.get('makespan') or 0):.0f} s",
         )
+        from delegation.render.gantt import flown_bars, render_gantt
+
+        gantt = render_gantt(
+            plan,
+            out / "gantt.png",
+            title=f"{scenario.name}: planned vs flown (mission seconds)",
+            flown=flown_bars(progress.rows.values(), progress.elapsed),
+        )
         console.print(
-            f"map: {path}   plan: {out / 'plan.json'}   ({time.monotonic() - t0:.1f} s wall in all)"
+            f"map: {path}   gantt: {gantt}   plan: {out / 'plan.json'}   "
+            f"({time.monotonic() - t0:.1f} s wall in all)"
         )
         return 0 if progress.succeeded else 1
 
