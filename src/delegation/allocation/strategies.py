@@ -31,6 +31,8 @@ class StrategyResult:
     schedule: Schedule
     bound: float | None = None
     notes: list[str] = field(default_factory=list)
+    #: The strategy whose plan this is, when this one fell back to it (else None).
+    fallback: str | None = None
 
 
 class StrategyFn(Protocol):
@@ -59,7 +61,8 @@ def _optimal(problem: Problem, objective: Objective, time_limit: float, /) -> St
     from delegation.allocation.optimal import optimise
 
     result = optimise(problem, objective, time_limit)
-    return StrategyResult(result.schedule, result.bound, result.notes)
+    return StrategyResult(result.schedule, result.bound, result.notes,
+                          "auction" if result.kept_auction else None)
 
 
 #: The strategies by name, in the order they are offered (baseline first).

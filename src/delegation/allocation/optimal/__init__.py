@@ -71,6 +71,7 @@ class OptimalResult:
     bound: float | None = None
     notes: list[str] = field(default_factory=list)
     solver: str = ""
+    kept_auction: bool = True  # the schedule is the auction's (reported as a fallback)
 
 
 def optimise(
@@ -122,6 +123,7 @@ def optimise(
         better(candidate, base, objective) or not base_counts
     ):
         result.schedule = candidate
+        result.kept_auction = False
     elif candidate is not None:
         result.notes.append(
             f"{result.solver} found no better plan than the auction's; keeping the auction's plan"
