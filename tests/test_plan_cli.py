@@ -13,7 +13,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "scenarios" / "demo.yaml")
 
 PLAN_KEYS = {"strategy", "objective", "feasible", "makespan", "total-time", "total-distance",
-             "solve-time", "bound", "gap", "assignments", "unassigned", "tst"}
+             "solve-time", "bound", "gap", "precedence-makespan", "instantiation-loss", "fallback",
+             "assignments", "unassigned", "tst"}
 ASSIGNMENT_KEYS = {"node-uuid", "name", "execunit", "start", "end", "travel-time", "work-time",
                    "distance"}
 

@@ -90,6 +90,14 @@ class RunRecord:
     problems: list[str] = field(default_factory=list)
     #: what the strategy reported doing (e.g. optimal keeping the auction's plan when too large)
     notes: list[str] = field(default_factory=list)
+    #: the strategy whose plan this is when the strategy fell back to it (``optimal`` keeping
+    #: the auction's), else None
+    fallback: str | None = None
+    #: the plan's precedence-graph makespan and what the sent tree adds to it (s)
+    precedence_makespan: float | None = None
+    instantiation_loss: float | None = None
+    #: a lower bound on any plan's makespan (``allocation.bounds``), s
+    lower_bound: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -388,6 +396,10 @@ def make_record(
         gap=_opt(plan.gap),
         problems=problems,
         notes=[str(n) for n in getattr(plan, "notes", [])],
+        fallback=plan.fallback,
+        precedence_makespan=_opt(plan.precedence_makespan),
+        instantiation_loss=_opt(plan.instantiation_loss),
+        lower_bound=_opt(plan.lower_bound),
     )
 
 
