@@ -84,6 +84,7 @@ from delegation.service.jobs import (
     plan_options,
 )
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.operator_view import OperatorView
 from delegation.topics import QOS_PERIODIC, parse_unit_topic
 from delegation.tst.node import with_uuids
 from delegation.tst.validate import parse_and_validate
@@ -382,7 +383,8 @@ class ServiceCore:
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=now,
-                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst)))
+                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst),
+                              operator=OperatorView.of(plan.source) if plan.source else None))
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self._respond("delegation", job.key, DelegationResponse(
@@ -426,9 +428,19 @@ class ServiceCore:
         )
         if mission is None:
             return Effects()  # a tree someone else gave the engine
-        relay = TstFeedback(node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
-                            fail_reason=fb.fail_reason)
-        return Effects().send(self.tst_feedback_topic, relay).extend(self._lifecycle(events))
+        effects = Effects()
+        view = mission.operator
+        if view is None or fb.node_uuid in view.leaves:  # leaves: relayed unchanged
+            effects.send(self.tst_feedback_topic, TstFeedback(
+                node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
+                fail_reason=fb.fail_reason))
+        if view is not None and fb.node_uuid in view.leaves:
+            # The operator's control nodes, derived from their children (DESIGN 3.4 revised).
+            for uid, status in view.changes(fb.node_uuid, mission.node_status):
+                effects.send(self.tst_feedback_topic, TstFeedback(
+                    node_uuid=uid, root_flag=uid == view.root, status=status,
+                    fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
+        return effects.extend(self._lifecycle(events))
 
     def _engine_answer(self, got: EngineAnswer, now: float) -> Effects:
         """The mission moves on (if it does), then the caller gets its answer."""
