@@ -27,8 +27,7 @@ from delegation.allocation import (
 from delegation.allocation.auction import auction
 from delegation.allocation.nearest import nearest
 from delegation.allocation.optimal import optimise
-from delegation.allocation.problem import Problem
-from delegation.allocation.schedule import Schedule, evaluate
+from delegation.allocation.schedule import evaluate
 from delegation.errors import InputError
 from delegation.tst import parse_tree
 

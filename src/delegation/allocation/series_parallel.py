@@ -20,6 +20,7 @@ change no time).
 
 from __future__ import annotations
 
+import itertools
 import uuid as uuid_module
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -54,7 +55,7 @@ def precedence_graph(
     s, n_tasks = problem.structure, problem.n_tasks
     succ: list[list[int]] = [[] for _ in range(n_tasks)]
     for order in orders:
-        for a, b in zip(order, order[1:], strict=False):
+        for a, b in itertools.pairwise(order):
             succ[a].append(b)
     # The tree's order through one barrier node per pair of consecutive seq children.
     tasks_under = _tasks_under(problem)
@@ -63,7 +64,7 @@ def precedence_graph(
         if s.kinds[n] != "seq":
             continue
         holding = [c for c in s.children[n] if tasks_under[c]]
-        for a, b in zip(holding, holding[1:], strict=False):
+        for a, b in itertools.pairwise(holding):
             barrier = n_nodes
             n_nodes += 1
             succ.append(list(tasks_under[b]))
@@ -239,11 +240,11 @@ def build_tree(
     make = new_uuid or (lambda: str(uuid_module.uuid4()))
     engine = "/" + engine_unit.strip("/")
     callers: dict[frozenset[str], list[TstNode]] = {}
-    for _, node in walk(source):  # parents first: outermost first
-        if node.is_control:
-            uids = frozenset(leaf.node_uuid or "" for leaf in leaves(node))
+    for _, given in walk(source):  # parents first: outermost first
+        if given.is_control:
+            uids = frozenset(leaf.node_uuid or "" for leaf in leaves(given))
             if uids:
-                callers.setdefault(uids, []).append(node)
+                callers.setdefault(uids, []).append(given)
 
     def control(node: TstNode, children: list[TstNode]) -> TstNode:
         try:

@@ -383,7 +383,9 @@ class ServiceCore:
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=now,
-                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst),
+                              tst=plan_json["tst"], plan=plan_json,
+                              nodes={**(node_infos(plan.source) if plan.source else {}),
+                                     **node_infos(plan.tst)},
                               operator=OperatorView.of(plan.source) if plan.source else None))
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
