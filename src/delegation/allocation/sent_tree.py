@@ -20,7 +20,11 @@ import numpy as np
 from delegation.allocation.instantiate import Placement, instantiate
 from delegation.allocation.problem import Problem, Structure, flatten_tree, precedence
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate
-from delegation.allocation.series_parallel import build_tree, decompose, precedence_graph
+from delegation.allocation.series_parallel import (
+    best_decomposition,
+    build_tree,
+    precedence_graph,
+)
 from delegation.tst import TstNode, leaves
 
 #: The names of the two instantiation rules, as the plan's notes give them.
@@ -98,7 +102,7 @@ def choose_tree(
     graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
                              schedule.home_time)
     filled = {leaf.node_uuid or "": leaf for leaf in leaves(old)}
-    sp = build_tree(decompose(graph), prepared, filled, [t.uuid for t in problem.tasks],
+    sp = build_tree(best_decomposition(graph, schedule.makespan), prepared, filled, [t.uuid for t in problem.tasks],
                     engine_unit, new_uuid)
     missing = missing_precedences(prepared, sp, routes)
     if missing:
