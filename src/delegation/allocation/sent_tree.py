@@ -102,8 +102,9 @@ def choose_tree(
     graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
                              schedule.home_time)
     filled = {leaf.node_uuid or "": leaf for leaf in leaves(old)}
-    sp = build_tree(best_decomposition(graph, schedule.makespan), prepared, filled, [t.uuid for t in problem.tasks],
-                    engine_unit, new_uuid)
+    order = best_decomposition(graph, schedule.makespan)
+    sp = build_tree(order, prepared, filled, [t.uuid for t in problem.tasks], engine_unit,
+                    new_uuid)
     missing = missing_precedences(prepared, sp, routes)
     if missing:
         raise RuntimeError("series-parallel instantiation lost precedences: "
