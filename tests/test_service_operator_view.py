@@ -34,3 +34,14 @@ def test_an_aborted_child_aborts_its_parents() -> None:
     view = _tree()
     assert view.changes("b", {"a": "succeeded", "b": "aborted"}) == [
         ("s1", "aborted"), ("r", "aborted")]
+
+
+def test_a_kept_control_node_ends_as_the_engine_says_once() -> None:
+    # An aborted tree whose leaves never reported: the engine's word on the root is shown, once,
+    # and a later derived status does not contradict it.
+    view = _tree()
+    assert view.final_from_engine("r", "aborted")
+    assert not view.final_from_engine("r", "aborted")
+    assert not view.final_from_engine("a", "aborted")  # leaves are relayed, not this
+    assert not view.final_from_engine("r", "running")
+    assert view.changes("c", {"c": "succeeded"}) == []

@@ -432,7 +432,8 @@ class ServiceCore:
             return Effects()  # a tree someone else gave the engine
         effects = Effects()
         view = mission.operator
-        if view is None or fb.node_uuid in view.leaves:  # leaves: relayed unchanged
+        if (view is None or fb.node_uuid in view.leaves  # leaves: relayed unchanged
+                or view.final_from_engine(fb.node_uuid, fb.status)):
             effects.send(self.tst_feedback_topic, TstFeedback(
                 node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
                 fail_reason=fb.fail_reason))

@@ -5,7 +5,9 @@ instantiation), so the engine's feedback on control nodes is about a tree the op
 wrote. The service relays the leaves' feedback unchanged and derives every control node of the
 operator's tree from its children, as the engine computes a control node: failed when a child
 failed, aborted when a child was aborted (or revoked), succeeded when all succeeded, running once
-any child has started. Nodes that exist only in the sent tree are not shown.
+any child has started. Nodes that exist only in the sent tree are not shown. A control node the
+sent tree kept (same uuid and tasks) that the engine reports ended first is shown as the engine
+says (an aborted tree's root, whose tasks may never report).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from dataclasses import dataclass, field
 
 from delegation.tst.node import TstNode, walk
 
+_FINAL = frozenset({"succeeded", "failed", "aborted", "revoked"})
 _STARTED = frozenset({"active", "waiting", "running", "paused", "succeeded", "failed",
                       "aborted", "revoked"})
 
@@ -63,6 +66,16 @@ class OperatorView:
             return "running"
         return "not-active"
 
+    def final_from_engine(self, node_uuid: str, status: str) -> bool:
+        """A control node the sent tree kept (same uuid, same tasks) ended as the engine says:
+        True when that is news to show (e.g. an aborted tree whose leaves never reported)."""
+        if node_uuid not in self.children or status not in _FINAL:
+            return False
+        if self.shown.get(node_uuid) in _FINAL:
+            return False
+        self.shown[node_uuid] = status
+        return True
+
     def changes(self, leaf_uuid: str, statuses: Mapping[str, str]) -> list[tuple[str, str]]:
         """After ``leaf_uuid``'s status changed: the operator's control nodes above it whose
         derived status changed (innermost first), recorded as shown."""
@@ -70,7 +83,8 @@ class OperatorView:
         node = self.parent.get(leaf_uuid)
         while node is not None:
             status = self.derive(node, statuses)
-            if status != "not-active" and self.shown.get(node) != status:
+            if (status != "not-active" and self.shown.get(node) != status
+                    and self.shown.get(node) not in _FINAL):
                 self.shown[node] = status
                 out.append((node, status))
             node = self.parent.get(node)
