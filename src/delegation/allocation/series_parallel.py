@@ -185,6 +185,15 @@ def best_decomposition(
     return best
 
 
+def tree_makespan(problem: Problem, orders: Sequence[Sequence[int]], start: np.ndarray,
+                  end: np.ndarray, home_time: np.ndarray, graph_makespan: float) -> float:
+    """The makespan of the series-parallel tree this schedule would be sent as (the first,
+    deterministic decomposition only: cheap enough for a search to call per move)."""
+    graph = precedence_graph(problem, orders, start, end, home_time)
+    span, _, _ = sp_times(best_decomposition(graph, graph_makespan, rounds=1, restarts=0), graph)
+    return span
+
+
 def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, np.ndarray]:
     """Makespan, start and end per task of running ``root`` (earliest times; the durations are
     fixed because every unit's order is in the tree's)."""

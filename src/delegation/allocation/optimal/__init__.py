@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from delegation.allocation.auction import auction
 from delegation.allocation.optimal.cpsat import CP_EXACT_ARCS, candidates, solve_cpsat
 from delegation.allocation.optimal.cpsat_subtrees import CP_EXACT_CHILDREN
+from delegation.allocation.optimal.lns import better_key as _better_key
+from delegation.allocation.optimal.lns import lns, lns_note, tree_key
 from delegation.allocation.optimal.routing import (
     ROUTING_MAKESPAN_PHASES,
     ROUTING_MAX_ENTRIES,
@@ -61,6 +63,10 @@ __all__ = [
     "OptimalResult",
     "optimise",
 ]
+
+
+#: The search stops at this share of the time limit: the plan's instantiation follows it.
+LNS_SHARE = 0.9
 
 
 @dataclass
@@ -102,10 +108,14 @@ def optimise(
     remaining = max(0.05, time_limit - (time.perf_counter() - began))
     candidate: Schedule | None = None
     bound: float | None = None
+    # Trees that are not plain and not tiny: CP-SAT gets half the time, the large neighbourhood
+    # search the rest (``lns``); too large for CP-SAT: the search gets it all.
+    search = not flat and not use_all_units and len(tasks) > CP_MAX_FLAT_TASKS
     if (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
         result.solver = "cp-sat"
         candidate, bound, note = solve_cpsat(
-            problem, objective, base, tasks, remaining, mask, use_all_units=use_all_units
+            problem, objective, base, tasks, remaining * (0.5 if search else 1.0), mask,
+            use_all_units=use_all_units,
         )
     elif flat:
         result.solver = "routing"
@@ -115,7 +125,7 @@ def optimise(
     else:
         note = (
             f"CP-SAT not run: the model would have {arcs} arcs (limit {CP_MAX_ARCS}); "
-            "keeping the auction's plan"
+            + ("the large neighbourhood search alone" if search else "keeping the auction's plan")
         )
     result.notes.append(note)
     base_counts = not use_all_units or all(base.orders)
@@ -129,6 +139,30 @@ def optimise(
             f"{result.solver} found no better plan than the auction's; keeping the auction's plan"
         )
     result.bound = bound
+    if search:
+        _search(problem, objective, result, base, began + LNS_SHARE * time_limit)
     for text in result.notes:
         log.info("optimal: %s", text)
     return result
+
+
+def _search(
+    problem: Problem, objective: Objective, result: OptimalResult, base: Schedule,
+    deadline: float,
+) -> None:
+    """Improve the better (judged on the tree it would be sent as) of ``result``'s schedule and
+    the auction's ``base`` with the large neighbourhood search until ``deadline``."""
+    start = result.schedule
+    if not start.valid or (start is not base and _better_key(
+            tree_key(problem, objective, base), tree_key(problem, objective, start))):
+        if start is not base:
+            result.notes.append("the auction's plan gives the shorter tree; searching from it")
+        start = base
+    if time.perf_counter() >= deadline or not start.valid:
+        return
+    found = lns(problem, objective, start, deadline)
+    result.notes.append(lns_note(found))
+    result.schedule = found.schedule
+    result.kept_auction = found.schedule is base
+    if found.improvements:
+        result.solver = f"{result.solver} + lns" if result.solver else "lns"
