@@ -36,12 +36,16 @@ def test_an_aborted_child_aborts_its_parents() -> None:
         ("s1", "aborted"), ("r", "aborted")]
 
 
-def test_a_kept_control_node_ends_as_the_engine_says_once() -> None:
-    # An aborted tree whose leaves never reported: the engine's word on the root is shown, once,
-    # and a later derived status does not contradict it.
-    view = _tree()
-    assert view.final_from_engine("r", "aborted")
-    assert not view.final_from_engine("r", "aborted")
-    assert not view.final_from_engine("a", "aborted")  # leaves are relayed, not this
-    assert not view.final_from_engine("r", "running")
-    assert view.changes("c", {"c": "succeeded"}) == []
+def test_kept_control_nodes_are_the_engines_and_count_for_their_parents() -> None:
+    # The sent tree kept s1 (and the root r): their feedback is relayed, not derived.
+    leaf = {"name": "look-at-position", "params": {}}
+    tree = parse_tree({"name": "conc", "common_params": {"node-uuid": "r"}, "children": [
+        {"name": "seq", "common_params": {"node-uuid": "s1"}, "children": [
+            {**leaf, "common_params": {"node-uuid": "a"}}]}]})
+    view = OperatorView.of(tree, sent=tree)
+    assert view.relayed("r") and view.relayed("s1") and view.relayed("a")
+    assert view.changes("a", {"a": "running"}) == []  # nothing derived: all kept
+    regrouped = OperatorView.of(tree, sent=parse_tree({**leaf, "common_params": {
+        "node-uuid": "a"}}))
+    assert not regrouped.relayed("s1")
+    assert regrouped.changes("a", {"a": "aborted"}) == [("s1", "aborted"), ("r", "aborted")]

@@ -386,7 +386,8 @@ class ServiceCore:
                               tst=plan_json["tst"], plan=plan_json,
                               nodes={**(node_infos(plan.source) if plan.source else {}),
                                      **node_infos(plan.tst)},
-                              operator=OperatorView.of(plan.source) if plan.source else None))
+                              operator=(OperatorView.of(plan.source, plan.tst)
+                                        if plan.source else None)))
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self._respond("delegation", job.key, DelegationResponse(
@@ -432,13 +433,13 @@ class ServiceCore:
             return Effects()  # a tree someone else gave the engine
         effects = Effects()
         view = mission.operator
-        if (view is None or fb.node_uuid in view.leaves  # leaves: relayed unchanged
-                or view.final_from_engine(fb.node_uuid, fb.status)):
+        if view is None or view.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
             effects.send(self.tst_feedback_topic, TstFeedback(
                 node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
                 fail_reason=fb.fail_reason))
-        if view is not None and fb.node_uuid in view.leaves:
-            # The operator's control nodes, derived from their children (DESIGN 3.4 revised).
+        if view is not None and view.relayed(fb.node_uuid):
+            # The operator's control nodes the sent tree regrouped away: derived from their
+            # children (DESIGN 3.4 revised).
             for uid, status in view.changes(fb.node_uuid, mission.node_status):
                 effects.send(self.tst_feedback_topic, TstFeedback(
                     node_uuid=uid, root_flag=uid == view.root, status=status,
