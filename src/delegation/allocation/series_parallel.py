@@ -254,21 +254,29 @@ def decompose(graph: PrecedenceGraph, rng: np.random.Generator | None = None) ->
 
 
 def _components(adjacent: np.ndarray) -> list[np.ndarray]:
-    """Connected components (index arrays, each in ascending order, by their first index)."""
+    """Connected components (index arrays, each in ascending order, by their first index).
+
+    Rows as Python integer bitsets: on the small matrices most calls see, numpy's per-call
+    overhead dominated (measured: 3x slower on 10x20 trees)."""
     n = len(adjacent)
-    label = np.full(n, -1)
-    count = 0
-    for seed in range(n):
-        if label[seed] >= 0:
-            continue
-        label[seed] = count
-        frontier = np.array([seed])
-        while frontier.size:
-            fresh = adjacent[frontier].any(axis=0) & (label < 0)
-            frontier = np.nonzero(fresh)[0]
-            label[frontier] = count
-        count += 1
-    return [np.nonzero(label == c)[0] for c in range(count)]
+    packed = np.packbits(adjacent, axis=1, bitorder="little")
+    rows = [int.from_bytes(r.tobytes(), "little") for r in packed]
+    unseen = (1 << n) - 1
+    out: list[np.ndarray] = []
+    while unseen:
+        seed = unseen & -unseen
+        comp = frontier = seed
+        while frontier:
+            reached = 0
+            while frontier:
+                bit = frontier & -frontier
+                reached |= rows[bit.bit_length() - 1]
+                frontier ^= bit
+            frontier = reached & ~comp
+            comp |= frontier
+        unseen &= ~comp
+        out.append(np.array([i for i in range(n) if comp >> i & 1], dtype=int))
+    return out
 
 
 def _clean_cuts(sub: np.ndarray) -> list[int]:
