@@ -45,6 +45,8 @@ class StrategyResult:
     schedule: Schedule
     bound: float | None = None
     notes: list[str] = field(default_factory=list)
+    #: The strategy whose plan this is, when this one fell back to it (else None).
+    fallback: str | None = None
 
 
 class StrategyFn(Protocol):
@@ -79,7 +81,8 @@ def optimal_strategy(
     from delegation.allocation.optimal import optimise
 
     result = optimise(problem, objective, time_limit)
-    return StrategyResult(result.schedule, result.bound, result.notes)
+    return StrategyResult(result.schedule, result.bound, result.notes,
+                          "auction" if result.kept_auction else None)
 
 
 #: The built-in strategies, in the order they are offered (baseline first); pyproject declares

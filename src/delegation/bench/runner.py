@@ -111,6 +111,14 @@ class RunRecord:
     problems: list[str] = field(default_factory=list)
     #: what the strategy reported doing (e.g. optimal keeping the auction's plan when too large)
     notes: list[str] = field(default_factory=list)
+    #: the strategy whose plan this is when the strategy fell back to it (``optimal`` keeping
+    #: the auction's), else None
+    fallback: str | None = None
+    #: the plan's precedence-graph makespan and what the sent tree adds to it (s)
+    precedence_makespan: float | None = None
+    instantiation_loss: float | None = None
+    #: a lower bound on any plan's makespan (``allocation.bounds``), s
+    lower_bound: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -445,6 +453,10 @@ def make_record(
         best_known=best,
         gap_to_best_known=None if best is None or plan.unassigned else value / best - 1.0,
         plan_digest=plan_digest(plan),
+        fallback=plan.fallback,
+        precedence_makespan=_opt(plan.precedence_makespan),
+        instantiation_loss=_opt(plan.instantiation_loss),
+        lower_bound=_opt(plan.lower_bound),
     )
 
 

@@ -123,11 +123,13 @@ def render_table(plan: Plan, title: str) -> None:
     from rich.table import Table
 
     console = Console()
-    summary = Table(title=f"{title}: {plan.strategy} / {plan.objective}", show_header=False)
+    summary = Table(title=f"{title}: {plan.strategy_label} / {plan.objective}", show_header=False)
     summary.add_column("what")
     summary.add_column("value", justify="right")
     summary.add_row("feasible", "yes" if plan.feasible else "no")
     summary.add_row("makespan", _fmt(plan.makespan, " s"))
+    summary.add_row("precedence makespan", _fmt(plan.precedence_makespan, " s"))
+    summary.add_row("instantiation loss", _fmt(plan.instantiation_loss, " s"))
     summary.add_row("total time", _fmt(plan.total_time, " s"))
     summary.add_row("total distance", _fmt(plan.total_distance, " m"))
     summary.add_row("solve time", f"{plan.solve_time:.3f} s")

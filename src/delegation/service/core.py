@@ -88,6 +88,7 @@ from delegation.service.jobs import (
     plan_options,
 )
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.operator_view import OperatorView
 from delegation.topics import QOS_PERIODIC, parse_unit_topic
 from delegation.tst.node import walk, with_uuids
 from delegation.tst.validate import parse_and_validate
@@ -425,7 +426,11 @@ class ServiceCore:
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=now,
-                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst)))
+                              tst=plan_json["tst"], plan=plan_json,
+                              nodes={**(node_infos(plan.source) if plan.source else {}),
+                                     **node_infos(plan.tst)},
+                              operator=(OperatorView.of(plan.source, plan.tst)
+                                        if plan.source else None)))
         for _, node in walk(plan.tst):
             cls = speed_class(node)
             if cls and node.node_uuid and isinstance(node.execunit, str):
@@ -480,9 +485,20 @@ class ServiceCore:
         elif task is not None and fb.status in TERMINAL_NODE_STATUSES:
             self.learner.task_ended(task[0], fb.node_uuid, now)
             del self._task_class[fb.node_uuid]
-        relay = TstFeedback(node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
-                            fail_reason=fb.fail_reason)
-        return Effects().send(self.tst_feedback_topic, relay).extend(self._lifecycle(events))
+        effects = Effects()
+        view = mission.operator
+        if view is None or view.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
+            effects.send(self.tst_feedback_topic, TstFeedback(
+                node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
+                fail_reason=fb.fail_reason))
+        if view is not None and view.relayed(fb.node_uuid):
+            # The operator's control nodes the sent tree regrouped away: derived from their
+            # children (docs/protocol.md §8).
+            for uid, status in view.changes(fb.node_uuid, mission.node_status):
+                effects.send(self.tst_feedback_topic, TstFeedback(
+                    node_uuid=uid, root_flag=uid == view.root, status=status,
+                    fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
+        return effects.extend(self._lifecycle(events))
 
     def _engine_answer(self, got: EngineAnswer, now: float) -> Effects:
         """The mission moves on (if it does), then the caller gets its answer."""

@@ -14,6 +14,7 @@ from typing import Any
 
 from delegation.errors import InputError, Problem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
+from delegation.service.operator_view import OperatorView
 from delegation.tst.node import TstNode, walk
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
@@ -65,6 +66,9 @@ class Mission:
     node_status: dict[str, str] = field(default_factory=dict)
     node_started: dict[str, float] = field(default_factory=dict)  # first "running"
     node_ended: dict[str, float] = field(default_factory=dict)  # first final status
+    #: The operator's own tree (the tree sent may regroup its control nodes): what feedback and
+    #: ``query-mission`` show. None: the sent tree is shown as it is.
+    operator: OperatorView | None = None
 
     @property
     def ended(self) -> bool:
@@ -92,14 +96,19 @@ class Mission:
     def to_json(self) -> dict[str, Any]:
         """The full form answered by ``query-mission``: status, node statuses, assignments."""
         nodes = []
+        view = self.operator
         for uid, info in self.nodes.items():
+            if view is not None and uid not in view:
+                continue  # only in the sent tree
+            status = (view.derive(uid, self.node_status) if view is not None
+                      else self.node_status.get(uid, "not-active"))
             nodes.append(
                 {
                     "node-uuid": uid,
                     "name": info.name,
                     "execunit": info.execunit,
                     "path": info.path,
-                    "status": self.node_status.get(uid, "not-active"),
+                    "status": status,
                     "started": _rel(self.node_started.get(uid), self.started_at),
                     "ended": _rel(self.node_ended.get(uid), self.started_at),
                 }
