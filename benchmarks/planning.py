@@ -35,6 +35,7 @@ from delegation.allocation.nearest import nearest
 from delegation.allocation.optimal import optimise
 from delegation.allocation.problem import build_problem
 from delegation.allocation.schedule import Schedule
+from delegation.bench.best_known import BEST_KNOWN
 from delegation.fleet import UnitState, make_unit
 from delegation.geo import LocalFrame
 from delegation.scenario import berlin52_scenario
@@ -42,7 +43,8 @@ from delegation.tst import TstNode, parse_tree, with_defaults, with_uuids
 
 BERLIN = Path(__file__).resolve().parent / "data" / "berlin52.tsp"  # TSPLIB, bundled
 #: Best published values (LKH-3, integer-rounded distances), from the instance's README.
-PUBLISHED = {3: {"min-sum": 7735.0, "min-max": 3070.0}, 5: {"min-sum": 8124.0, "min-max": 2440.0}}
+PUBLISHED = {m: {"min-sum": v["total"], "min-max": v["makespan"]}
+             for (name, m), v in BEST_KNOWN.items() if name == "berlin52"}
 
 
 def route_lengths(s: Schedule) -> list[float]:

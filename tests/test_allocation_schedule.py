@@ -183,6 +183,7 @@ def test_wrong_orders_are_reported() -> None:
 
 
 # --------------------------------------------------------------------------- whole subtrees
+# The old instantiation rule (``wrapped=True``), kept as a fallback the planner compares with.
 
 
 def test_conc_children_sharing_a_unit_run_one_after_another_as_whole_subtrees() -> None:
@@ -192,19 +193,22 @@ def test_conc_children_sharing_a_unit_run_one_after_another_as_whole_subtrees() 
     # b does not run alongside c.
     tree = {"name": "conc", "children": [{"name": "seq", "children": [task(), task()]}, task()]}
     p = make(tree, Tables(unit_xy=[[0, 0], [0, 0]], start_xy=[[100, 0], [0, 300], [0, 50]]))
-    s = evaluate(p, [0, 1, 0], [[2, 0], [1]])
+    s = evaluate(p, [0, 1, 0], [[2, 0], [1]], wrapped=True)
     assert s.valid
     assert (s.start[2], s.end[2]) == (0.0, 5.0)  # c: 50 m
     assert s.start[0] == 5.0 and s.end[0] == pytest.approx(5.0 + math.hypot(100, 50) / 10)
     assert s.start[1] == s.end[0] and s.end[1] == pytest.approx(s.end[0] + 30.0)  # b: 300 m
     assert s.serialised is not None and s.serialised.wraps == [(0, [4, 1])]  # c, then the seq
     # The other way round on u0 (a, then c): c waits for the whole seq, b included.
-    s = evaluate(p, [0, 1, 0], [[0, 2], [1]])
+    s = evaluate(p, [0, 1, 0], [[0, 2], [1]], wrapped=True)
     assert s.valid
     assert (s.start[0], s.end[0]) == (0.0, 10.0)
     assert (s.start[1], s.end[1]) == (10.0, 40.0)
     assert s.start[2] == 40.0  # not 10.0: the seq (with b on u1) ends at 40
     assert s.end[2] == pytest.approx(40.0 + math.hypot(100, 50) / 10)
+    # On the precedence graph (the default, what strategies plan for) c waits for a alone.
+    s = evaluate(p, [0, 1, 0], [[0, 2], [1]])
+    assert s.valid and s.start[2] == 10.0 and s.start[1] == 10.0
 
 
 def test_the_wrap_order_comes_from_the_units_orders_first_in_tree_on_ties() -> None:
@@ -216,7 +220,7 @@ def test_the_wrap_order_comes_from_the_units_orders_first_in_tree_on_ties() -> N
         task()]}
     p = make(tree, Tables(unit_xy=[[0, 0], [0, 0], [0, 0]],
                           start_xy=[[10, 0], [20, 0], [0, 10], [0, 20], [30, 0]]))
-    s = evaluate(p, [0, 1, 1, 2, 0], [[0, 4], [2, 1], [3]])
+    s = evaluate(p, [0, 1, 1, 2, 0], [[0, 4], [2, 1], [3]], wrapped=True)
     assert s.valid
     a, b, c = 1, 4, 7  # tree nodes of the three children
     assert s.serialised is not None and s.serialised.wraps == [(0, [b, a, c])]
@@ -236,7 +240,7 @@ def test_children_free_to_go_together_run_in_tree_order() -> None:
         {"name": "seq", "children": [task(), task()]}]}
     p = make(tree, Tables(unit_xy=[[0, 0], [0, 0], [0, 0]],
                           start_xy=[[100, 0], [200, 0], [0, 10], [0, 20], [0, 30]]))
-    s = evaluate(p, [0, 2, 1, 0, 1], [[0, 3], [2, 4], [1]])
+    s = evaluate(p, [0, 2, 1, 0, 1], [[0, 3], [2, 4], [1]], wrapped=True)
     assert s.valid
     assert s.serialised is not None and s.serialised.wraps == [(0, [1, 4, 5])]
     assert (s.start[0], s.end[0], s.end[1]) == (0.0, 10.0, 30.0)  # a1; a2 (u2, 200 m)
@@ -251,10 +255,12 @@ def test_allocations_that_cannot_run_as_whole_subtrees_are_invalid() -> None:
         {"name": "seq", "children": [task(), task()]}]}
     p = make(tree, Tables(unit_xy=[[0, 0], [0, 0]], start_xy=[[10, 0]] * 4))
     # u0: a1 then b1 (A before B); u1: b2 then a2 (B before A): the units disagree.
-    s = evaluate(p, [0, 1, 0, 1], [[0, 2], [3, 1]])
+    s = evaluate(p, [0, 1, 0, 1], [[0, 2], [3, 1]], wrapped=True)
     assert not s.valid
     assert any(i.kind is IssueKind.SERIALISATION and "disagree" in i.text for i in s.issues)
+    # The precedence graph has no cycle there: it can run (a series-parallel tree carries it).
+    assert evaluate(p, [0, 1, 0, 1], [[0, 2], [3, 1]]).valid
     # u0: a1, b1, a2: it would leave A and come back to it.
-    s = evaluate(p, [0, 0, 0, 1], [[0, 2, 1], [3]])
+    s = evaluate(p, [0, 0, 0, 1], [[0, 2, 1], [3]], wrapped=True)
     assert not s.valid
     assert any(i.kind is IssueKind.SERIALISATION and "come back" in i.text for i in s.issues)

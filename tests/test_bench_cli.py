@@ -197,8 +197,9 @@ def test_results_page_is_made_from_the_same_records(tmp_path: Path) -> None:
     )
     assert code == 0
     page = (docs / "results.md").read_text()
-    table = (docs / "bench" / "results.md").read_text().strip()
+    table, summary = (docs / "bench" / "results.md").read_text().strip().split("\n\n")[:2]
     assert table in page  # the full table, as the bench wrote it
+    assert summary in page  # and the summary across scenarios
     assert "--page" in page and "delegation bench --scale" in page
     assert "](bench/gen-granso-u2-t3-s0-objective.png)" in page
     assert "![scale sweep](scale.png)" in page

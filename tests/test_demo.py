@@ -36,6 +36,7 @@ def test_demo_runs_to_success_and_writes_a_map(tmp_path: Path,
     out = tmp_path / "out"
     assert main(["demo", "--speedup", "30", "--out", str(out)]) == 0
     assert_png(out / "map.png")
+    assert_png(out / "gantt.png")  # planned vs flown
     plan = json.loads((out / "plan.json").read_text())
     assert plan["feasible"] and plan["strategy"] == "auction"
 

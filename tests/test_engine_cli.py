@@ -22,12 +22,6 @@ def _run(argv: list[str], results: dict[str, int]) -> threading.Thread:
     return t
 
 
-def test_sim_without_a_broker_is_a_clear_error(monkeypatch, capsys) -> None:
-    monkeypatch.delenv("WARAPS_BROKER", raising=False)
-    assert main(["sim", "demo", "--duration", "0"]) == 1
-    assert "no broker" in capsys.readouterr().err
-
-
 @pytest.mark.mqtt
 def test_engine_and_sim_commands(
     mqtt_settings: BrokerSettings, prefix: str, collector, tmp_path: Path

@@ -141,23 +141,29 @@ def _demo_plan(strategy: str) -> tuple[Any, Any, Any]:
 
 def test_plan_times_are_those_of_the_instantiated_tree() -> None:
     # The demo with nearest: dji0 takes the move-to of seq(move-to, search-area) and the
-    # move-path; usv0 the search-area and a move-to. The tree runs the whole seq (usv0's search
-    # included) before the move-path, and the plan says so.
+    # move-path; usv0 the search-area and a move-to. The old rule ran the whole seq (usv0's
+    # search included) before the move-path; the series-parallel tree runs the move-path right
+    # after dji0's move-to, beside usv0's search, and the plan's times are that tree's.
     plan, tree, units = _demo_plan("nearest")
     by_name = {a.name: a for a in plan.assignments}
     search, path = by_name["search-area"], by_name["move-path"]
+    first = next(a for a in plan.assignments if a.name == "move-to" and a.execunit == "/dji0")
     assert path.execunit == "/dji0" and search.execunit == "/usv0"
-    assert path.start == pytest.approx(search.end)
+    assert path.start == pytest.approx(first.end)
+    assert path.start < search.end
+    assert plan.precedence_makespan == pytest.approx(plan.makespan)
+    assert any("series-parallel tree" in note for note in plan.notes)
     assert check_invariants(plan, tree, units) == []
 
 
 def test_invariants_run_the_tree_and_catch_times_it_does_not_have() -> None:
     plan, tree, units = _demo_plan("nearest")
-    # The bug this guards: the move-path timed as if the seq ahead of it in the tree's wrapper
-    # ran alongside (dji0 free after its move-to), the plan otherwise consistent.
+    # The bug this guards: the move-path timed as if it did not wait for dji0's move-to before
+    # it in the tree, the plan otherwise consistent.
     moved = next(a for a in plan.assignments if a.name == "move-path")
     first = next(a for a in plan.assignments if a.name == "move-to" and a.execunit == "/dji0")
-    early = replace(moved, start=first.end, end=first.end + moved.travel_time + moved.work_time)
+    begin = first.start
+    early = replace(moved, start=begin, end=begin + moved.travel_time + moved.work_time)
     plan.assignments[plan.assignments.index(moved)] = early
     problems = check_invariants(plan, tree, units)
     assert any("the instantiated tree runs it at" in p and moved.node_uuid in p
@@ -173,7 +179,8 @@ def test_invariants_catch_a_tree_that_contradicts_the_routes() -> None:
     # The wrapped subtrees in the opposite order: dji0's route cannot run in that tree.
     plan.tst = map_tree(plan.tst, lambda node, kids: node.with_children(
         kids[::-1] if node.node_uuid == wrapper.node_uuid else kids))
-    assert check_invariants(plan, tree, units) != []
+    problems = check_invariants(plan, tree, units)
+    assert any("the sent tree does not run" in p for p in problems)  # a lost precedence
 
 
 def test_every_runnable_allocation_runs_as_planned() -> None:

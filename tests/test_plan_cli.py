@@ -14,7 +14,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "scenarios" / "demo.yaml")
 
 PLAN_KEYS = {"strategy", "objective", "feasible", "makespan", "total-time", "total-distance",
-             "solve-time", "bound", "gap", "assignments", "unassigned", "tst"}
+             "solve-time", "bound", "gap", "precedence-makespan", "instantiation-loss", "fallback",
+             "assignments", "unassigned", "tst", "notes"}
 ASSIGNMENT_KEYS = {"node-uuid", "name", "execunit", "start", "end", "travel-time", "work-time",
                    "distance"}
 
@@ -36,7 +37,7 @@ def test_json_is_exactly_the_plan(strategy: str, capsys: pytest.CaptureFixture[s
 def test_unassigned_tasks_are_listed_with_reasons(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["plan", str(ROOT / "scenarios" / "granso-impossible.yaml"), "--format", "json"])
     plan = json.loads(capsys.readouterr().out)
-    assert code == 0
+    assert code == 1  # an infeasible plan is printed, and the exit code says so
     assert plan["feasible"] is False
     assert plan["unassigned"] and all(u["reason"] for u in plan["unassigned"])
 
@@ -45,6 +46,26 @@ def test_table_format(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["plan", DEMO, "--strategy", "auction"]) == 0
     out = capsys.readouterr().out
     assert "assignments" in out and "makespan" in out and "/dji0" in out
+
+
+def test_table_says_when_optimal_kept_the_auctions_plan(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # No unit can take the only vehicle task: optimal keeps the auction's plan and says so.
+    scenario = tmp_path / "one.yaml"
+    scenario.write_text(
+        "name: one\ndescription: one task nobody can take\nagents:\n"
+        "  - {name: dji0, type: air, position: {latitude: 57.76, longitude: 16.68, altitude: 40},"
+        " tasks: [search-area]}\n"
+        "mission: {name: seq, children: [{name: move-to, params: {waypoint: "
+        "{latitude: 57.761, longitude: 16.681, altitude: 40}}}]}\n")
+    assert main(["plan", str(scenario), "--strategy", "optimal", "--time-limit", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "optimal (= auction)" in out
+    assert main(["plan", str(scenario), "--strategy", "optimal", "--time-limit", "1",
+                 "--format", "json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert plan["strategy"] == "optimal" and plan["fallback"] == "auction"
 
 
 def test_unknown_strategy_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
@@ -67,7 +88,7 @@ def test_cli_choices_are_the_planners_names() -> None:
     from delegation.allocation import OBJECTIVES, STRATEGIES
     from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 
-    assert STRATEGY_CHOICES == ("nearest", "auction", "optimal") == tuple(STRATEGIES)
+    assert tuple(STRATEGY_CHOICES) == ("nearest", "auction", "optimal") == tuple(STRATEGIES)
     assert OBJECTIVE_CHOICES == ("makespan", "total") == tuple(OBJECTIVES)
     assert "--objective {makespan,total}" in _help(["plan", "--help"])
     # The names alone do not load the planner (numpy, OR-Tools): the CLI starts quickly.

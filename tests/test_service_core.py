@@ -128,6 +128,7 @@ def test_start_tst_plans_instantiates_and_starts(core: ServiceCore) -> None:
 
     fb = TstFeedback(node_uuid="n1", status="running")
     relayed = core.on_message(f"{ENGINE}/tst/feedback", encode(fb), 102.0)
+    # The leaf's feedback relayed unchanged; the root (kept in the sent tree) is the engine's.
     assert [(f["node-uuid"], f["status"]) for f in on(relayed, f"{BASE}/tst/feedback")] == [
         ("n1", "running")]
     done = core.on_message(f"{ENGINE}/tst/feedback",

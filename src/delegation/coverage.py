@@ -77,7 +77,9 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the same for any vertex order.
     """
     poly = _clean_polygon(polygon_xy)
-    rect = shapely.minimum_rotated_rectangle(Polygon(poly))
+    # GEOS divides by zero for collinear points; that case is handled below, without the warning.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rect = shapely.minimum_rotated_rectangle(Polygon(poly))
     if isinstance(rect, Polygon) and rect.area > 0.0:
         pts = np.asarray(rect.exterior.coords, dtype=float)
         e1, e2 = pts[1] - pts[0], pts[2] - pts[1]

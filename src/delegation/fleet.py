@@ -387,6 +387,11 @@ class FleetRegistry:
         rec = self._units.get(name.strip("/"))
         return list(rec.tasks_executing) if rec is not None else []
 
+    def has_profile_speeds(self, name: str) -> bool:
+        """True when a fleet profile (by name or agent type) gives the unit's speeds."""
+        rec = self._units.get(name.strip("/"))
+        return rec is not None and "speeds" in self._profile(rec)
+
     def _profile(self, rec: _Record) -> dict[str, Any]:
         merged: dict[str, Any] = {}
         if rec.agent_type and rec.agent_type in self.profiles:

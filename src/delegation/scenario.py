@@ -9,8 +9,8 @@ subsurface), ``position``, ``tasks``, optional ``speeds`` (m/s per class; missin
 type's defaults, see ``delegation.fleet``), ``battery`` (0..1), ``endurance`` (s at full battery),
 ``home``, ``camera-fov`` (degrees), ``sweep-altitude`` (m), ``rate`` (Hz, for simulated units).
 
-``berlin52_scenario`` turns the TSPLIB instance into a delegation scenario for the planning
-benchmark (see /work/shared/benchmarks/README.md).
+``tsplib_scenario`` (``berlin52_scenario``) turns a TSPLIB instance into a delegation scenario
+for the planning benchmark (see /work/shared/benchmarks/README.md).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ __all__ = [
     "load_scenario",
     "read_tsplib",
     "scenario_from_dict",
+    "tsplib_scenario",
 ]
 
 
@@ -130,7 +131,7 @@ class Scenario(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(min_length=1)
-    description: str = Field(min_length=1)
+    description: str = ""  # optional: a scenario needs a fleet and a mission, not prose
     agents: list[AgentSpec]
     mission: dict[str, Any]
     #: Where the scenario came from (a file path or ``<dict>``), for messages.
@@ -242,13 +243,28 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario_from_dict(read_document(path), str(path))
 
 
-# --------------------------------------------------------------------------- berlin52
+# --------------------------------------------------------------------------- TSPLIB
+
+
+#: TSPLIB edge weight types whose nodes are plane coordinates (distances here are real-valued
+#: Euclidean, not the format's rounded ones).
+PLANAR_EDGE_WEIGHTS: tuple[str, ...] = ("EUC_2D", "CEIL_2D", "ATT")
 
 
 def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
-    """The node coordinates of a TSPLIB ``EUC_2D`` file, in file order."""
+    """The node coordinates of a TSPLIB file with planar coordinates (``EUC_2D``, ``CEIL_2D``,
+    ``ATT``), in file order; ``InputError`` naming the file and the field for anything else."""
     source = str(path)
     lines = read_text(path).splitlines()
+    header: dict[str, str] = {}
+    for line in lines:
+        key, sep, value = line.partition(":")
+        if sep and key.strip().isupper():
+            header.setdefault(key.strip(), value.strip())
+    kind = header.get("EDGE_WEIGHT_TYPE")
+    if kind is not None and kind not in PLANAR_EDGE_WEIGHTS:
+        raise InputError(Problem(source, "EDGE_WEIGHT_TYPE", f"{kind} is not supported; "
+                                 f"expected one of {', '.join(PLANAR_EDGE_WEIGHTS)}"))
     coords: list[tuple[float, float]] = []
     in_section = False
     for number, line in enumerate(lines, start=1):
@@ -268,11 +284,18 @@ def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
         except ValueError:
             raise InputError(Problem(source, f"line {number}", f"not numbers: {text!r}")) from None
     if not coords:
-        raise InputError(Problem(source, "NODE_COORD_SECTION", "no coordinates found"))
+        raise InputError(Problem(source, "NODE_COORD_SECTION", "no coordinates found "
+                                 "(not a TSPLIB file with node coordinates?)"))
+    dimension = header.get("DIMENSION")
+    if dimension is not None and dimension.isdigit() and int(dimension) != len(coords):
+        raise InputError(Problem(source, "DIMENSION", f"says {dimension} nodes, the file has "
+                                 f"{len(coords)}"))
+    if len(coords) < 2:
+        raise InputError(Problem(source, "NODE_COORD_SECTION", "needs a depot and a city"))
     return coords
 
 
-def berlin52_scenario(
+def tsplib_scenario(
     path_to_tsp: str | Path,
     units: int,
     speed: float = 1.0,
@@ -286,9 +309,9 @@ def berlin52_scenario(
     ``air`` units with ``speed`` m/s in every speed class, so time x speed = distance.
     """
     if units < 1:
-        raise InputError(Problem("berlin52_scenario", "units", f"must be at least 1, not {units}"))
+        raise InputError(Problem("tsplib", "units", f"must be at least 1, not {units}"))
     if not speed > 0.0:
-        raise InputError(Problem("berlin52_scenario", "speed", f"must be positive, not {speed}"))
+        raise InputError(Problem("tsplib", "speed", f"must be positive, not {speed}"))
     coords = read_tsplib(path_to_tsp)
     name = Path(path_to_tsp).stem
     xs = [c[0] for c in coords]
@@ -335,3 +358,7 @@ def berlin52_scenario(
         },
         source=str(path_to_tsp),
     )
+
+
+#: The name the planning benchmark has used (any TSPLIB file works).
+berlin52_scenario = tsplib_scenario

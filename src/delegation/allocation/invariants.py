@@ -122,13 +122,14 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
 
 
 def _tasks_kept(x: _Subject) -> list[str]:
-    """The instantiated tree keeps the caller's tasks and uuids."""
+    """The instantiated tree keeps the caller's tasks and their uuids (control nodes may be
+    regrouped, DESIGN 3.4 revised)."""
     out = []
     original = leaves(x.tree)
     if len(original) != len(x.inst_leaves):
         out.append(f"tree has {len(original)} tasks but the plan's tree {len(x.inst_leaves)}")
     inst_uuids = {n.node_uuid for _, n in walk(x.plan.tst)}
-    for _, node in walk(x.tree):
+    for node in original:
         if node.node_uuid and node.node_uuid not in inst_uuids:
             out.append(f"node-uuid {node.node_uuid} of the caller is missing from the plan's tree")
     return out
@@ -252,6 +253,16 @@ def _seq_order(x: _Subject) -> list[str]:
     return out
 
 
+def _precedences_kept(x: _Subject) -> list[str]:
+    """The sent tree's order contains every precedence of the plan: the caller's seq order and
+    each unit's route."""
+    from delegation.allocation.sent_tree import missing_precedences
+
+    source = x.plan.source if x.plan.source is not None else x.plan.tst
+    routes = {name: [a.node_uuid for a in items] for name, items in x.routes.items()}
+    return missing_precedences(source, x.plan.tst, routes)
+
+
 def _routes_exact(x: _Subject) -> list[str]:
     """Each unit's route (its order; the plan's assignments in it) holds exactly its vehicle
     tasks."""
@@ -357,6 +368,7 @@ CHECKS: list[Callable[[_Subject], list[str]]] = [
     _no_overlap,
     _source_kept,
     _seq_order,
+    _precedences_kept,
     _routes_exact,
     _times_and_totals,
     _tree_runs,

@@ -66,6 +66,26 @@ class Plan:
     notes: list[str] = field(default_factory=list)  # what the strategy did (also logged)
     #: The caller's tree with uuids and defaults, before units were filled in (not in JSON).
     source: TstNode | None = None
+    #: The makespan of the plan's precedence graph (the tree's order + each unit's order), which
+    #: the strategies plan for; ``makespan`` is the sent tree's (DESIGN 3.4 revised).
+    precedence_makespan: float | None = None
+    #: The strategy whose plan this is when the strategy fell back to it (``optimal`` keeping
+    #: the auction's plan), else None.
+    fallback: str | None = None
+    #: A lower bound on the makespan of any plan for this problem (``bounds``; not in JSON).
+    lower_bound: float | None = None
+
+    @property
+    def instantiation_loss(self) -> float | None:
+        """What the tree sent adds to the precedence graph's makespan (s, never negative)."""
+        if self.precedence_makespan is None:
+            return None
+        return max(0.0, self.makespan - self.precedence_makespan)
+
+    @property
+    def strategy_label(self) -> str:
+        """``optimal (= auction)`` when the strategy fell back to another's plan."""
+        return f"{self.strategy} (= {self.fallback})" if self.fallback else self.strategy
 
     def to_json(self) -> dict[str, Any]:
         """Exactly DESIGN 3.5, hyphenated keys; ``bound``/``gap`` null unless proven."""
@@ -79,6 +99,9 @@ class Plan:
             "solve-time": self.solve_time,
             "bound": self.bound,
             "gap": self.gap,
+            "precedence-makespan": self.precedence_makespan,
+            "instantiation-loss": self.instantiation_loss,
+            "fallback": self.fallback,
             "assignments": [a.to_json() for a in self.assignments],
             "unassigned": [u.to_json() for u in self.unassigned],
             "tst": self.tst.to_dict(),

@@ -10,10 +10,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from delegation.allocation.auction import unassigned_reason
-from delegation.allocation.instantiate import Placement, instantiate
+from delegation.allocation.bounds import makespan_lower_bound
+from delegation.allocation.instantiate import Placement
 from delegation.allocation.plan import Assignment, Plan, Unassigned
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.schedule import Schedule
+from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError
 from delegation.errors import Problem as InputProblem
@@ -76,7 +78,7 @@ def plan_mission(
     return make_plan(
         problem, result.schedule, prepared, strategy=strategy, objective=objective,
         solve_time=solve_time, bound=result.bound, engine_unit=engine_unit, new_uuid=new_uuid,
-        notes=result.notes,
+        notes=result.notes, fallback=result.fallback,
     )
 
 
@@ -92,12 +94,17 @@ def make_plan(
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
     notes: list[str] | None = None,
+    fallback: str | None = None,
 ) -> Plan:
-    """Turn a schedule into a Plan (assignments sorted by start, then unit)."""
+    """Turn a schedule (planned on the precedence graph) into a Plan: the tree to send
+    (``sent_tree.choose_tree``) and its simulated times; assignments sorted by start, then unit.
+    """
+    placements = _placements(problem, schedule)
+    sent = choose_tree(problem, schedule, prepared, placements, engine_unit, new_uuid)
+    precedence_makespan = schedule.makespan
+    schedule = sent.schedule
     assignments: list[Assignment] = []
     unassigned: list[Unassigned] = []
-    placements: dict[str, Placement] = {}
-    rank = {t: k for order in schedule.orders for k, t in enumerate(order)}
     for t, task in enumerate(problem.tasks):
         u = int(schedule.assign[t])
         if u < 0:
@@ -116,7 +123,6 @@ def make_plan(
                 distance=float(schedule.distance[t]),
             )
         )
-        placements[task.uuid] = Placement(unit, rank.get(t, 0), task.vehicle)
     order = {a.node_uuid: i for i, a in enumerate(assignments)}
     assignments.sort(key=lambda a: (a.start, a.execunit, order[a.node_uuid]))
     by_uuid = {a.node_uuid: a for a in assignments}
@@ -124,7 +130,6 @@ def make_plan(
     for u, route in enumerate(schedule.orders):
         if route:
             routes[problem.unit_names[u]] = [by_uuid[problem.tasks[t].uuid] for t in route]
-    tst = instantiate(prepared, placements, engine_unit, new_uuid)
     goal = Objective(objective)
     match goal:
         case Objective.MAKESPAN:
@@ -147,8 +152,19 @@ def make_plan(
         gap=gap,
         assignments=assignments,
         unassigned=unassigned,
-        tst=tst,
+        tst=sent.tree,
         routes=routes,
-        notes=list(notes or []),
+        notes=[*(notes or []), sent.note],
         source=prepared,
+        precedence_makespan=precedence_makespan,
+        fallback=fallback,
+        lower_bound=makespan_lower_bound(problem),
     )
+
+
+def _placements(problem: Problem, schedule: Schedule) -> dict[str, Placement]:
+    """Each assigned task's unit and rank in the unit's order (for the old wrap rule)."""
+    rank = {t: k for order in schedule.orders for k, t in enumerate(order)}
+    return {task.uuid: Placement(problem.unit_names[int(schedule.assign[t])], rank.get(t, 0),
+                                 task.vehicle)
+            for t, task in enumerate(problem.tasks) if schedule.assign[t] >= 0}

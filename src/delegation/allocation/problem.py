@@ -165,6 +165,9 @@ class Problem:
     structure: Structure
     to_home: np.ndarray | None = None  # (T,) bool: go-home (start and end are the unit's home)
     ready: np.ndarray | None = None  # (U,) s until each unit is free (None: all free now)
+    #: Plan for the old instantiation rule (``schedule.evaluate`` wraps conc children sharing a
+    #: unit whole in a seq) instead of the precedence graph: for benchmarks comparing the two.
+    wrap_subtrees: bool = False
     _before: np.ndarray | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)  # derived data, per problem
 

@@ -6,9 +6,10 @@ after its predecessor ended; conc: with its siblings) and its unit is free; trav
 where the unit is at that time. Non-vehicle tasks (``look-at-*``) do not occupy the unit and do not
 travel. A unit with a ``home`` flies back after its last task; that counts for makespan and totals.
 
-The tree simulated is the tree as it will run (``serialise``): children of a conc that share a
-unit run one after another as whole subtrees, in the order ``instantiate`` gives them, so the times
-are those of executing the instantiated tree.
+By default the graph simulated is the plan's precedence graph (the tree's order plus the units'
+orders, DESIGN 3.4 revised), what the strategies plan for; the plan's own times come from
+simulating the tree actually sent on its own structure (``sent_tree``). ``wrapped=True`` simulates
+the old rule's tree (children of a conc that share a unit wrapped whole in a seq, ``serialise``).
 """
 
 from __future__ import annotations
@@ -169,9 +170,16 @@ def _static_for(problem: Problem) -> _Static:
 
 
 def evaluate(
-    problem: Problem, assign: Sequence[int] | np.ndarray, orders: Sequence[Sequence[int]]
+    problem: Problem, assign: Sequence[int] | np.ndarray, orders: Sequence[Sequence[int]],
+    *, wrapped: bool | None = None,
 ) -> Schedule:
     """Simulate the tree with this allocation (earliest start everywhere) and measure it.
+
+    By default the precedence graph (the tree's order plus each unit's order, DESIGN 3.4 revised):
+    what every strategy plans for; the tree sent is built from it (``series_parallel``) and
+    simulated on its own structure. ``wrapped`` adds the old rule's whole-subtree wrappers
+    (``serialise``): the times of the tree ``instantiate`` builds (default: the problem's
+    ``wrap_subtrees``).
 
     A cycle between the tree's order and the units' orders (unit A waits for B which waits for A)
     is reported in ``issues`` (``DEADLOCK``), as is a unit that would run out of battery
@@ -180,7 +188,8 @@ def evaluate(
     assign_arr = np.asarray(assign, dtype=int).reshape(problem.n_tasks)
     static = _static_for(problem)
     prev, clean, issues = _clean_orders(problem, assign_arr, orders, static)
-    graph = _activation_graph(problem, prev, clean)
+    wrap = problem.wrap_subtrees if wrapped is None else wrapped
+    graph = _activation_graph(problem, prev, clean, wrap)
     issues.extend(ScheduleIssue(IssueKind.SERIALISATION, text) for text in graph.wrapped.problems)
     run = _simulate(problem, assign_arr, prev, graph, static)
     if run.done < len(run.value):
@@ -255,7 +264,9 @@ class _Graph:
     wrapped: Serialisation
 
 
-def _activation_graph(problem: Problem, prev: list[int], clean: list[list[int]]) -> _Graph:
+def _activation_graph(
+    problem: Problem, prev: list[int], clean: list[list[int]], wrapped: bool
+) -> _Graph:
     """Events act(n) = 2n, fin(n) = 2n + 1 of every tree node, and what waits for what."""
     s = problem.structure
     indeg = list(template_for(problem).indeg)
@@ -266,13 +277,13 @@ def _activation_graph(problem: Problem, prev: list[int], clean: list[list[int]])
             after[2 * node_of[prev[t]] + 1] = 2 * node_of[t] + 1
             indeg[2 * node_of[t] + 1] += 1
     # Whole subtrees sharing a unit run one after another: fin(X) -> act(next X).
-    wrapped = serialisation(problem, clean, every_conc=False)
+    wraps = serialisation(problem, clean, every_conc=False) if wrapped else Serialisation()
     wrap_next = [-1] * (2 * s.size)
-    for _, kids in wrapped.wraps:
+    for _, kids in wraps.wraps:
         for a, b in itertools.pairwise(kids):
             wrap_next[2 * a + 1] = 2 * b
             indeg[2 * b] += 1
-    return _Graph(indeg, after, wrap_next, wrapped)
+    return _Graph(indeg, after, wrap_next, wraps)
 
 
 @dataclass

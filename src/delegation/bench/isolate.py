@@ -75,6 +75,9 @@ def call_isolated(
         except EOFError:  # the child died before sending anything
             process.join()
             return Outcome(crashed=_exit_text(process.exitcode))
+    except BaseException:  # Ctrl-C: the run is abandoned, its child must not outlive it
+        process.kill()
+        raise
     finally:
         receiver.close()
         process.join()

@@ -7,57 +7,22 @@ page's folder). The prose says how to read the numbers, never what they are.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from delegation.bench.report import markdown_columns, markdown_table
+from delegation.bench.report import SUMMARY_NOTE, markdown_columns, markdown_table
 from delegation.bench.runner import BASELINE, RunRecord
 
 
-def _geomean(values: Sequence[float]) -> float | None:
-    good = [v for v in values if v > 0 and math.isfinite(v)]
-    if not good:
-        return None
-    return math.exp(sum(math.log(v) for v in good) / len(good))
+def summary_table(records: Sequence[RunRecord], baseline: str = BASELINE) -> str:
+    """The summary across scenarios (``bench.summary``), as the bench prints and writes it."""
+    from delegation.bench.report import summary_markdown
+    from delegation.bench.runner import BenchResult
+    from delegation.bench.summary import summarise
 
 
-def summary_table(records: Sequence[RunRecord]) -> str:
-    """Per objective x strategy: geometric mean ratio to nearest, wins, mean solve time."""
-    lines = [
-        "| objective | strategy | scenarios | geometric mean vs nearest | best or tied best on | "
-        "mean solve s | max solve s |",
-        "|---|---|---:|---:|---:|---:|---:|",
-    ]
-    objectives = list(dict.fromkeys(r.objective for r in records))
-    strategies = list(dict.fromkeys(r.strategy for r in records))
-    for objective in objectives:
-        mine = [r for r in records if r.objective == objective and r.repeat == 1]
-        best: dict[str, tuple[int, float]] = {}
-        for r in mine:
-            key = (r.unassigned, r.objective_value)
-            if r.source not in best or key < best[r.source]:
-                best[r.source] = key
-        for strategy in strategies:
-            runs = [r for r in mine if r.strategy == strategy]
-            if not runs:
-                continue
-            ratios = [r.ratio_to_nearest for r in runs if r.ratio_to_nearest is not None]
-            gm = _geomean(ratios)
-            wins = sum(
-                1
-                for r in runs
-                if r.unassigned == best[r.source][0]
-                and r.objective_value <= best[r.source][1] * (1 + 1e-6) + 1e-6
-            )
-            times = [r.solve_time for r in runs]
-            lines.append(
-                f"| {objective} | {strategy} | {len(runs)} | "
-                + ("-" if gm is None else f"{gm:.3f}")
-                + f" | {wins} of {len(runs)} | {sum(times) / len(times):.3f} | {max(times):.3f} |"
-            )
-    return "\n".join(lines)
+    return summary_markdown(summarise(BenchResult(records=list(records), baseline=baseline)))
 
 
 def _rel(target: Path, page: Path) -> str:
@@ -71,6 +36,7 @@ def results_page(
     plots_dir: str | Path | None,
     command: str,
     time_limit: float,
+    baseline: str = BASELINE,
 ) -> str:
     """The page's markdown; ``plots_dir`` holds the bar charts (``<scenario>-objective.png``)."""
     page = Path(page)
@@ -101,19 +67,21 @@ def results_page(
         "",
         "## Summary",
         "",
-        f"Ratios are the plan's objective divided by `{BASELINE}`'s on the same scenario "
-        "(below 1 is better), over the scenarios where both plans leave the same tasks "
-        "unassigned. *Best or tied best* counts scenarios where no other strategy found a "
-        "plan with fewer unassigned tasks or a lower objective.",
+        f"Ratios are the plan's mean objective divided by `{baseline}`'s on the same scenario "
+        "(below 1 is better; geometric mean over scenarios), over the scenarios where both "
+        "plans leave the same tasks unassigned.",
         "",
-        summary_table(records),
+        summary_table(records, baseline),
+        "",
+        SUMMARY_NOTE + ".",
         "",
         "## Every run",
         "",
         "makespan: when the last task ends (units with a home: when back home); total time: sum "
         "of all units' travel and work; distance: the same in metres; solve: the planner's own "
-        "time; bound/gap: where CP-SAT proved a lower bound; vs nearest: the objective "
-        "(makespan or total time, as planned for) relative to `nearest`'s.",
+        "time; bound/gap: where CP-SAT proved a lower bound; vs baseline: the objective "
+        f"(makespan or total time, as planned for) relative to `{baseline}`'s; `a (= b)`: "
+        "a returned b's very plan.",
         "",
         markdown_table(records, markdown_columns(records)),
         "",
@@ -155,9 +123,11 @@ def write_results_page(
     plots_dir: str | Path | None,
     command: str,
     time_limit: float,
+    baseline: str = BASELINE,
 ) -> Path:
     out = Path(page)
     out.parent.mkdir(parents=True, exist_ok=True)
-    text = results_page(records, out, plots_dir=plots_dir, command=command, time_limit=time_limit)
+    text = results_page(records, out, plots_dir=plots_dir, command=command, time_limit=time_limit,
+                        baseline=baseline)
     out.write_text(text, encoding="utf-8")
     return out

@@ -17,7 +17,8 @@ from typing import Any
 
 from rich.table import Table
 
-from delegation.bench.runner import RECORD_FIELDS, RunRecord, ScenarioFailure
+from delegation.bench.runner import RECORD_FIELDS, BenchResult, RunRecord, ScenarioFailure
+from delegation.bench.summary import Aggregate, StrategySummary, aggregate
 
 #: Cell text for a value that is not known (no bound, no baseline).
 MISSING = "-"
@@ -66,7 +67,7 @@ class Column:
 COLUMNS: tuple[Column, ...] = (
     Column("scenario", "scenario", _text, numeric=False),
     Column("objective", "objective", _text, numeric=False),
-    Column("strategy", "strategy", _text, numeric=False),
+    Column("label", "strategy", _text, numeric=False),
     Column("repeat", "run", _int),
     Column("units", "units", _int),
     Column("tasks", "tasks", _int),
@@ -77,18 +78,20 @@ COLUMNS: tuple[Column, ...] = (
     Column("unassigned", "unassigned", _int),
     Column("bound", "bound", _fixed(1)),
     Column("gap", "gap", _percent),
-    Column("ratio_to_nearest", "vs nearest", _ratio),
+    Column("ratio_to_baseline", "vs baseline", _ratio),
+    Column("best_known", "best known", _fixed(1)),
+    Column("gap_to_best_known", "vs best known", _percent),
     Column("problems", "checks", _problems, numeric=False),
 )
 
 
-def format_cell(column: Column, record: RunRecord) -> str:
+def format_cell(column: Column, record: Any) -> str:
     """The text a record shows in a column."""
     return column.fmt(getattr(record, column.field))
 
 
 def table_rows(
-    records: Sequence[RunRecord], columns: Sequence[Column] = COLUMNS
+    records: Sequence[Any], columns: Sequence[Column] = COLUMNS
 ) -> list[list[str]]:
     """The table's cells, one row per record, in record order."""
     return [[format_cell(c, r) for c in columns] for r in records]
@@ -98,7 +101,7 @@ def table_rows(
 #: table fits an 80-column terminal.
 TERMINAL_COLUMNS: tuple[Column, ...] = (
     Column("objective", "objective", _text, numeric=False),
-    Column("strategy", "strategy", _text, numeric=False),
+    Column("label", "strategy", _text, numeric=False),
     Column("repeat", "run", _int),
     Column("makespan", "makespan", _fixed(1)),
     Column("total_time", "total", _fixed(1)),
@@ -107,15 +110,40 @@ TERMINAL_COLUMNS: tuple[Column, ...] = (
     Column("unassigned", "unasg", _int),
     Column("bound", "bound", _fixed(1)),
     Column("gap", "gap", _percent),
-    Column("ratio_to_nearest", "ratio", _ratio),
+    Column("ratio_to_baseline", "ratio", _ratio),
+    Column("gap_to_best_known", "vs best", _percent),
     Column("problems", "checks", _problems, numeric=False),
 )
 
-TABLE_NOTE = (
-    "makespan, total (travel + work of all units) and solve in seconds; unasg: tasks unassigned; "
-    "bound/gap: proven by CP-SAT; ratio: the objective / nearest's on the same scenario; "
-    "-: unknown"
+#: The same per scenario when runs are repeated: the objective's statistics over the repeats.
+AGGREGATE_COLUMNS: tuple[Column, ...] = (
+    Column("objective", "objective", _text, numeric=False),
+    Column("label", "strategy", _text, numeric=False),
+    Column("runs", "n", _int),
+    Column("mean", "mean", _fixed(1)),
+    Column("median", "median", _fixed(1)),
+    Column("std", "std", _fixed(1)),
+    Column("ci95", "95% CI", _text),
+    Column("span", "min-max", _text),
+    Column("solve_time_mean", "solve s", _fixed(3)),
+    Column("unassigned", "unasg", _int),
+    Column("bound", "bound", _fixed(1)),
+    Column("ratio_to_baseline", "ratio", _ratio),
+    Column("gap_to_best_known", "vs best", _percent),
 )
+
+
+def table_note(baseline: str) -> str:
+    return (
+        "makespan, total (travel + work of all units) and solve in seconds; unasg: tasks "
+        "unassigned; bound/gap: proven by CP-SAT; ratio: the objective / "
+        f"{baseline}'s on the same scenario (geometric mean over repeats); vs best: gap to the "
+        "best known value of a standard instance; mean/median/std over repeats, 95% CI: the "
+        "mean's Student-t interval; 'a (= b)': a returned b's plan; -: unknown"
+    )
+
+
+TABLE_NOTE = table_note("nearest")
 
 
 def _useful(columns: Sequence[Column], records: Sequence[RunRecord]) -> tuple[Column, ...]:
@@ -125,6 +153,9 @@ def _useful(columns: Sequence[Column], records: Sequence[RunRecord]) -> tuple[Co
         drop.add("repeat")
     if not any(r.problems for r in records):
         drop.add("problems")
+    for name in ("best_known", "gap_to_best_known", "bound"):
+        if all(getattr(r, name) is None for r in records):
+            drop.add(name)
     return tuple(c for c in columns if c.field not in drop)
 
 
@@ -143,13 +174,35 @@ def compact_table(title: str) -> Table:
     )
 
 
+class _AggregateRow:
+    """An ``Aggregate`` with the CI and min-max as one cell each (for the tables)."""
+
+    def __init__(self, agg: Aggregate) -> None:
+        self._agg = agg
+        self.ci95 = (MISSING if agg.ci95_low is None or agg.ci95_high is None
+                     else f"{agg.ci95_low:,.1f}..{agg.ci95_high:,.1f}")
+        self.span = f"{agg.min:,.1f}..{agg.max:,.1f}"
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._agg, name)
+
+
+def aggregate_rows(records: Sequence[RunRecord]) -> list[Any]:
+    """The aggregates of ``records`` as rows for ``AGGREGATE_COLUMNS``."""
+    return [_AggregateRow(a) for a in aggregate(records)]
+
+
 def results_tables(records: Sequence[RunRecord]) -> list[Table]:
-    """One compact ``rich`` table per scenario (numbers right-aligned, never cut)."""
-    columns = _useful(TERMINAL_COLUMNS, records)
+    """One compact ``rich`` table per scenario (numbers right-aligned, never cut): every run,
+    or with repeats the statistics over them."""
+    repeated = any(r.repeat > 1 for r in records)
+    columns = _useful(AGGREGATE_COLUMNS if repeated else TERMINAL_COLUMNS, records)
     tables: list[Table] = []
     for source in dict.fromkeys(r.source for r in records):
-        mine = [r for r in records if r.source == source]
-        first = mine[0]
+        first = next(r for r in records if r.source == source)
+        mine: Sequence[Any] = [r for r in records if r.source == source]
+        if repeated:
+            mine = aggregate_rows(mine)
         table = compact_table(
             f"[bold]{first.scenario}[/bold]: {first.units} units, {first.tasks} tasks"
         )
@@ -177,7 +230,7 @@ def markdown_columns(records: Sequence[RunRecord]) -> tuple[Column, ...]:
     return _useful(COLUMNS, records)
 
 
-def markdown_table(records: Sequence[RunRecord], columns: Sequence[Column] = COLUMNS) -> str:
+def markdown_table(records: Sequence[Any], columns: Sequence[Column] = COLUMNS) -> str:
     """The same cells as a GitHub markdown table (for ``docs/results.md``)."""
     head = "| " + " | ".join(c.header for c in columns) + " |"
     rule = "|" + "|".join("---:" if c.numeric else "---" for c in columns) + "|"
@@ -248,14 +301,118 @@ def write_json(
     *,
     failures: Sequence[ScenarioFailure] = (),
     meta: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> Path:
-    """``{"meta": ..., "records": [...], "failures": [...]}`` with the records' fields as keys."""
+    """``{"meta": ..., "records": [...], "failures": [...], **extra}`` with the records' fields
+    as keys."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     data = {
         "meta": dict(meta or {}),
         "records": [r.to_dict() for r in records],
         "failures": [{"source": f.source, "message": f.message} for f in failures],
+        **dict(extra or {}),
     }
     out.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     return out
+
+
+# --------------------------------------------------------------------------- summary
+
+
+SUMMARY_NOTE = (
+    "ratio: geometric mean over scenarios of the mean objective / the baseline's (where both "
+    "left the same tasks unassigned); wins: scenarios where it alone was best (fewest "
+    "unassigned, then lowest mean); ties: best together with another; copied: scenarios where "
+    "its plan was another strategy's (never a win); failed: runs that crashed or timed out"
+)
+
+
+def _summary_cells(row: StrategySummary) -> list[str]:
+    return [
+        row.objective, row.strategy, str(row.scenarios),
+        MISSING if row.geomean_ratio is None else f"{row.geomean_ratio:.3f} ({row.compared})",
+        str(row.wins), str(row.ties), str(row.same_plan), str(row.infeasible),
+        str(row.failed_runs),
+    ]
+
+
+_SUMMARY_HEADERS = ("objective", "strategy", "scenarios", "ratio (n)", "wins", "ties", "copied",
+                    "infeasible", "failed")
+
+
+def summary_table(rows: Sequence[StrategySummary]) -> Table:
+    """Strategies across scenarios, against the baseline (always printed)."""
+    baseline = rows[0].baseline if rows else "-"
+    table = compact_table(f"[bold]Across scenarios[/bold] (baseline: {baseline})")
+    cells = [_summary_cells(r) for r in rows]
+    for i, header in enumerate(_SUMMARY_HEADERS):
+        table.add_column(header, justify="left" if i < 2 else "right",
+                         min_width=max((len(c[i]) for c in cells), default=0))
+    for row in cells:
+        table.add_row(*row)
+    return table
+
+
+def summary_markdown(rows: Sequence[StrategySummary]) -> str:
+    head = "| " + " | ".join(_SUMMARY_HEADERS) + " |"
+    rule = "|---|---|" + "---:|" * (len(_SUMMARY_HEADERS) - 2)
+    body = ["| " + " | ".join(_summary_cells(r)) + " |" for r in rows]
+    return "\n".join([head, rule, *body])
+
+
+# --------------------------------------------------------------------------- all outputs
+
+
+def write_outputs(
+    result: BenchResult,
+    out: str | Path,
+    *,
+    meta: Mapping[str, Any],
+    plots: bool = True,
+    maps: bool = True,
+    gantt: bool = True,
+    max_map_tasks: int = 150,
+) -> list[Path]:
+    """results.csv/json (every run), aggregates.csv, summary.csv, results.md and the PNGs.
+
+    Writes nothing when there is no record (an empty result file reads as a result)."""
+    from delegation.bench.summary import AGGREGATE_FIELDS, SUMMARY_FIELDS, summarise
+
+    if not result.records:
+        return []
+    folder = Path(out)
+    aggregates = aggregate(result.records)
+    summary = summarise(result)
+    written = [
+        write_csv(result.records, folder / "results.csv"),
+        write_rows_csv(AGGREGATE_FIELDS, (a.to_dict() for a in aggregates),
+                       folder / "aggregates.csv"),
+        write_rows_csv(SUMMARY_FIELDS, (s.to_dict() for s in summary), folder / "summary.csv"),
+        write_json(result.records, folder / "results.json", failures=result.failures,
+                   meta={**meta, "baseline": result.baseline,
+                         "interrupted": result.interrupted,
+                         "runs_finished": len(result.records), "runs_asked": result.total_runs},
+                   extra={"aggregates": [a.to_dict() for a in aggregates],
+                          "summary": [s.to_dict() for s in summary]}),
+    ]
+    repeated = any(r.repeat > 1 for r in result.records)
+    if repeated:
+        rows: Sequence[Any] = aggregate_rows(result.records)
+        table_md = markdown_table(rows, _useful(AGGREGATE_COLUMNS, result.records))
+    else:
+        table_md = markdown_table(result.records, markdown_columns(result.records))
+    md = folder / "results.md"
+    md.write_text(
+        ("**Interrupted: partial results.**\n\n" if result.interrupted else "")
+        + table_md + "\n\n" + summary_markdown(summary) + "\n\n" + SUMMARY_NOTE + ".\n",
+        encoding="utf-8",
+    )
+    written.append(md)
+    if plots:
+        from delegation.bench.plots import summary_plot, write_plots
+
+        written += write_plots(result, folder, maps=maps, gantt=gantt,
+                               max_map_tasks=max_map_tasks)
+        written.append(summary_plot(summary, folder / "summary.png"))
+    return written

@@ -16,12 +16,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from delegation.allocation.strategies import Objective
-from delegation.bench.isolate import call_isolated
+from delegation.allocation.strategies import Objective, resolve_strategy
 from delegation.errors import DelegationError, InputError, Problem
 
 if TYPE_CHECKING:
     from delegation.allocation import Plan
+    from delegation.bench.executor import Executor
     from delegation.fleet import UnitState
     from delegation.scenario import Scenario
     from delegation.tst import TstNode
@@ -31,16 +31,18 @@ log = logging.getLogger(__name__)
 #: File suffixes a scenario folder is searched for.
 SCENARIO_SUFFIXES: tuple[str, ...] = (".yaml", ".yml", ".json")
 
-#: The strategy every other one is compared with.
+#: The strategy every other one is compared with, unless ``--baseline`` says otherwise.
 BASELINE = "nearest"
 
 
 @dataclass(frozen=True)
 class LoadedScenario:
-    """A scenario with where it came from (a file path, or ``generated:<name>``)."""
+    """A scenario with where it came from (a file path, or ``generated:<name>``), and the best
+    known objective values where a standard instance has them (``bench.best_known``)."""
 
     source: str
     scenario: Scenario
+    best_known: dict[str, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,14 +58,27 @@ class ScenarioFailure:
         return f"{self.source}: {self.message}"
 
 
+@dataclass(frozen=True, slots=True)
+class FailedRun:
+    """A run that produced no plan (crash or run timeout), for the summary's failure counts."""
+
+    source: str
+    strategy: str
+    objective: str
+    repeat: int
+    reason: str
+
+
 @dataclass
 class RunRecord:
     """One strategy x objective run on one scenario: the numbers the table, CSV and JSON show.
 
     ``objective_value`` is the plan's makespan or total time, as the objective asks;
-    ``ratio_to_nearest`` divides it by ``nearest``'s on the same scenario, objective and repeat,
-    and is None where ``nearest`` did not run or the two plans leave different numbers of tasks
-    unassigned (their objectives then measure different work).
+    ``ratio_to_baseline`` divides it by the baseline's (``nearest`` unless ``--baseline``) on the
+    same scenario, objective and repeat, and is None where the baseline did not run or the two
+    plans leave different numbers of tasks unassigned (their objectives then measure different
+    work). ``same_plan_as`` names an earlier strategy that returned exactly this plan on the same
+    run (optimal keeping the auction's plan), so that it is never shown as its own result.
     """
 
     scenario: str
@@ -85,14 +100,33 @@ class RunRecord:
     unassigned: int
     bound: float | None = None
     gap: float | None = None
-    ratio_to_nearest: float | None = None
+    ratio_to_baseline: float | None = None
+    #: the best known objective value of this standard instance, and the gap to it
+    best_known: float | None = None
+    gap_to_best_known: float | None = None
+    #: a digest of the plan (who does what, when), and the earlier strategy with the same plan
+    plan_digest: str = ""
+    same_plan_as: str | None = None
     #: invariant violations found by ``check_invariants`` (empty: the plan is sound)
     problems: list[str] = field(default_factory=list)
     #: what the strategy reported doing (e.g. optimal keeping the auction's plan when too large)
     notes: list[str] = field(default_factory=list)
+    #: the strategy whose plan this is when the strategy fell back to it (``optimal`` keeping
+    #: the auction's), else None
+    fallback: str | None = None
+    #: the plan's precedence-graph makespan and what the sent tree adds to it (s)
+    precedence_makespan: float | None = None
+    instantiation_loss: float | None = None
+    #: a lower bound on any plan's makespan (``allocation.bounds``), s
+    lower_bound: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @property
+    def label(self) -> str:
+        """The strategy, with whose plan it returned when that was another's."""
+        return self.strategy + (f" (= {self.same_plan_as})" if self.same_plan_as else "")
 
 
 #: Record fields in the order the CSV and JSON carry them.
@@ -109,6 +143,13 @@ class BenchResult:
     plans: dict[tuple[str, str, str], Plan] = field(default_factory=dict)
     #: source -> (scenario, units) as planned, for plots.
     scenarios: dict[str, tuple[Scenario, list[UnitState]]] = field(default_factory=dict)
+    #: the strategy the ratios divide by
+    baseline: str = BASELINE
+    #: runs that crashed or timed out (each also in ``failures``)
+    failed: list[FailedRun] = field(default_factory=list)
+    #: runs asked for, and whether Ctrl-C stopped the bench before all had finished
+    total_runs: int = 0
+    interrupted: bool = False
 
     @property
     def violations(self) -> list[RunRecord]:
@@ -208,90 +249,93 @@ def run_bench(
     keep_plans: bool = True,
     isolate: bool = False,
     run_timeout: float | None = None,
+    baseline: str | None = None,
+    executor: Executor | None = None,
 ) -> BenchResult:
     """Plan every scenario with every strategy x objective, ``repeat`` times; check every plan.
 
     With ``isolate`` each run happens in a child process (``bench.isolate``): a planner that
     crashes the process, or runs past ``run_timeout`` seconds, becomes a failure naming the file,
-    strategy and objective, and the bench goes on.
+    strategy and objective, and the bench goes on. ``executor`` says where runs happen (default:
+    here, one after another); the records are the same whichever runs them. Ctrl-C stops the
+    bench and returns the runs that finished (``interrupted``).
     """
     from delegation.allocation import OBJECTIVES, STRATEGIES
+    from delegation.bench.executor import LocalExecutor
 
-    strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
+    strategies = [resolve_strategy(s) for s in strategies or list(STRATEGIES)]
+    strategies = check_choice("strategies", strategies, STRATEGIES)
     objectives = check_choice("objectives", objectives or list(OBJECTIVES), OBJECTIVES)
+    baseline = baseline or (BASELINE if BASELINE in strategies else strategies[0])
+    if baseline not in strategies:
+        raise InputError(Problem("baseline", "", f"{baseline!r} is not among the strategies "
+                                 f"run ({', '.join(strategies)})"))
     if repeat < 1:
         raise InputError(Problem("repeat", "", f"must be at least 1, not {repeat}"))
     if not time_limit > 0:
         raise InputError(Problem("time-limit", "", f"must be > 0, not {time_limit}"))
 
-    if scenarios:
-        warm_up(strategies, objectives)
-    result = BenchResult()
-    total = len(scenarios) * len(strategies) * len(objectives) * repeat
-    done = 0
+    result = BenchResult(baseline=baseline)
+    runs: list[dict[str, Any]] = []
     for item in scenarios:
-        runs = len(strategies) * len(objectives) * repeat
-        start = done
         try:
-            tree = item.scenario.tree()
-            units = item.scenario.units()
+            tree, units = item.scenario.tree(), item.scenario.units()
         except DelegationError as exc:
             result.failures.append(ScenarioFailure(item.source, str(exc)))
-            done += runs
-            if progress:
-                progress(done, total, f"{item.source}: failed")
             continue
         result.scenarios[item.source] = (item.scenario, units)
-        records: list[RunRecord] = []
+        for rep, objective, strategy in itertools.product(range(repeat), objectives, strategies):
+            runs.append({"item": item, "tree": tree, "units": units, "strategy": strategy,
+                         "objective": objective, "time_limit": time_limit, "repeat": rep + 1})
+    result.total_runs = len(runs)
+    executor = executor or LocalExecutor(isolate)
+    outcomes: dict[int, Any] = {}
+    if runs:
+        executor.prepare(warm_up, strategies, objectives)
         try:
-            for rep, objective, strategy in itertools.product(
-                range(repeat), objectives, strategies
-            ):
-                label = f"{item.scenario.name} {strategy}/{objective}"
-                kwargs = {
-                    "item": item,
-                    "tree": tree,
-                    "units": units,
-                    "strategy": strategy,
-                    "objective": objective,
-                    "time_limit": time_limit,
-                    "repeat": rep + 1,
-                }
-                done += 1
-                if not isolate:
-                    record, plan = run_one(**kwargs)  # type: ignore[arg-type]
-                else:
-                    outcome = call_isolated(run_one, kwargs, timeout=run_timeout)
-                    if outcome.input_error is not None:
-                        raise DelegationError(outcome.input_error)
-                    if not outcome.ok:
-                        why = outcome.crashed or f"stopped after {run_timeout:g} s (run timeout)"
-                        result.failures.append(
-                            ScenarioFailure(
-                                item.source, f"{strategy}/{objective} run {rep + 1}: {why}"
-                            )
-                        )
-                        if progress:
-                            progress(done, total, f"{label}: failed")
-                        continue
-                    record, plan = outcome.value
-                records.append(record)
-                if keep_plans and rep == 0:
-                    result.plans[(item.source, strategy, objective)] = plan
+            for index, outcome in executor.run(run_one, runs, run_timeout):
+                outcomes[index] = outcome
                 if progress:
-                    progress(done, total, label)
-        except DelegationError as exc:
-            # plan_mission never raises for infeasibility; this is input it could not accept.
-            result.failures.append(ScenarioFailure(item.source, str(exc)))
-            done = start + runs
-            for key in [k for k in result.plans if k[0] == item.source]:
-                del result.plans[key]
-            if progress:
-                progress(done, total, f"{item.source}: failed")
-            continue
-        add_ratios(records)
-        result.records.extend(records)
+                    run = runs[index]
+                    label = (f"{run['item'].scenario.name} {run['strategy']}/{run['objective']}"
+                             + ("" if outcome.ok else ": failed"))
+                    progress(len(outcomes), len(runs), label)
+        except KeyboardInterrupt:
+            result.interrupted = True
+    _collect(result, runs, outcomes, run_timeout, keep_plans)
     return result
+
+
+def _collect(result: BenchResult, runs: Sequence[dict[str, Any]], outcomes: dict[int, Any],
+             run_timeout: float | None, keep_plans: bool) -> None:
+    """Records in run order, scenario by scenario; an input error fails its whole scenario."""
+    by_source: dict[str, list[int]] = {}
+    for index, run in enumerate(runs):
+        by_source.setdefault(run["item"].source, []).append(index)
+    for source, indices in by_source.items():
+        done = [(i, outcomes[i]) for i in indices if i in outcomes]
+        refused = next((o.input_error for _, o in done if o.input_error is not None), None)
+        if refused is not None:
+            # plan_mission never raises for infeasibility; this is input it could not accept.
+            result.failures.append(ScenarioFailure(source, refused))
+            continue
+        records: list[RunRecord] = []
+        for i, outcome in done:
+            run = runs[i]
+            if not outcome.ok:
+                why = outcome.crashed or f"stopped after {run_timeout:g} s (run timeout)"
+                result.failed.append(FailedRun(source, run["strategy"], run["objective"],
+                                               run["repeat"], why))
+                result.failures.append(ScenarioFailure(
+                    source, f"{run['strategy']}/{run['objective']} run {run['repeat']}: {why}"))
+                continue
+            record, plan = outcome.value
+            records.append(record)
+            if keep_plans and run["repeat"] == 1:
+                result.plans[(source, run["strategy"], run["objective"])] = plan
+        add_ratios(records, result.baseline)
+        mark_same_plans(records)
+        result.records.extend(records)
 
 
 def warm_up(strategies: Sequence[str], objectives: Sequence[str]) -> None:
@@ -299,13 +343,17 @@ def warm_up(strategies: Sequence[str], objectives: Sequence[str]) -> None:
 
     The first plan of a process pays for lazy imports and solver start-up (measured: ~20 ms for
     nearest, ~170 ms for optimal); forked children inherit the warm state, so no run pays it.
+    Plugins are imported (``resolve_strategy``) but not run here: only isolated runs may crash.
     """
     from delegation.allocation import plan_mission
+    from delegation.allocation.strategies import BUILTIN_STRATEGIES
     from delegation.bench.generate import generate_scenario
 
     item = scenarios_from_dicts([generate_scenario(units=2, tasks=3, seed=0)])[0]
     tree, units = item.scenario.tree(), item.scenario.units()
-    for strategy in strategies:
+    for strategy in [resolve_strategy(s) for s in strategies]:
+        if strategy not in BUILTIN_STRATEGIES:
+            continue
         for objective in objectives:
             plan_mission(tree, units, strategy=strategy, objective=objective, time_limit=0.5)
 
@@ -324,6 +372,7 @@ def run_one(
     from delegation.allocation import check_invariants, plan_mission
     from delegation.tst import leaves
 
+    strategy = resolve_strategy(strategy)  # a module:function spec, on a Dask worker too
     started = time.perf_counter()
     plan = plan_mission(
         tree,
@@ -357,6 +406,17 @@ def _opt(value: float | None) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def plan_digest(plan: Plan) -> str:
+    """A short digest of who does what, when: equal for equal plans of one tree."""
+    import hashlib
+
+    text = ";".join(
+        f"{a.node_uuid}@{a.execunit}:{a.start:.6f}-{a.end:.6f}"
+        for a in sorted(plan.assignments, key=lambda a: a.node_uuid)
+    )
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
 def make_record(
     item: LoadedScenario,
     plan: Plan,
@@ -367,6 +427,8 @@ def make_record(
     wall_time: float,
     problems: list[str],
 ) -> RunRecord:
+    value = objective_value(plan, plan.objective)
+    best = (item.best_known or {}).get(plan.objective)
     return RunRecord(
         scenario=item.scenario.name,
         source=item.source,
@@ -379,7 +441,7 @@ def make_record(
         makespan=float(plan.makespan),
         total_time=float(plan.total_time),
         total_distance=float(plan.total_distance),
-        objective_value=objective_value(plan, plan.objective),
+        objective_value=value,
         solve_time=float(plan.solve_time),
         wall_time=wall_time,
         assigned=len(plan.assignments),
@@ -388,17 +450,34 @@ def make_record(
         gap=_opt(plan.gap),
         problems=problems,
         notes=[str(n) for n in getattr(plan, "notes", [])],
+        best_known=best,
+        gap_to_best_known=None if best is None or plan.unassigned else value / best - 1.0,
+        plan_digest=plan_digest(plan),
+        fallback=plan.fallback,
+        precedence_makespan=_opt(plan.precedence_makespan),
+        instantiation_loss=_opt(plan.instantiation_loss),
+        lower_bound=_opt(plan.lower_bound),
     )
 
 
-def add_ratios(records: Sequence[RunRecord]) -> None:
-    """Fill ``ratio_to_nearest`` for records of one scenario (same objective and repeat)."""
-    base = {(r.source, r.objective, r.repeat): r for r in records if r.strategy == BASELINE}
+def add_ratios(records: Sequence[RunRecord], baseline: str = BASELINE) -> None:
+    """Fill ``ratio_to_baseline`` for records of one scenario (same objective and repeat)."""
+    base = {(r.source, r.objective, r.repeat): r for r in records if r.strategy == baseline}
     for r in records:
         ref = base.get((r.source, r.objective, r.repeat))
         if ref is None or ref.unassigned != r.unassigned:
-            r.ratio_to_nearest = None
+            r.ratio_to_baseline = None
         elif ref.objective_value > 0:
-            r.ratio_to_nearest = r.objective_value / ref.objective_value
+            r.ratio_to_baseline = r.objective_value / ref.objective_value
         else:
-            r.ratio_to_nearest = 1.0 if r.objective_value == 0 else None
+            r.ratio_to_baseline = 1.0 if r.objective_value == 0 else None
+
+
+def mark_same_plans(records: Sequence[RunRecord]) -> None:
+    """``same_plan_as``: the first strategy (in run order) whose plan on the same scenario,
+    objective and repeat is this very plan; such a result is not the strategy's own."""
+    first: dict[tuple[str, str, int, str], str] = {}
+    for r in records:
+        key = (r.source, r.objective, r.repeat, r.plan_digest)
+        owner = first.setdefault(key, r.strategy)
+        r.same_plan_as = owner if owner != r.strategy and r.plan_digest else None

@@ -13,12 +13,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from delegation.allocation.strategies import resolve_strategy
 from delegation.bench.generate import GeneratorOptions, generate_scenario
-from delegation.bench.isolate import call_isolated
+from delegation.bench.isolate import Outcome
 from delegation.bench.report import write_rows_csv
 from delegation.bench.runner import (
     ProgressFn,
@@ -28,7 +29,10 @@ from delegation.bench.runner import (
     scenarios_from_dicts,
     warm_up,
 )
-from delegation.errors import DelegationError, InputError, Problem
+from delegation.errors import InputError, Problem
+
+if TYPE_CHECKING:
+    from delegation.bench.executor import Executor
 
 #: The default grid: runs in a few minutes on 2 cores with the default budget and time limit.
 DEFAULT_UNITS: tuple[int, ...] = (5, 20, 50, 200)
@@ -59,6 +63,10 @@ class ScaleRecord:
     problems: list[str] = field(default_factory=list)
     #: what the strategy reported doing (``Plan.notes``)
     notes: list[str] = field(default_factory=list)
+    #: the plan's digest, and the strategy listed before it whose plan this very plan is
+    #: (optimal keeping the auction's): such a record is never "best"
+    plan_digest: str = ""
+    same_plan_as: str | None = None
 
     @property
     def size(self) -> int:
@@ -97,70 +105,143 @@ def run_scale(
     generator: GeneratorOptions | None = None,
     progress: ProgressFn | None = None,
     isolate: bool = True,
+    executor: Executor | None = None,
 ) -> list[ScaleRecord]:
     """Run the sweep; one record per strategy x objective x cell, skipped cells included.
 
     With ``isolate`` (the default) each plan runs in a child process that is stopped when the
     budget is up, so one slow strategy cannot hold the sweep up for longer than its budget.
+    A run starts once every smaller cell that could stop it (no more units and no more tasks)
+    has finished for its strategy and objective, so an ``executor`` with several workers runs
+    independent cells at once and the records are those of the one-by-one sweep.
     """
     from delegation.allocation import OBJECTIVES, STRATEGIES
+    from delegation.bench.executor import LocalExecutor
 
-    strategies = check_choice("strategies", strategies or list(STRATEGIES), STRATEGIES)
+    strategies = [resolve_strategy(s) for s in strategies or list(STRATEGIES)]
+    strategies = check_choice("strategies", strategies, STRATEGIES)
     objectives = check_choice("objectives", objectives, OBJECTIVES)
     if not budget > 0:
         raise InputError(Problem("budget", "", f"must be > 0 seconds, not {budget}"))
     base = generator or GeneratorOptions()
     cells = grid(units, tasks)
-    warm_up(strategies, objectives)
-    total = len(cells) * len(strategies) * len(objectives)
-    done = 0
-    #: (strategy, objective) -> the cells (units, tasks) where it exceeded the budget.
-    stopped: dict[tuple[str, str], list[tuple[int, int]]] = {}
-    records: list[ScaleRecord] = []
-    for n_units, n_tasks in cells:
-        options = GeneratorOptions(**{**base.__dict__, "units": n_units, "tasks": n_tasks})
-        cell_records: list[ScaleRecord] = []
-        needed = [
-            (s, o)
-            for o in objectives
-            for s in strategies
-            if _blocker(stopped.get((s, o), []), n_units, n_tasks) is None
-        ]
-        item = tree = unit_states = None
-        if needed:
-            item = scenarios_from_dicts([generate_scenario(options)])[0]
-            tree, unit_states = item.scenario.tree(), item.scenario.units()
-        for objective in objectives:
-            for strategy in strategies:
-                record = ScaleRecord(strategy, objective, n_units, n_tasks, options.seed, SKIPPED)
-                block = _blocker(stopped.get((strategy, objective), []), n_units, n_tasks)
-                if block is not None:
-                    bu, bt = block
-                    record.note = f"skipped: exceeded the budget ({budget:g} s) at {bu}x{bt}"
-                else:
-                    assert item is not None and tree is not None and unit_states is not None
-                    _measure(
-                        record,
-                        dict(
-                            item=item,
-                            tree=tree,
-                            units=unit_states,
-                            strategy=strategy,
-                            objective=objective,
-                            time_limit=time_limit,
-                        ),
-                        budget=budget,
-                        isolate=isolate,
-                    )
-                    if record.status == OVER_BUDGET:
-                        stopped.setdefault((strategy, objective), []).append((n_units, n_tasks))
-                cell_records.append(record)
+    executor = executor or LocalExecutor(isolate)
+    executor.prepare(warm_up, strategies, objectives)
+    pairs = [(s, o) for o in objectives for s in strategies]
+    records = {
+        (cell, pair): ScaleRecord(pair[0], pair[1], cell[0], cell[1], base.seed, SKIPPED)
+        for cell in cells for pair in pairs
+    }
+    sweep = _Sweep(cells, pairs, base, time_limit)
+    total, done = len(records), 0
+    settled: set[_Key] = set()
+    try:
+        while not sweep.finished:
+            batch = sweep.ready(records, budget)
+            for key in batch.skipped:
+                settled.add(key)
                 done += 1
                 if progress:
-                    progress(done, total, f"{n_units}x{n_tasks} {strategy}/{objective}")
-        _relative(cell_records)
-        records.extend(cell_records)
-    return records
+                    progress(done, total, f"{_label(key)} skipped")
+            if not batch.runs:
+                continue
+            timeout = budget if isolate else None
+            for index, outcome in executor.run(_record_only, batch.kwargs, timeout):
+                key = batch.runs[index]
+                _fill(records[key], outcome, budget=budget, isolate=isolate)
+                sweep.finish(key, records[key].status == OVER_BUDGET)
+                settled.add(key)
+                done += 1
+                if progress:
+                    progress(done, total, _label(key))
+    except KeyboardInterrupt:
+        raise ScaleInterrupted(_ordered(cells, pairs, records, settled)) from None
+    return _ordered(cells, pairs, records, settled)
+
+
+class ScaleInterrupted(KeyboardInterrupt):
+    """Ctrl-C during the sweep, with the records of the runs that were settled by then."""
+
+    def __init__(self, records: list[ScaleRecord]) -> None:
+        super().__init__()
+        self.records = records
+
+
+def _label(key: _Key) -> str:
+    (units, tasks), (strategy, objective) = key
+    return f"{units}x{tasks} {strategy}/{objective}"
+
+
+def _ordered(cells: list[tuple[int, int]], pairs: list[tuple[str, str]],
+             records: dict[_Key, ScaleRecord], settled: set[_Key]) -> list[ScaleRecord]:
+    """The settled records cell by cell (small to large), compared within each cell."""
+    out: list[ScaleRecord] = []
+    for cell in cells:
+        mine = [records[(cell, pair)] for pair in pairs if (cell, pair) in settled]
+        _relative(mine)
+        _mark_copies(mine)
+        out.extend(mine)
+    return out
+
+
+_Key = tuple[tuple[int, int], tuple[str, str]]
+
+
+@dataclass
+class _Batch:
+    runs: list[_Key]
+    kwargs: list[dict[str, Any]]
+    skipped: list[_Key]
+
+
+class _Sweep:
+    """Which runs may start: those whose dominated cells (<= units and <= tasks) are settled."""
+
+    def __init__(self, cells: list[tuple[int, int]], pairs: list[tuple[str, str]],
+                 base: GeneratorOptions, time_limit: float) -> None:
+        self.cells, self.pairs, self.base, self.time_limit = cells, pairs, base, time_limit
+        self.pending = {(c, p) for c in cells for p in pairs}
+        self.stopped: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        self._scenarios: dict[tuple[int, int], Any] = {}
+
+    @property
+    def finished(self) -> bool:
+        return not self.pending
+
+    def finish(self, key: _Key, over: bool) -> None:
+        if over:
+            self.stopped.setdefault(key[1], []).append(key[0])
+
+    def _scenario(self, cell: tuple[int, int]) -> Any:
+        if cell not in self._scenarios:
+            options = GeneratorOptions(**{**self.base.__dict__, "units": cell[0],
+                                          "tasks": cell[1]})
+            item = scenarios_from_dicts([generate_scenario(options)])[0]
+            self._scenarios[cell] = (item, item.scenario.tree(), item.scenario.units())
+        return self._scenarios[cell]
+
+    def ready(self, records: dict[_Key, ScaleRecord], budget: float) -> _Batch:
+        batch = _Batch([], [], [])
+        for key in sorted(self.pending, key=lambda k: (self.cells.index(k[0]),
+                                                       self.pairs.index(k[1]))):
+            (u, t), pair = key
+            below = [k for k in self.pending if k[1] == pair and k != key
+                     and k[0][0] <= u and k[0][1] <= t]
+            if below:
+                continue
+            block = _blocker(self.stopped.get(pair, []), u, t)
+            if block is not None:
+                records[key].note = (f"skipped: exceeded the budget ({budget:g} s) at "
+                                     f"{block[0]}x{block[1]}")
+                batch.skipped.append(key)
+                continue
+            item, tree, unit_states = self._scenario((u, t))
+            batch.runs.append(key)
+            batch.kwargs.append(dict(item=item, tree=tree, units=unit_states, strategy=pair[0],
+                                     objective=pair[1], time_limit=self.time_limit))
+        for key in batch.runs + batch.skipped:
+            self.pending.discard(key)
+        return batch
 
 
 def _record_only(**kwargs: Any) -> RunRecord:
@@ -168,28 +249,21 @@ def _record_only(**kwargs: Any) -> RunRecord:
     return run_one(**kwargs)[0]
 
 
-def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isolate: bool) -> None:
-    """Run one plan and fill ``record``: ok, over budget (finished late or stopped), failed."""
-    if isolate:
-        outcome = call_isolated(_record_only, kwargs, timeout=budget)
-        if outcome.timed_out:
-            record.status = OVER_BUDGET
-            record.note = f"stopped at the budget ({budget:g} s)"
-            return
-        if not outcome.ok:
-            record.status, record.note = FAILED, str(outcome.input_error or outcome.crashed)
-            return
-        run: RunRecord = outcome.value
-    else:
-        try:
-            run = _record_only(**kwargs)
-        except DelegationError as exc:
-            record.status, record.note = FAILED, str(exc)
-            return
+def _fill(record: ScaleRecord, outcome: Outcome, *, budget: float, isolate: bool) -> None:
+    """Fill ``record`` from a run's outcome: ok, over budget (finished late or stopped), failed."""
+    if outcome.timed_out:
+        record.status = OVER_BUDGET
+        record.note = f"stopped at the budget ({budget:g} s)"
+        return
+    if not outcome.ok:
+        record.status, record.note = FAILED, str(outcome.input_error or outcome.crashed)
+        return
+    run: RunRecord = outcome.value
     record.wall_time, record.solve_time = run.wall_time, run.solve_time
     record.objective_value, record.unassigned = run.objective_value, run.unassigned
     record.problems = run.problems
     record.notes = run.notes
+    record.plan_digest = run.plan_digest
     record.status = OK
     if run.wall_time > budget:
         record.status = OVER_BUDGET
@@ -199,6 +273,16 @@ def _measure(record: ScaleRecord, kwargs: dict[str, Any], *, budget: float, isol
 def _blocker(blocks: list[tuple[int, int]], units: int, tasks: int) -> tuple[int, int] | None:
     """The first cell that exceeded the budget and is no larger than this one, if any."""
     return next((b for b in blocks if units >= b[0] and tasks >= b[1]), None)
+
+
+def _mark_copies(records: Sequence[ScaleRecord]) -> None:
+    """``same_plan_as`` within one cell: the first strategy (in order) with this very plan."""
+    first: dict[tuple[str, str], str] = {}
+    for r in records:
+        if not r.plan_digest:
+            continue
+        owner = first.setdefault((r.objective, r.plan_digest), r.strategy)
+        r.same_plan_as = owner if owner != r.strategy else None
 
 
 def _relative(records: Sequence[ScaleRecord]) -> None:
@@ -294,6 +378,15 @@ def scale_plot(
                         color=colour,
                         ms=7,
                     )
+                copied = [r for r in mine if r.same_plan_as and r.relative_to_best is not None]
+                ax_rel.plot(
+                    [r.tasks for r in copied],
+                    [r.relative_to_best for r in copied],
+                    "s",
+                    ms=11,
+                    mfc="none",
+                    mec="black",
+                )
                 rel = [r for r in mine if r.relative_to_best is not None]
                 ax_rel.plot(
                     [r.tasks for r in rel],
@@ -342,7 +435,9 @@ def scale_plot(
     ax_rel.set_ylabel("objective / best strategy's on the same scenario")
     ax_rel.set_title("plan quality (1 = best; plans with the fewest unassigned)", fontsize=10)
     ax_rel.grid(True, which="both", alpha=0.3)
-    ax_rel.legend(handles=handles, fontsize=7, loc="upper left")
+    rel_handles = [*handles, Line2D([], [], color="black", ls="", marker="s", mfc="none", ms=9,
+                                    label="returned an earlier strategy's plan")]
+    ax_rel.legend(handles=rel_handles, fontsize=7, loc="upper left")
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -351,8 +446,11 @@ def scale_plot(
 
 
 def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
-    """True when ``record`` beat every other strategy on its cell (same objective)."""
-    if record.relative_to_best is None or record.relative_to_best > 1.0 + 1e-9:
+    """True when ``record`` beat every other strategy on its cell (same objective); a plan that
+    was another strategy's is not its own, so it neither wins nor ties."""
+    if record.same_plan_as or record.relative_to_best is None:
+        return False
+    if record.relative_to_best > 1.0 + 1e-9:
         return False
     rivals = [
         r
@@ -360,8 +458,11 @@ def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
         if (r.units, r.tasks, r.objective) == (record.units, record.tasks, record.objective)
         and r is not record
         and r.relative_to_best is not None
+        and not r.same_plan_as
     ]
-    return all(r.relative_to_best is not None and r.relative_to_best > 1.0 + 1e-9 for r in rivals)
+    return bool(rivals) and all(
+        r.relative_to_best is not None and r.relative_to_best > 1.0 + 1e-9 for r in rivals
+    )
 
 
 def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
@@ -386,6 +487,7 @@ def summary_rows(records: Sequence[ScaleRecord]) -> list[dict[str, Any]]:
                 "median_relative": float(np.median(rel)) if rel else None,
                 "compared": len(rel),
                 "strictly_best": sum(_strictly_best(records, r) for r in ok),
+                "copied": sum(1 for r in mine if r.same_plan_as),
             }
         )
     return rows

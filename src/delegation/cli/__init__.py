@@ -14,7 +14,20 @@ import sys
 from collections.abc import Sequence
 
 from delegation import __version__
+from delegation.cli.options import (
+    EXIT_INPUT,
+    EXIT_SIGINT,
+    EXIT_USAGE,
+    Parser,
+    Stopped,
+    UsageError,
+    add_logging_args,
+    install_signal_handlers,
+    setup_logging,
+)
 from delegation.errors import DelegationError
+
+log = logging.getLogger("delegation")
 
 #: Sub-command modules under ``delegation.cli``; each defines ``register(subparsers)``.
 _COMMAND_MODULES: tuple[str, ...] = (
@@ -23,42 +36,54 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "bench",
     "runtime",
     "units",
+    "missions",
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="delegation",
         description="Delegation service for WARA-PS: allocate units to Task Specification Trees.",
+        epilog="Exit codes: 0 done (also when stopped by SIGTERM), 1 bad input or the "
+        "mission/plan failed, 2 bad usage (flag or WARAPS_* value), 130 stopped by SIGINT. No "
+        "--broker and no WARAPS_BROKER: every command uses 127.0.0.1 (demo starts its own "
+        "broker). Details: docs/deployment.md.",
     )
     parser.add_argument("--version", action="version", version=f"delegation {__version__}")
-    parser.add_argument(
-        "-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)"
-    )
+    add_logging_args(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         module = importlib.import_module(f"delegation.cli.{name}")
         module.register(sub)
+    for command in sub.choices.values():
+        add_logging_args(command, top=False)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = {0: logging.WARNING, 1: logging.INFO}.get(args.verbose, logging.DEBUG)
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging(args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # for results' provenance
     handler = getattr(args, "func", None)
     if handler is None:
         parser.print_help()
-        return 2
+        return EXIT_USAGE
+    install_signal_handlers()
     try:
         return int(handler(args) or 0)
+    except UsageError as exc:
+        print(f"delegation {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     except DelegationError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_INPUT
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        log.warning("stopped by SIGINT")
+        return EXIT_SIGINT
+    except Stopped as exc:
+        log.warning("stopped by %s", exc)
+        return exc.exit_code
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,9 +1,10 @@
 """``delegation bench``: compare allocation strategies on scenario files or generated scenarios.
 
-Three modes: scenario files/folders (table, ``--out`` CSV/JSON/PNGs), ``--generate`` (random
-scenarios from a seed; ``--save`` writes them as YAML), and ``--scale`` (a units x tasks sweep
-with a time budget, written as CSV + PNG). The library does the work; this module parses and
-renders.
+Modes: scenario files/folders and TSPLIB instances (``--tsplib``) (tables, ``--out``
+CSV/JSON/PNGs), ``--generate`` (random scenarios from a seed; ``--save`` writes them as YAML),
+``--scale`` (a units x tasks sweep with a time budget, written as CSV + PNG), and
+``bench compare A B`` (a paired comparison of two results.json). Runs happen here or on a Dask
+cluster (``--executor dask``). The library does the work; this module parses and renders.
 """
 
 from __future__ import annotations
@@ -36,9 +37,11 @@ def register(subparsers: Any) -> None:
         "bench",
         help="benchmark allocation strategies on scenarios",
         description=(
-            "Run every chosen strategy x objective on every scenario (files, folders, or "
-            "--generate'd), report makespan, total time, distance, solve time, unassigned tasks, "
-            "bound/gap and the ratio to 'nearest'; --scale sweeps units x tasks instead."
+            "Run every chosen strategy x objective on every scenario (files, folders, --tsplib "
+            "instances or --generate'd), report makespan, total time, distance, solve time, "
+            "unassigned tasks, bound/gap, the ratio to the baseline and a summary across "
+            "scenarios; --scale sweeps units x tasks instead; 'bench compare A.json B.json' "
+            "compares two results in pairs. Ctrl-C writes the runs that finished and exits 130."
         ),
     )
     parser.add_argument(
@@ -51,7 +54,13 @@ def register(subparsers: Any) -> None:
         "--strategies",
         type=_words,
         default=None,
-        help=f"comma-separated (default: all: {','.join(STRATEGIES)})",
+        help=f"comma-separated names ({','.join(STRATEGIES)}, installed plugins) or "
+        "package.module:function specs (default: every registered strategy)",
+    )
+    parser.add_argument(
+        "--baseline",
+        default=None,
+        help="the strategy ratios are taken to (default: nearest, else the first strategy)",
     )
     parser.add_argument(
         "--objectives",
@@ -72,8 +81,9 @@ def register(subparsers: Any) -> None:
         "--out",
         type=Path,
         default=None,
-        help="folder for results.csv, results.json, results.md and PNG plots "
-        "(--scale: scale.csv, scale.png, scale.md; default bench-out)",
+        help="folder for results.csv/.json/.md, aggregates.csv, summary.csv and PNG plots "
+        "(--scale: scale.csv, scale.png, scale.md, default bench-out; otherwise no files "
+        "without --out)",
     )
     parser.add_argument("--no-plots", action="store_true", help="write no PNGs")
     parser.add_argument(
@@ -97,6 +107,36 @@ def register(subparsers: Any) -> None:
         type=float,
         default=None,
         help="stop a run after this many seconds and report it as failed (not with --in-process)",
+    )
+    parser.add_argument(
+        "--tsplib",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="a TSPLIB file as an mTSP (depot node 1, homes at the depot, 1 m/s) with --units "
+        "units each (repeatable; --units 3,5 makes one scenario per count)",
+    )
+    parser.add_argument(
+        "--executor",
+        choices=("local", "dask"),
+        default="local",
+        help="where runs happen: here (default) or as tasks on a Dask cluster",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a local cluster on 127.0.0.1)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the local Dask cluster (default: CPU count)",
+    )
+    parser.add_argument(
+        "--no-gantt", action="store_true", help="no Gantt chart per strategy"
     )
     parser.add_argument(
         "--max-map-tasks",
@@ -165,11 +205,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             Problem("bench", "--run-timeout", "needs child processes: drop --in-process")
         )
+    if args.scenarios[:1] == ["compare"]:
+        return _run_compare(args, console)
+    if args.executor != "dask" and (args.scheduler or args.workers):
+        raise InputError(Problem("bench", "--scheduler", "needs --executor dask"))
     if args.scale:
-        if args.scenarios or args.page or args.save:
+        if args.scenarios or args.page or args.save or args.tsplib:
             raise InputError(
                 Problem(
-                    "bench", "--scale", "generates its own scenarios: no SCENARIO, --page, --save"
+                    "bench", "--scale",
+                    "generates its own scenarios: no SCENARIO, --tsplib, --page, --save",
                 )
             )
         return _run_scale(args, console, err)
@@ -227,21 +272,53 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
     return out
 
 
+def _tsplib(args: argparse.Namespace) -> list[Any]:
+    """One scenario per --tsplib file x --units count, with its best known values."""
+    from delegation.bench.best_known import best_known
+    from delegation.bench.runner import LoadedScenario
+    from delegation.scenario import tsplib_scenario
+
+    out = []
+    for path in args.tsplib:
+        if not path.is_file():
+            raise InputError(Problem(str(path), "--tsplib", "no such file"))
+        for units in args.units or [3]:
+            scenario = tsplib_scenario(path, units)
+            out.append(LoadedScenario(f"{path} (m={units})", scenario,
+                                      best_known(path.stem, units)))
+    return out
+
+
+@contextmanager
+def _executor(args: argparse.Namespace) -> Iterator[Any]:
+    from delegation.bench.executor import DaskExecutor, LocalExecutor
+
+    if args.executor == "dask":
+        with DaskExecutor(args.scheduler, workers=args.workers,
+                          isolate=not args.in_process) as executor:
+            yield executor
+    else:
+        yield LocalExecutor(isolate=not args.in_process)
+
+
 def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     from delegation.bench.generate import save_scenarios
+    from delegation.bench.provenance import provenance
     from delegation.bench.report import (
-        TABLE_NOTE,
-        markdown_columns,
-        markdown_table,
+        SUMMARY_NOTE,
         results_tables,
-        write_csv,
-        write_json,
+        summary_table,
+        table_note,
+        write_outputs,
     )
     from delegation.bench.runner import load_scenarios, run_bench, scenarios_from_dicts
+    from delegation.bench.summary import summarise
 
-    if not args.scenarios and not args.generate:
-        raise InputError(Problem("bench", "", "give scenario files/folders, --generate or --scale"))
+    if not args.scenarios and not args.generate and not args.tsplib:
+        raise InputError(Problem("bench", "", "give scenario files/folders, --tsplib FILE, "
+                                 "--generate or --scale"))
     loaded, failures = load_scenarios(args.scenarios)
+    loaded += _tsplib(args)
     generated = _generated(args) if args.generate else []
     if generated:
         if args.save:
@@ -250,8 +327,12 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
         loaded += scenarios_from_dicts(generated)
     for failure in failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
+    if not loaded:  # each bad file was named above: one line each, and no empty outputs
+        if not failures:
+            err.print("error: no scenario to run; nothing written")
+        return 1
 
-    with _progress(err, "planning") as update:
+    with _executor(args) as executor, _progress(err, "planning") as update:
         result = run_bench(
             loaded,
             strategies=args.strategies,
@@ -261,6 +342,8 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             progress=update,
             isolate=not args.in_process,
             run_timeout=args.run_timeout,
+            baseline=args.baseline,
+            executor=executor,
         )
     for failure in result.failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
@@ -270,7 +353,12 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
         for table in results_tables(result.records):
             console.print(table)
             console.print()
-        console.print(TABLE_NOTE, style="dim")
+        console.print(table_note(result.baseline), style="dim")
+        console.print()
+    summary = summarise(result)
+    if summary:
+        console.print(summary_table(summary))
+        console.print(SUMMARY_NOTE, style="dim")
     for record in result.violations:
         err.print(
             f"[red]invariant violated[/red] {record.source} {record.strategy}/{record.objective}: "
@@ -281,29 +369,22 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     if args.out:
         meta = {
             "scenarios": [str(p) for p in args.scenarios],
+            "tsplib": [str(p) for p in args.tsplib],
             "generated": [d["name"] for d in generated],
             "strategies": list(dict.fromkeys(r.strategy for r in result.records)),
             "objectives": list(dict.fromkeys(r.objective for r in result.records)),
             "repeat": args.repeat,
             "time_limit": args.time_limit,
+            "executor": args.executor,
+            "provenance": provenance(getattr(args, "argv", None)),
         }
-        written = [
-            write_csv(result.records, args.out / "results.csv"),
-            write_json(result.records, args.out / "results.json", failures=failures, meta=meta),
-        ]
-        md = args.out / "results.md"
-        table_md = markdown_table(result.records, markdown_columns(result.records))
-        md.write_text(table_md + "\n", encoding="utf-8")
-        written.append(md)
-        if not args.no_plots and result.records:
-            from delegation.bench.plots import write_plots
-
-            with _progress(err, "plotting") as update:
-                update(0, 1, "")
-                written += write_plots(
-                    result, args.out, maps=not args.no_maps, max_map_tasks=args.max_map_tasks
-                )
-        err.print(f"wrote {len(written)} files to {args.out}")
+        written = write_outputs(result, args.out, meta=meta, plots=not args.no_plots,
+                                maps=not args.no_maps, gantt=not args.no_gantt,
+                                max_map_tasks=args.max_map_tasks)
+        if written:
+            err.print(f"wrote {len(written)} files to {args.out}")
+        else:
+            err.print("error: no run finished; nothing written")
     if args.page and result.records:
         from delegation.bench.page import write_results_page
 
@@ -313,9 +394,29 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             plots_dir=None if args.no_plots or not args.out else args.out,
             command=_command_line(args),
             time_limit=args.time_limit,
+            baseline=result.baseline,
         )
         err.print(f"wrote {page}")
-    return 1 if failures or result.violations else 0
+    if result.interrupted:
+        err.print(f"interrupted: {len(result.records)} of {result.total_runs} runs finished"
+                  + (" (written)" if args.out and result.records else ""))
+        return 130
+    return 1 if failures or result.violations or not result.records else 0
+
+
+def _run_compare(args: argparse.Namespace, console: Any) -> int:
+    from delegation.bench.compare import compare_files, comparison_table
+
+    files = args.scenarios[1:]
+    if len(files) != 2:
+        raise InputError(Problem("bench compare", "", "give exactly two results.json: A B"))
+    comparison = compare_files(Path(files[0]), Path(files[1]))
+    for table in comparison_table(comparison):
+        console.print(table)
+        console.print()
+    for line in comparison.notes:
+        console.print(line, style="dim")
+    return 0
 
 
 def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
@@ -324,6 +425,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         DEFAULT_BUDGET,
         DEFAULT_TASKS,
         DEFAULT_UNITS,
+        ScaleInterrupted,
         run_scale,
         scale_plot,
         summary_rows,
@@ -339,18 +441,26 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
             f"{budget:g} s: optimal will exceed it at the first size"
         )
-    with _progress(err, "scale sweep") as update:
-        records = run_scale(
-            args.strategies,
-            objectives=args.objectives or ["makespan"],
-            units=units,
-            tasks=tasks,
-            budget=budget,
-            time_limit=args.time_limit,
-            generator=generator,
-            progress=update,
-            isolate=not args.in_process,
-        )
+    interrupted = False
+    try:
+        with _executor(args) as executor, _progress(err, "scale sweep") as update:
+            records = run_scale(
+                args.strategies,
+                objectives=args.objectives or ["makespan"],
+                units=units,
+                tasks=tasks,
+                budget=budget,
+                time_limit=args.time_limit,
+                generator=generator,
+                progress=update,
+                isolate=not args.in_process,
+                executor=executor,
+            )
+    except ScaleInterrupted as stop:  # Ctrl-C: write what finished, then exit 130
+        records, interrupted = stop.records, True
+        if not records:
+            err.print("interrupted: no run had finished; nothing written")
+            return 130
     rows = summary_rows(records)
     table = compact_table(
         f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s"
@@ -370,7 +480,8 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     console.print(
         "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
         "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
-        "where it beat every other strategy",
+        "where it beat every other strategy (a returned plan of another never counts); copied: "
+        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
         style="dim",
     )
     written = [write_scale_csv(records, out / "scale.csv")]
@@ -396,12 +507,19 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     failed = [r for r in records if r.status == "failed"]
     for r in failed:
         err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
+    if interrupted:
+        err.print(f"interrupted: wrote the {len(records)} runs that finished")
+        return 130
     return 1 if violations or failed else 0
 
 
 def _command_line(args: argparse.Namespace) -> str:
     """The bench command that reproduces this run (for the results page)."""
     words = ["delegation", "bench", *(str(p) for p in args.scenarios)]
+    for path in args.tsplib:
+        words += ["--tsplib", str(path)]
+    if args.tsplib and not args.generate:
+        words += ["--units", ",".join(map(str, args.units or [3]))]
     if args.generate:
         words += ["--generate", "--seed", str(args.seed), "--site", args.site]
         words += ["--units", ",".join(map(str, args.units or [5]))]
@@ -412,6 +530,8 @@ def _command_line(args: argparse.Namespace) -> str:
         words += ["--objectives", ",".join(args.objectives)]
     if args.repeat != 1:
         words += ["--repeat", str(args.repeat)]
+    if args.baseline:
+        words += ["--baseline", args.baseline]
     words += ["--time-limit", f"{args.time_limit:g}"]
     if args.out:
         words += ["--out", args.out.as_posix()]
@@ -433,6 +553,7 @@ _SCALE_HEADERS = (
     "failed",
     "vs best",
     "best on",
+    "copied",
 )
 
 
@@ -447,6 +568,7 @@ def _scale_cells(row: dict[str, Any]) -> list[str]:
         str(row["failed"]),
         "-" if row["median_relative"] is None else f"{row['median_relative']:.3f}",
         f"{row['strictly_best']} of {row['compared']}",
+        str(row["copied"]),
     ]
 
 
@@ -461,10 +583,11 @@ def _scale_markdown(rows: list[dict[str, Any]]) -> str:
         "failed",
         "median objective / best",
         "strictly best on",
+        "returned an earlier strategy's plan",
     ]
     lines = [
         "| " + " | ".join(headers) + " |",
-        "|---|---|---|---:|---|---:|---:|---:|---:|",
+        "|---|---|---|---:|---|---:|---:|---:|---:|---:|",
     ]
     lines += ["| " + " | ".join(_scale_cells(row)) + " |" for row in rows]
     return "\n".join(lines)

@@ -11,15 +11,22 @@ import argparse
 import json
 import logging
 import os
-import signal
 import threading
 import time
 from contextlib import ExitStack, suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from delegation.cli.options import (
+    Stopped,
+    env_flag,
+    env_port,
+    port_number,
+    positive_float,
+)
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.errors import DelegationError, InputError, Problem
+from delegation.topics import AGENT_TYPES, ROLES
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -42,9 +49,11 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
     """``--broker/--port/--tls/--username/--password``, defaulting to ``WARAPS_*``."""
     g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
     g.add_argument(
-        "--broker", default=None, metavar="HOST", help="MQTT broker host [WARAPS_BROKER]"
+        "--broker", default=None, metavar="HOST",
+        help="MQTT broker host [WARAPS_BROKER, else 127.0.0.1]",
     )
-    g.add_argument("--port", default=None, help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
+    g.add_argument("--port", default=None, type=port_number,
+                   help="broker port [WARAPS_PORT, 1883 or 8883 with TLS]")
     g.add_argument(
         "--tls", action="store_true", default=None, help="connect with TLS [WARAPS_TLS_CONNECTION]"
     )
@@ -54,20 +63,27 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
 
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
-    """Flags over environment; None when neither names a broker."""
-    from delegation.runtime.settings import BrokerSettings
-
-    env = BrokerSettings.from_env()
-    host = args.broker or (env.host if env else None)
+    """Flags over environment; None when neither names a broker host (``demo`` then starts its
+    own). Bad ``WARAPS_*`` values are a `UsageError` naming the variable."""
+    host = args.broker or (os.environ.get("WARAPS_BROKER") or "").strip()
     if not host:
         return None
-    tls = args.tls if args.tls is not None else (env.tls if env else False)
-    port = args.port or os.environ.get("WARAPS_PORT") or None
-    username = args.username if args.username is not None else (env.username if env else "")
-    password = args.password if args.password is not None else (env.password if env else "")
-    return BrokerSettings.from_values(
-        host=host, port=port, tls=bool(tls), username=username, password=password
-    )
+    return client_settings(args)
+
+
+def client_settings(args: argparse.Namespace) -> BrokerSettings:
+    """The one rule for every command that joins a broker: ``--broker``, else ``WARAPS_BROKER``,
+    else 127.0.0.1 (like ``mosquitto_sub``); port, TLS and login from flags over ``WARAPS_*``."""
+    from delegation.runtime.settings import BrokerSettings
+
+    env = os.environ
+    host = args.broker or (env.get("WARAPS_BROKER") or "").strip() or "127.0.0.1"
+    tls = args.tls if args.tls is not None else bool(env_flag(env, "WARAPS_TLS_CONNECTION"))
+    port = args.port or env_port(env) or (8883 if tls else 1883)
+    username = args.username if args.username is not None else env.get("WARAPS_USERNAME", "")
+    password = args.password if args.password is not None else env.get("WARAPS_PASSWORD", "")
+    return BrokerSettings(host=host, port=port, tls=bool(tls), username=username,
+                          password=password)
 
 
 def register(subparsers: Any) -> None:
@@ -94,6 +110,11 @@ def register(subparsers: Any) -> None:
         help="simulation time factor (default: fit the plan into ~15 s)",
     )
     demo.add_argument("--out", default="demo-out", help="directory for map.png and plan.json")
+    demo.add_argument(
+        "--no-profiles", action="store_true",
+        help="the service starts without the fleet's profile (type default speeds) and learns "
+        "the speeds while it flies (benchmarks/learning.py runs several missions)",
+    )
     demo.add_argument(
         "--timeout",
         type=float,
@@ -123,16 +144,17 @@ def register(subparsers: Any) -> None:
     )
     submit.add_argument("--strategy", default=None, choices=STRATEGY_CHOICES)
     submit.add_argument("--objective", default=None, choices=OBJECTIVE_CHOICES)
-    submit.add_argument("--time-limit", type=float, default=None)
+    submit.add_argument("--time-limit", type=positive_float, default=None,
+                        help="planner time limit (s; default: the service's)")
     submit.add_argument(
         "--speedup",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="the fleet's time factor, to show actual times in mission seconds",
     )
     submit.add_argument(
         "--timeout",
-        type=float,
+        type=positive_float,
         default=3600.0,
         help="stop following after this many seconds (exit 1)",
     )
@@ -141,6 +163,8 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="send $enough to open-ended tasks (look-at-*) once all others ended",
     )
+    submit.add_argument("--json", action="store_true",
+                        help="progress on stderr; the mission (query-mission) as JSON on stdout")
     add_broker_args(submit)
     submit.set_defaults(func=_submit)
 
@@ -149,6 +173,8 @@ def register(subparsers: Any) -> None:
         "--wait", type=float, default=3.0, help="seconds to listen for heartbeats (default 3)"
     )
     agents.add_argument("--format", choices=("table", "json"), default="table")
+    agents.add_argument("--json", dest="format", action="store_const", const="json",
+                        help="same as --format json")
     add_broker_args(agents)
     agents.set_defaults(func=_agents)
 
@@ -175,8 +201,10 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
     p.add_argument("--time-limit", type=float, default=2.0)
-    p.add_argument("--agent-type", default="ground", help="agent-type in the heartbeat topic")
-    p.add_argument("--role", default="simulation", help="role level of the topic (real, ...)")
+    p.add_argument("--agent-type", default="ground", choices=AGENT_TYPES,
+                   help="agent-type in the heartbeat topic (default ground)")
+    p.add_argument("--role", default="simulation", choices=ROLES,
+                   help="role level of the topic (default simulation)")
     p.add_argument(
         "--profiles",
         default=None,
@@ -238,45 +266,81 @@ def follow(
     timeout: float,
     tracks: dict[str, list[Any]] | None = None,
     enough: bool = False,
+    progress: MissionProgress | None = None,
 ) -> MissionProgress:
-    """Show a mission's progress live until it ends or ``timeout`` wall seconds pass.
+    """Show a mission's progress until it ends or ``timeout`` wall seconds pass: a live table on
+    a terminal, else one plain line per change (logs, CI, ``tee``).
 
     With ``enough``, open-ended tasks (look-at-*) that hold the mission up (nothing else
     running) get ``$enough``, as an operator would send it, so that the mission can finish.
+    ``progress`` continues a mission already under way (``delegation follow``).
     """
-    import queue
-
     from rich.live import Live
 
-    from delegation.render.progress import MissionProgress
+    from delegation.render.progress import MissionProgress, status_lines
 
-    progress = MissionProgress(plan, speedup=speedup)
-    root = progress.root_uuid
+    if progress is None:
+        progress = MissionProgress(plan, speedup=speedup)
     deadline = time.monotonic() + timeout
+    if not console.is_terminal:
+        shown: dict[str, str] = {}
+
+        def lines() -> None:
+            for line in status_lines(progress, shown):
+                console.print(line, soft_wrap=True, highlight=False)
+
+        lines()
+        _pump(client, progress, deadline, lines, tracks=tracks, enough=enough)
+        return progress
     with Live(
         progress.table(), console=console, refresh_per_second=6, transient=False, auto_refresh=True
     ) as live:
-        while not progress.done and time.monotonic() < deadline:
-            if enough:
-                _send_enough(client, progress, time.time())
-            try:
-                ev = client.events.get(timeout=0.25)
-            except queue.Empty:
-                continue
-            if ev.kind == "position":
-                if tracks is not None:
-                    tracks.setdefault(ev.unit, []).append(ev.data)
-                continue
-            data = ev.data
-            if ev.kind == "mission" and data.get("root-uuid") == root:
-                progress.on_mission(
-                    str(data.get("status")), str(data.get("fail-reason", "")), ev.at
-                )
-            elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
-                progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
-            live.update(progress.table())
+        _pump(client, progress, deadline, lambda: live.update(progress.table()),
+              tracks=tracks, enough=enough)
         live.update(progress.table())
     return progress
+
+
+def _pump(
+    client: ServiceClient,
+    progress: MissionProgress,
+    deadline: float,
+    refresh: Any,
+    *,
+    tracks: dict[str, list[Any]] | None,
+    enough: bool,
+) -> None:
+    """Feed the client's events to ``progress`` until the mission ends or the deadline."""
+    import queue
+
+    root = progress.root_uuid
+    while not progress.done and time.monotonic() < deadline:
+        if enough:
+            _send_enough(client, progress, time.time())
+        try:
+            ev = client.events.get(timeout=0.25)
+        except queue.Empty:
+            continue
+        if ev.kind == "position":
+            if tracks is not None:
+                tracks.setdefault(ev.unit, []).append(ev.data)
+            continue
+        data = ev.data
+        if ev.kind == "mission" and data.get("root-uuid") == root:
+            progress.on_mission(str(data.get("status")), str(data.get("fail-reason", "")), ev.at)
+        elif ev.kind == "tst-feedback" and isinstance(data.get("node-uuid"), str):
+            progress.on_node(data["node-uuid"], str(data.get("status")), ev.at)
+        refresh()
+
+
+def still_running_hint(console: Console, root: str, status: str = "running") -> None:
+    """What an operator needs once a command stops following a mission that goes on."""
+    console.print(
+        f"mission {root} is still {status}; re-attach: delegation follow {root[:8]}; "
+        f"cancel: delegation cancel {root[:8]}; end open-ended tasks: "
+        f"delegation signal {root[:8]} '$enough'",
+        soft_wrap=True,
+    )
 
 
 def _send_enough(client: ServiceClient, progress: MissionProgress, now: float) -> None:
@@ -300,26 +364,40 @@ def run_mission(
     timeout: float,
     tracks: dict[str, list[Any]] | None = None,
     enough: bool = False,
+    hint: bool = True,
 ) -> MissionProgress | None:
     """Send a ``delegate`` with ``start``, follow the mission live and print the summary; None
-    (after saying why) when it was not started."""
+    (after saying why) when it was not started. With ``hint``, stopping early says how to
+    re-attach to or cancel the mission, which goes on."""
     answer = client.request({**command, "command": "delegate", "start": True}, timeout=120.0)
     if answer.get("response") != "started":
         console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
         return None
     started = time.monotonic()
-    progress = follow(
-        client,
-        answer["plan"],
-        speedup=speedup,
-        console=console,
-        timeout=timeout,
-        tracks=tracks,
-        enough=enough,
-    )
+    root = str(answer["plan"]["tst"].get("common_params", {}).get("node-uuid", ""))
+    console.print(f"mission {root} started", soft_wrap=True)
+    for note in answer["plan"].get("notes") or []:  # default speeds, suspicious input
+        console.print(f"note: {note}", soft_wrap=True, highlight=False)
+    try:
+        progress = follow(
+            client,
+            answer["plan"],
+            speedup=speedup,
+            console=console,
+            timeout=timeout,
+            tracks=tracks,
+            enough=enough,
+        )
+    except (KeyboardInterrupt, Stopped):
+        console.print()
+        if hint:
+            still_running_hint(console, root)
+        raise
     _print_summary(console, progress, time.monotonic() - started)
     if not progress.done:
         console.print(f"[red]gave up following after {timeout:g} s[/]")
+        if hint:
+            still_running_hint(console, root, progress.status)
     return progress
 
 
@@ -373,7 +451,7 @@ def _demo(args: argparse.Namespace) -> int:
             strategy=args.strategy,
             objective=args.objective,
             time_limit=args.time_limit,
-            profiles=scenario.profiles(),
+            profiles=None if args.no_profiles else scenario.profiles(),
         )
         system = LocalSystem(
             units, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
@@ -403,6 +481,7 @@ def _demo(args: argparse.Namespace) -> int:
             timeout=args.timeout,
             tracks=tracks,
             enough=True,
+            hint=False,  # the demo stops the whole system: nothing goes on to re-attach to
         )
         if progress is None:
             return 1
@@ -418,8 +497,17 @@ def _demo(args: argparse.Namespace) -> int:
             title=f"{scenario.name}: {plan.get('strategy')} plan, "
             f"makespan {float(plan.get('makespan') or 0):.0f} s",
         )
+        from delegation.render.gantt import flown_bars, render_gantt
+
+        gantt = render_gantt(
+            plan,
+            out / "gantt.png",
+            title=f"{scenario.name}: planned vs flown (mission seconds)",
+            flown=flown_bars(progress.rows.values(), progress.elapsed),
+        )
         console.print(
-            f"map: {path}   plan: {out / 'plan.json'}   ({time.monotonic() - t0:.1f} s wall in all)"
+            f"map: {path}   gantt: {gantt}   plan: {out / 'plan.json'}   "
+            f"({time.monotonic() - t0:.1f} s wall in all)"
         )
         return 0 if progress.succeeded else 1
 
@@ -428,10 +516,9 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from delegation.runtime.settings import BrokerSettings
     from delegation.service import DelegationService, ServiceConfig
 
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     config = ServiceConfig(
         name=args.name,
         prefix=args.prefix,
@@ -452,11 +539,8 @@ def _serve(args: argparse.Namespace) -> int:
         f"(engine {config.engine}); Ctrl-C stops",
         flush=True,
     )
-    stop = threading.Event()
-    with suppress(ValueError):  # not the main thread (tests): Ctrl-C still works there
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        stop.wait()
+        threading.Event().wait()  # until SIGINT/SIGTERM (`cli.options.Stopped`)
     finally:
         service.stop()
         print(f"{config.name} stopped", flush=True)
@@ -513,9 +597,11 @@ def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from delegation.runtime.client import ServiceClient
-    from delegation.runtime.settings import BrokerSettings
+    from delegation.tst.validate import parse_and_validate
 
-    command: dict[str, Any] = {"tst": _read_mission(args.mission)}
+    tree = _read_mission(args.mission)
+    parse_and_validate(tree)  # a bad tree is answered here, before any broker is needed
+    command: dict[str, Any] = {"tst": tree}
     for key, value in (
         ("strategy", args.strategy),
         ("objective", args.objective),
@@ -523,18 +609,20 @@ def _submit(args: argparse.Namespace) -> int:
     ):
         if value is not None:
             command[key] = value
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     with ServiceClient(
         settings, prefix=args.prefix, service=args.service, service_timeout=args.wait
     ) as client:
         progress = run_mission(
             client,
             command,
-            Console(),
+            Console(stderr=bool(args.json)),  # with --json, stdout holds the JSON alone
             speedup=args.speedup,
             timeout=args.timeout,
             enough=args.enough,
         )
+        if args.json and progress is not None:
+            print(json.dumps(client.query_mission(progress.root_uuid), indent=2))
     return 0 if progress is not None and progress.succeeded else 1
 
 
@@ -548,9 +636,8 @@ def _agents(args: argparse.Namespace) -> int:
     from delegation.fleet import FleetRegistry
     from delegation.messages import decode
     from delegation.runtime.mqtt import MqttClient
-    from delegation.runtime.settings import BrokerSettings
 
-    settings = broker_settings(args) or BrokerSettings()
+    settings = client_settings(args)
     registry = FleetRegistry()
     lock = threading.Lock()
 
@@ -582,9 +669,8 @@ def _agents(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     table = Table(title=f"live units on {settings.describe()} under {args.prefix}/")
-    for col in ("name", "type", "state", "position", "seen"):
-        table.add_column(col, no_wrap=True)
-    table.add_column("tasks-available")
+    for col in ("name", "type", "state", "position", "seen", "tasks-available"):
+        table.add_column(col, no_wrap=col in ("name", "seen"), overflow="fold")
     now = time.time()
     for r in rows:
         pos = r["position"]
@@ -595,8 +681,8 @@ def _agents(args: argparse.Namespace) -> int:
             r["name"],
             str(r.get("type") or "?"),
             state,
-            f"{pos['latitude']:.5f}, {pos['longitude']:.5f}" if pos else "-",
-            f"{now - seen:.1f} s ago" if isinstance(seen, int | float) else "-",
+            f"{pos['latitude']:.5f},{pos['longitude']:.5f}" if pos else "-",
+            f"{now - seen:.0f}s ago" if isinstance(seen, int | float) else "-",
             ", ".join(r.get("tasks-available", [])) or "-",
         )
     Console().print(table)

@@ -7,13 +7,14 @@ Both run until interrupted (or for ``--duration`` seconds) on the broker named b
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
 import threading
 from typing import Any
 
-from delegation.cli.runtime import add_broker_args, broker_settings, find_scenario
+from delegation.cli.options import positive_float
+from delegation.cli.runtime import add_broker_args, client_settings, find_scenario
 from delegation.errors import InputError, Problem
+from delegation.topics import AGENT_TYPES, ROLES
 
 log = logging.getLogger(__name__)
 
@@ -26,8 +27,10 @@ def register(subparsers: Any) -> None:
         "/tst/command by sending start-task to the units (seed section 14).",
     )
     engine.add_argument("--name", default="op0", help="the engine's unit name (default op0)")
-    engine.add_argument("--agent-type", default="ground", help="agent-type in its topics")
-    engine.add_argument("--role", default="simulation", help="role level of its topics")
+    engine.add_argument("--agent-type", default="ground", choices=AGENT_TYPES,
+                        help="agent-type in its topics (default ground)")
+    engine.add_argument("--role", default="simulation", choices=ROLES,
+                        help="role level of its topics (default simulation)")
     _run_args(engine)
     add_broker_args(engine)
     engine.set_defaults(func=_engine)
@@ -42,7 +45,8 @@ def register(subparsers: Any) -> None:
     sim.add_argument(
         "--speedup", type=float, default=1.0, help="simulated seconds per wall second (default 1)"
     )
-    sim.add_argument("--role", default="simulation", help="role level of the units' topics")
+    sim.add_argument("--role", default="simulation", choices=ROLES,
+                     help="role level of the units' topics (default simulation)")
     sim.add_argument(
         "--example-agent",
         action="store_true",
@@ -55,24 +59,20 @@ def register(subparsers: Any) -> None:
 
 def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--duration", type=float, default=None, help="stop after this many seconds (default: run)"
+        "--duration", type=positive_float, default=None,
+        help="stop after this many seconds (default: run)",
     )
 
 
 def _settings(args: argparse.Namespace) -> Any:
-    settings = broker_settings(args)
-    if settings is None:
-        raise InputError(
-            Problem("--broker", "", "no broker: give --broker HOST or set WARAPS_BROKER")
-        )
-    return settings
+    """The broker by the one rule of every command (``cli.runtime.client_settings``)."""
+    return client_settings(args)
 
 
 def _wait(duration: float | None) -> None:
-    """Block until ``duration`` passes or Ctrl-C (which ends the command normally)."""
-    done = threading.Event()
-    with contextlib.suppress(KeyboardInterrupt):
-        done.wait(duration)
+    """Block until ``duration`` passes, or SIGINT/SIGTERM (`cli.options.Stopped`, which the
+    caller's ``finally`` turns into a clean stop and ``main`` into exit 130/0)."""
+    threading.Event().wait(duration)
 
 
 def _engine(args: argparse.Namespace) -> int:

@@ -21,7 +21,8 @@ def register(subparsers: Any) -> None:
             "has its tree checked against the task catalogue too. Exit 0 when valid, 1 otherwise."
         ),
     )
-    parser.add_argument("files", nargs="+", metavar="FILE", help="JSON file, or - for stdin")
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="JSON or YAML file, a scenario file, or - for stdin (JSON)")
     parser.set_defaults(func=run)
 
 
@@ -30,6 +31,52 @@ def _read(name: str) -> bytes:
         return sys.stdin.buffer.read()
     with open(name, "rb") as handle:
         return handle.read()
+
+
+def _as_json(name: str, payload: bytes) -> bytes:
+    """YAML files (``.yaml``/``.yml``) as JSON, as ``submit`` and ``plan`` read them; anything
+    else as it is."""
+    import json
+
+    import yaml
+
+    if not name.lower().endswith((".yaml", ".yml")):
+        return payload
+    try:
+        return json.dumps(yaml.safe_load(payload)).encode("utf-8")
+    except (yaml.YAMLError, TypeError, ValueError, RecursionError):
+        return payload  # check_bytes names the problem
+
+
+def _scenario_summary(name: str, payload: bytes) -> str | None:
+    """``OK: scenario ...`` or the problems, for a scenario file (fleet + mission); None for
+    anything else."""
+    import json
+
+    import yaml
+
+    from delegation.errors import InputError
+    from delegation.scenario import scenario_from_dict
+
+    try:
+        data = (json.loads(payload) if name.lower().endswith(".json")
+                else yaml.safe_load(payload))
+    except (ValueError, RecursionError, yaml.YAMLError):
+        return None  # check_bytes says what is wrong
+    if not (isinstance(data, dict) and "agents" in data and "mission" in data):
+        return None
+    try:
+        scenario = scenario_from_dict(data, name)
+    except InputError as exc:
+        return str(exc)
+    tasks = sum(1 for _ in _tasks(scenario.tree()))
+    return f"OK: scenario {scenario.name}, {len(scenario.agents)} agents, {tasks} tasks"
+
+
+def _tasks(tree: Any) -> Any:
+    from delegation.tst.node import walk
+
+    return (n for _, n in walk(tree) if not n.is_control)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,7 +91,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"{label}: cannot read: {exc.strerror or exc}")
             failed = True
             continue
-        result = check_bytes(payload, source="")
+        scenario = _scenario_summary(name, payload)
+        if scenario is not None:
+            ok = scenario.startswith("OK")
+            failed |= not ok
+            print(f"{label}: {scenario}" if ok else scenario)  # problems name the file already
+            continue
+        result = check_bytes(_as_json(name, payload), source="")
         if result.ok:
             print(f"{label}: OK: {result.summary}")
             continue

@@ -55,8 +55,6 @@ from delegation.messages.tst_exec import (
 
 M = TypeVar("M", bound=BaseModel)
 
-#: Every model ``decode`` can return (plus ``SensorReading`` for ``sensor/<name>`` topics).
-Message = WireModel
 
 #: Commands by API: ``{command: model}``.
 EXEC_COMMANDS: dict[str, type[WireModel]] = {

@@ -104,6 +104,17 @@ class MissionProgress:
             row.ended = t
         return True
 
+    def resume(self, node_uuid: str, status: str, started: float | None, ended: float | None,
+               now: float) -> None:
+        """A task's state as the service reported it (re-attaching to a running mission):
+        ``started``/``ended`` in mission seconds."""
+        row = self.rows.get(node_uuid)
+        if row is None:
+            return
+        row.status, row.started, row.ended = status, started, ended
+        if status == "running":
+            self._running_since.setdefault(node_uuid, now)
+
     def on_mission(self, status: str, fail_reason: str, now: float) -> None:
         """A lifecycle event from ``delegation/feedback``."""
         if self.status in _FINAL_MISSION:
@@ -198,7 +209,7 @@ class MissionProgress:
             table.add_column(col, justify="left" if col == "unit" else "right")
         for u in self.unit_summary():
             actual = u["actual-end"]
-            diff = "-" if actual is None else f"{actual - u['planned-end']:+.0f}"
+            diff = "-" if actual is None else _signed(actual - u["planned-end"])
             table.add_row(u["unit"], str(u["tasks"]), str(u["succeeded"]),
                           f"{u['planned-end']:.0f}", _fmt(actual), diff)
         return table
@@ -213,5 +224,31 @@ def _is_open_ended(node: TstNode) -> bool:
         return False
 
 
+def _signed(value: float) -> str:
+    """``+12``, ``-3``, and ``0`` (never ``-0``)."""
+    return "0" if round(value) == 0 else f"{value:+.0f}"
+
+
 def _fmt(value: float | None) -> str:
     return "" if value is None else f"{value:.0f}"
+
+
+def status_lines(progress: MissionProgress, shown: dict[str, str]) -> list[str]:
+    """Plain lines for what changed since the last call (``shown`` remembers what was printed):
+    for output that is not a terminal, where a live table cannot redraw."""
+    lines: list[str] = []
+    key = f"mission:{progress.root_uuid}"
+    if shown.get(key) != progress.status:
+        shown[key] = progress.status
+        reason = f": {progress.fail_reason}" if progress.fail_reason else ""
+        lines.append(f"mission {progress.root_uuid[:8]} {progress.status}{reason}")
+    for row in progress.rows.values():
+        if shown.get(row.node_uuid, "not-active") == row.status:
+            continue
+        shown[row.node_uuid] = row.status
+        actual = "" if row.started is None else f", actual {_fmt(row.started)}-{_fmt(row.ended)}"
+        lines.append(
+            f"  {row.name} {row.unit} {row.status} "
+            f"(plan {row.planned_start:.0f}-{row.planned_end:.0f} s{actual})"
+        )
+    return lines

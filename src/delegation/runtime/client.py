@@ -187,3 +187,61 @@ class ServiceClient:
             with self._cond:
                 self._waiting.discard(com)
                 self._responses.pop(com, None)
+
+    # ---- the Delegation API, one helper per command (``delegation missions``, ``status``, ...)
+
+    def _ok(self, command: dict[str, Any], key: str | None, api: str = "delegation",
+            timeout: float = 30.0) -> Any:
+        answer = self.request(command, api=api, timeout=timeout)
+        if answer.get("response") not in ("ok", "started"):
+            raise CommandFailed(str(answer.get("fail-reason") or answer.get("response")))
+        return answer.get(key) if key else answer
+
+    def list_missions(self) -> list[dict[str, Any]]:
+        """Every mission the service knows (``list-missions``), oldest first."""
+        return list(self._ok({"command": "list-missions"}, "missions") or [])
+
+    def query_mission(self, root_uuid: str) -> dict[str, Any]:
+        """One mission with its nodes, plan and times (``query-mission``)."""
+        return dict(self._ok({"command": "query-mission", "root-uuid": root_uuid}, "mission"))
+
+    def cancel_mission(self, root_uuid: str, timeout: float = 30.0) -> None:
+        """Abort a mission (``cancel-mission``); `CommandFailed` with the service's reason."""
+        self._ok({"command": "cancel-mission", "root-uuid": root_uuid}, None, timeout=timeout)
+
+    def signal_mission(self, root_uuid: str, signal: str) -> None:
+        """``signal-tst-tree`` on the service's TST face (``$enough``, ``$pause``, ...)."""
+        self._ok({"command": "signal-tst-tree", "node-uuid": root_uuid, "signal": signal},
+                 None, api="tst")
+
+    def get_bids(self, tst: dict[str, Any], timeout: float = 60.0) -> list[dict[str, Any]]:
+        """Every task x live unit estimate for a tree (``get-bids``)."""
+        return list(self._ok({"command": "get-bids", "tst": tst}, "bids", timeout=timeout) or [])
+
+    def list_agents(self) -> list[dict[str, Any]]:
+        """The live units the service would plan for (``list-agents``)."""
+        return list(self._ok({"command": "list-agents"}, "agents") or [])
+
+    def resolve_mission(self, prefix: str) -> str:
+        """The full root-uuid of the one mission whose id starts with ``prefix``.
+
+        `CommandFailed` (one line) when none or several match; an exact id always wins.
+        """
+        wanted = prefix.strip().lower()
+        ids = [str(m.get("root-uuid", "")) for m in self.list_missions()]
+        if wanted in ids:
+            return wanted
+        found = [i for i in ids if i.lower().startswith(wanted)] if wanted else []
+        if len(found) == 1:
+            return found[0]
+        if not found:
+            raise CommandFailed(
+                f"no mission id starts with {prefix!r} ({len(ids)} missions known to "
+                f"{self.service}; list them with 'delegation missions')"
+            )
+        shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
+        raise CommandFailed(f"{prefix!r} is ambiguous: {len(found)} missions match ({shown})")
+
+
+class CommandFailed(DelegationError):
+    """The service answered a command with ``failed`` (the message is its fail-reason)."""

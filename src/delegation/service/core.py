@@ -15,16 +15,18 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 * ``query-mission``: ``mission``: ``root-uuid``, ``name``, ``source``, ``status``,
   ``fail-reason``, ``created``/``started``/``ended`` (epoch s), ``nodes`` (``node-uuid``, ``name``,
   ``execunit``, ``path``, ``status``, ``started``/``ended`` in s since the mission started),
-  ``assignments``, ``unassigned``, ``makespan``, ``strategy``.
+  ``assignments``, ``unassigned``, ``makespan``, ``strategy``, ``notes`` (the plan's), ``tst``
+  (the instantiated tree, so that a client can re-attach).
 * ``list-missions``: ``missions``: the summary fields above.
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
-  ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
+  ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...) plus the ``speeds``
+  the service plans with and their ``speeds-source`` (``learnt``/``profile``/``default``).
 * ``cancel-mission``: ``ok`` once the abort is confirmed (the engine reported the tree's root
   ``aborted``); ``pending`` (with the reason) when the engine accepted the ``$abort`` but did not
   confirm it within ``cancel_timeout``; ``failed`` if the mission ended otherwise first. With no
   live engine the mission is ended ``aborted`` at once, saying so.
 
-Faults (DESIGN 3.9, docs/protocol.md §9): a unit lost (heartbeat stopped, or a new agent-uuid) or
+Faults (DESIGN 3.9, docs/protocol.md §11): a unit lost (heartbeat stopped, or a new agent-uuid) or
 answering ``failed`` has its unfinished tasks re-delegated (`delegation.service.redelegation`); an
 engine lost or restarted fails its missions with the reason. ``now`` is monotonic (every timeout);
 mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` + offset).
@@ -47,6 +49,7 @@ from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, MessageError, Problem
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
 from delegation.geo import GeoPoint
+from delegation.learning import SpeedLearner, input_warnings, speed_class
 from delegation.messages import (
     FINAL_MISSION_STATUSES,
     TERMINAL_NODE_STATUSES,
@@ -95,6 +98,7 @@ from delegation.service.jobs import (
     plan_options,
 )
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.operator_view import OperatorView
 from delegation.service.redelegation import (
     Remaining,
     first_origin,
@@ -157,6 +161,10 @@ class ServiceCore:
         self.engine = EngineLink(self.config, self.fleet)
         self.identity = self.config.identity(agent_uuid or str(uuid.uuid4()))
         self.timings: deque[Timing] = deque(maxlen=10_000)
+        #: Speeds learnt from the units' flights (`delegation.learning`).
+        self.learner = SpeedLearner()
+        self._task_class: dict[str, tuple[str, str]] = {}  # node-uuid -> (unit, speed class)
+        self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
         self._job_ids = 0
         self._replanned: dict[CommandKey, int] = {}
         self._replans: dict[str, Replan] = {}
@@ -230,6 +238,8 @@ class ServiceCore:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
             log.debug("fleet ignored %s: %s", topic, exc)
+        if topic.endswith("/sensor/speed"):
+            self._learn_speed(topic, message, now)
 
     def _fleet_events(self, now: float) -> Effects:
         """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
@@ -245,11 +255,27 @@ class ServiceCore:
                 effects.extend(self._unit_lost(event, now))
         return effects
 
+    def _learn_speed(self, topic: str, message: Any, now: float) -> None:
+        parsed = parse_unit_topic(topic)
+        value = getattr(message, "value", message)
+        if parsed is None or isinstance(value, bool) or not isinstance(value, int | float):
+            return
+        cls = self.learner.observe_speed(parsed.name, float(value), now)
+        if cls is not None:
+            log.info("unit %s: learnt its %s speed, %.2f m/s (plans use it from now on)",
+                     parsed.name, cls, self.learner.learnt(parsed.name)[cls])
+
     # ------------------------------------------------------------------ fleet views
 
     def units(self, now: float) -> tuple[UnitState, ...]:
-        """The units to plan for (the registry leaves out engines and delegators)."""
-        return tuple(self.fleet.snapshot(now))
+        """The units to plan for (the registry leaves out engines and delegators), with the
+        speeds learnt from their flights."""
+        return self.learner.apply(self.fleet.snapshot(now))
+
+    def speed_sources(self, units: Iterable[UnitState]) -> dict[str, str]:
+        """Per unit: ``learnt``, ``profile`` or ``default`` (`delegation.learning`)."""
+        return {u.name: self.learner.source(u.name, self.fleet.has_profile_speeds(u.name))
+                for u in units}
 
     def engine_base(self, now: float) -> str | None:
         """The engine's base topic while its heartbeat is fresh, else None."""
@@ -257,8 +283,10 @@ class ServiceCore:
 
     def agents(self, now: float) -> list[dict[str, Any]]:
         """The live units for ``list-agents`` (those that can be delegated to)."""
-        names = {u.name for u in self.units(now)}
-        return [row for row in self.fleet.agents(now, alive_only=True) if row["name"] in names]
+        units = {u.name: u for u in self.units(now)}
+        sources = self.speed_sources(units.values())
+        return [{**row, "speeds": units[row["name"]].speeds, "speeds-source": sources[row["name"]]}
+                for row in self.fleet.agents(now, alive_only=True) if row["name"] in units]
 
     def ready(self, units: Iterable[str], engine: bool, now: float) -> bool:
         """True once the named units (and the engine, with ``engine``) are live as seen here."""
@@ -379,6 +407,7 @@ class ServiceCore:
         return Effects(publish=[out])
 
     def _fail(self, face: Face, key: CommandKey | None, com_uuid: str, reason: str) -> Effects:
+        log.info("command %s on %s refused: %s", com_uuid or "?", face, reason)
         return self._respond(face, key, failure(face, com_uuid, reason))
 
     # ---- TST face
@@ -494,10 +523,15 @@ class ServiceCore:
         self._job_ids += 1
         entry = self.commands.get(key)
         units, notes = self.plannable(now) if kind == "plan" else (self.units(now), ())
+        warnings = tuple(input_warnings(tree, units, self.fleet.names())) if kind == "plan" else ()
+        for w in warnings:
+            log.warning("mission %s: %s", tree.node_uuid, w)
+        log.info("mission %s (%s) received on %s (%s%s): %d units to plan for", tree.node_uuid,
+                 tree.name, face, source, ", start" if start else "", len(units))
         job = Job(id=self._job_ids, kind=kind, key=key, face=face, tree=tree,
                   units=units, options=options, engine=self.config.engine,
                   start=start, source=source, received=entry.received if entry else now,
-                  notes=notes)
+                  speed_sources=self.speed_sources(units), warnings=warnings, notes=notes)
         return Effects(jobs=[job])
 
     def on_job_done(self, done: JobDone, now: float) -> Effects:
@@ -522,8 +556,15 @@ class ServiceCore:
             units, notes = self.plannable(now)
             return Effects(jobs=[replace(job, id=self._job_ids, units=units, notes=notes)])
         self._replanned.pop(job.key, None)
+        log.info("mission %s planned: %s/%s, %s, makespan %.0f s, units %s", plan.tst.node_uuid,
+                 plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
+                 plan.makespan or 0.0,
+                 ", ".join(sorted({a.execunit for a in plan.assignments})) or "none")
+        for note in plan.notes:
+            log.info("mission %s: %s", plan.tst.node_uuid, note)
         if not plan.feasible:
             reason = infeasible_reason(plan, job.tree)
+            log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
             if job.face == "tst":
                 return self._fail("tst", job.key, job.com_uuid, reason)
             return self._respond("delegation", job.key, DelegationResponse(
@@ -533,7 +574,15 @@ class ServiceCore:
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=self._epoch(now),
-                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst)))
+                              tst=plan_json["tst"], plan=plan_json,
+                              nodes={**(node_infos(plan.source) if plan.source else {}),
+                                     **node_infos(plan.tst)},
+                              operator=(OperatorView.of(plan.source, plan.tst)
+                                        if plan.source else None)))
+        for _, node in walk(plan.tst):
+            cls = speed_class(node)
+            if cls and node.node_uuid and isinstance(node.execunit, str):
+                self._task_class[node.node_uuid] = (node.execunit.strip("/"), cls)
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self._respond("delegation", job.key, DelegationResponse(
@@ -545,6 +594,7 @@ class ServiceCore:
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
                                        plan=plan_json))
+        log.info("mission %s sent to engine %s", root_uuid, self.config.engine)
         self.timings.append(Timing(root_uuid, job.received, now, done.seconds))
         return effects
 
@@ -580,9 +630,26 @@ class ServiceCore:
         )
         if mission is None:
             return Effects()  # a tree someone else gave the engine
-        relay = TstFeedback(node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
-                            fail_reason=fb.fail_reason)
-        effects = Effects().send(self.tst_feedback_topic, relay).extend(self._lifecycle(events))
+        task = self._task_class.get(fb.node_uuid)
+        if task is not None and fb.status == "running":
+            self.learner.task_started(task[0], fb.node_uuid, task[1], now)
+        elif task is not None and fb.status in TERMINAL_NODE_STATUSES:
+            self.learner.task_ended(task[0], fb.node_uuid, now)
+            del self._task_class[fb.node_uuid]
+        effects = Effects()
+        view = mission.operator
+        if view is None or view.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
+            effects.send(self.tst_feedback_topic, TstFeedback(
+                node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
+                fail_reason=fb.fail_reason))
+        if view is not None and view.relayed(fb.node_uuid):
+            # The operator's control nodes the sent tree regrouped away: derived from their
+            # children (docs/protocol.md §8).
+            for uid, status in view.changes(fb.node_uuid, mission.node_status):
+                effects.send(self.tst_feedback_topic, TstFeedback(
+                    node_uuid=uid, root_flag=uid == view.root, status=status,
+                    fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
+        effects.extend(self._lifecycle(events))
         if retry is not None:
             effects.extend(self._redelegate(mission, retry[0], retry[1], now))
         return effects
@@ -627,6 +694,7 @@ class ServiceCore:
 
     def on_tick(self, now: float) -> Effects:
         """Answer ``failed`` the engine commands that were never answered."""
+        self._log_silent(now)
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
@@ -646,6 +714,18 @@ class ServiceCore:
         self._offline_since = None
         self.fleet.grace(now, self.config.reconnect_grace)
         return Effects()
+
+    def _log_silent(self, now: float) -> None:
+        """Log the units whose heartbeat stopped (appearing and rebooting are logged as the
+        registry notices them)."""
+        alive = {u.name for u in self.fleet.snapshot(now) if u.alive}
+        for name in sorted(self._alive - alive):
+            seen = self.fleet.last_seen(name)
+            ago = f" (last message {now - seen:.0f} s ago)" if seen is not None else ""
+            log.warning("unit %s fell silent%s", name, ago)
+        for name in sorted(alive - self._alive):
+            log.debug("unit %s is live", name)
+        self._alive = alive
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""

@@ -8,12 +8,14 @@ instead of a dead worker.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, compute_bids, plan_mission
 from delegation.errors import InputError, Problem
 from delegation.fleet import UnitState
+from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
 from delegation.tst.node import TstNode, walk, where
@@ -78,6 +80,10 @@ class Job:
     notes: tuple[str, ...] = ()
     #: The root uuid of the mission this plan re-delegates ("" for a command's plan).
     redelegate: str = ""
+    #: Per unit: where its speeds come from (``learnt``/``profile``/``default``) for the notes.
+    speed_sources: Mapping[str, str] = field(default_factory=dict)
+    #: Suspicious input (`delegation.learning.input_warnings`), added to the plan's notes.
+    warnings: tuple[str, ...] = ()
 
     @property
     def com_uuid(self) -> str:
@@ -122,7 +128,9 @@ def run_job(job: Job) -> JobResult:
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
         )
-        plan.notes.extend(job.notes)
+        used = {a.execunit.strip("/") for a in plan.assignments}
+        plan.notes.extend([*job.warnings, *speed_notes(job.units, job.speed_sources, used),
+                           *job.notes])
         return PlanDone(plan)
     except InputError as exc:
         return JobFailed(exc.fail_reason)

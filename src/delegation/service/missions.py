@@ -14,6 +14,7 @@ from typing import Any
 
 from delegation.errors import InputError, Problem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
+from delegation.service.operator_view import OperatorView
 from delegation.tst.node import TstNode, walk
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
@@ -78,6 +79,9 @@ class Mission:
     redelegations: int = 0
     #: The node uuids of the current tree.
     current_nodes: set[str] = field(default_factory=set)
+    #: The operator's own tree (the tree sent may regroup its control nodes): what feedback and
+    #: ``query-mission`` show. None: the sent tree is shown as it is.
+    operator: OperatorView | None = None
 
     def __post_init__(self) -> None:
         self.current_root = self.current_root or self.root_uuid
@@ -115,14 +119,19 @@ class Mission:
     def to_json(self) -> dict[str, Any]:
         """The full form answered by ``query-mission``: status, node statuses, assignments."""
         nodes = []
+        view = self.operator
         for uid, info in self.nodes.items():
+            if view is not None and uid not in view:
+                continue  # only in the sent tree
+            status = (view.derive(uid, self.node_status) if view is not None
+                      else self.node_status.get(uid, "not-active"))
             nodes.append(
                 {
                     "node-uuid": uid,
                     "name": info.name,
                     "execunit": info.execunit,
                     "path": info.path,
-                    "status": self.node_status.get(uid, "not-active"),
+                    "status": status,
                     "started": _rel(self.node_started.get(uid), self.started_at),
                     "ended": _rel(self.node_ended.get(uid), self.started_at),
                 }
@@ -136,6 +145,8 @@ class Mission:
             "strategy": self.plan.get("strategy"),
             "current-root": self.current_root,
             "re-delegations": self.redelegations,
+            "notes": list(self.plan.get("notes", [])),
+            "tst": self.tst,
         }
 
 

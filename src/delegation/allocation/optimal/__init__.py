@@ -7,11 +7,14 @@ Which solver (DESIGN 4):
 - **CP-SAT** where the tree orders tasks across units (``seq``) or has conc children that are
   subtrees, and for small flat trees (it proves optimality there, so the plan carries a ``bound``):
   per-unit circuits over optional arcs, activation times from the tree, makespan and battery as
-  linear constraints. Conc children that share a unit run one after another as whole subtrees, in
-  the order ``serialise`` derives (DESIGN 3.4); for concs with at most ``CP_EXACT_CHILDREN``
-  children holding tasks the model encodes exactly that (which children share a unit, the total
-  order of each component, the tie rule), for larger ones a relaxation (each unit's consecutive
-  subtrees one after another), so the bound stays a lower bound and the solution is re-evaluated.
+  linear constraints: the precedence graph (the tree's order plus each unit's), what every
+  strategy plans for (DESIGN 3.4 revised), so its bound is a lower bound for any tree sent. Only
+  for a problem with ``wrap_subtrees`` (the old rule, for benchmarks) does it add the whole-subtree
+  serialisation sub-model (``cpsat_subtrees``);
+- a **large neighbourhood search** (``lns``: ruin and recreate on the precedence-graph schedule,
+  judged on the makespan of the tree it would be sent as) for trees that are not plain and have
+  more than ``CP_MAX_FLAT_TASKS`` vehicle tasks: after CP-SAT (half the time) up to
+  ``CP_SEARCH_TASKS`` tasks, alone above; it proves no bound.
 
 Solver costs are integers (ticks); durations are rounded down so that CP-SAT's bound stays a proven
 lower bound. Whatever the solver returns is re-evaluated with the schedule simulator, and the
@@ -19,8 +22,8 @@ auction's schedule is kept (and said so in a note and a log line) when the solve
 better: ``optimal`` is never worse than ``auction``.
 
 Modules: ``routing`` (the routing model), ``cpsat`` (the CP-SAT model), ``cpsat_subtrees`` (its
-subtree-serialisation sub-model), ``shared`` (ticks, task points, evaluating routes); this one
-chooses the solver.
+subtree-serialisation sub-model), ``lns`` (the search), ``shared`` (ticks, task points, evaluating
+routes); this one chooses the solver.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ from dataclasses import dataclass, field
 from delegation.allocation.auction import auction
 from delegation.allocation.optimal.cpsat import CP_EXACT_ARCS, candidates, solve_cpsat
 from delegation.allocation.optimal.cpsat_subtrees import CP_EXACT_CHILDREN
+from delegation.allocation.optimal.lns import better_key as _better_key
+from delegation.allocation.optimal.lns import lns, lns_note, tree_key
 from delegation.allocation.optimal.routing import (
     ROUTING_MAKESPAN_PHASES,
     ROUTING_MAX_ENTRIES,
@@ -63,6 +68,13 @@ __all__ = [
 ]
 
 
+#: The search stops at this share of the time limit: the plan's instantiation follows it.
+LNS_SHARE = 0.9
+#: Trees that are not plain with more vehicle tasks than this skip CP-SAT for the search (measured:
+#: CP-SAT found no solution in 2.5-5 s on any generated mixed tree from 10x30 to 50x300).
+CP_SEARCH_TASKS = 20
+
+
 @dataclass
 class OptimalResult:
     """The chosen schedule, a proven lower bound on the objective (s) if any, and what happened."""
@@ -71,6 +83,7 @@ class OptimalResult:
     bound: float | None = None
     notes: list[str] = field(default_factory=list)
     solver: str = ""
+    kept_auction: bool = True  # the schedule is the auction's (reported as a fallback)
 
 
 def optimise(
@@ -101,10 +114,17 @@ def optimise(
     remaining = max(0.05, time_limit - (time.perf_counter() - began))
     candidate: Schedule | None = None
     bound: float | None = None
-    if (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
+    # Trees that are not plain and not tiny: CP-SAT gets half the time, the large neighbourhood
+    # search the rest (``lns``); above ``CP_SEARCH_TASKS`` tasks the search gets it all.
+    search = not flat and not use_all_units and len(tasks) > CP_MAX_FLAT_TASKS
+    if search and len(tasks) > CP_SEARCH_TASKS:
+        note = (f"CP-SAT not run: {len(tasks)} vehicle tasks on a tree that is not plain "
+                f"(limit {CP_SEARCH_TASKS}); the large neighbourhood search alone")
+    elif (not flat or len(tasks) <= CP_MAX_FLAT_TASKS) and arcs <= CP_MAX_ARCS:
         result.solver = "cp-sat"
         candidate, bound, note = solve_cpsat(
-            problem, objective, base, tasks, remaining, mask, use_all_units=use_all_units
+            problem, objective, base, tasks, remaining * (0.5 if search else 1.0), mask,
+            use_all_units=use_all_units,
         )
     elif flat:
         result.solver = "routing"
@@ -114,7 +134,7 @@ def optimise(
     else:
         note = (
             f"CP-SAT not run: the model would have {arcs} arcs (limit {CP_MAX_ARCS}); "
-            "keeping the auction's plan"
+            + ("the large neighbourhood search alone" if search else "keeping the auction's plan")
         )
     result.notes.append(note)
     base_counts = not use_all_units or all(base.orders)
@@ -122,11 +142,36 @@ def optimise(
         better(candidate, base, objective) or not base_counts
     ):
         result.schedule = candidate
+        result.kept_auction = False
     elif candidate is not None:
         result.notes.append(
             f"{result.solver} found no better plan than the auction's; keeping the auction's plan"
         )
     result.bound = bound
+    if search:
+        _search(problem, objective, result, base, began + LNS_SHARE * time_limit)
     for text in result.notes:
         log.info("optimal: %s", text)
     return result
+
+
+def _search(
+    problem: Problem, objective: Objective, result: OptimalResult, base: Schedule,
+    deadline: float,
+) -> None:
+    """Improve the better (judged on the tree it would be sent as) of ``result``'s schedule and
+    the auction's ``base`` with the large neighbourhood search until ``deadline``."""
+    start = result.schedule
+    if not start.valid or (start is not base and _better_key(
+            tree_key(problem, objective, base), tree_key(problem, objective, start))):
+        if start is not base:
+            result.notes.append("the auction's plan gives the shorter tree; searching from it")
+        start = base
+    if time.perf_counter() >= deadline or not start.valid:
+        return
+    found = lns(problem, objective, start, deadline)
+    result.notes.append(lns_note(found))
+    result.schedule = found.schedule
+    result.kept_auction = found.schedule is base
+    if found.improvements:
+        result.solver = f"{result.solver} + lns" if result.solver else "lns"

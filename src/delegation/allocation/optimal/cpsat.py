@@ -67,7 +67,8 @@ def solve_cpsat(
     m.passive_work()
     m.tree_timing()
     m.unit_circuits()
-    m.serialised_subtrees()
+    if m.wrapping:
+        m.serialised_subtrees()
     m.hint()
     return m.solve(deadline=began + limit)
 
@@ -158,7 +159,11 @@ class _CpSatModel:
             t: float(problem.work_time[problem.allowed[:, t], t].max()) for t in self.passive
         }
         self.scale, self.horizon = self._ticks()
-        self.paths = [dict(path) for path in conc_paths(problem, every_conc=False)]
+        # Whole-subtree wrapping is the old instantiation rule's; on the precedence graph (what
+        # plans mean, DESIGN 3.4 revised) a unit's order and the tree's order are all there is.
+        self.wrapping = problem.wrap_subtrees
+        self.paths = ([dict(path) for path in conc_paths(problem, every_conc=False)]
+                      if self.wrapping else [{} for _ in problem.tasks])
         self.model = cp_model.CpModel()
         self.begin: list[cp_model.IntVar] = []
         self.finish: list[cp_model.IntVar] = []
@@ -275,7 +280,8 @@ class _CpSatModel:
         under_node = tasks_under(self.problem, self.vehicle_set)
         for u, c in self.costs.items():
             used, use_terms = self._circuit(u, c)
-            self._subtree_runs(u, c.tasks, under_node)
+            if self.wrapping:
+                self._subtree_runs(u, c.tasks, under_node)
             if self.use_all_units:
                 self.model.add(used == 1)
             self._endurance(u, use_terms)
@@ -392,7 +398,7 @@ class _CpSatModel:
         for key, lit in self.arc_lits.items():
             if key not in hinted:
                 model.add_hint(lit, 0)
-        if base.valid:
+        if base.valid and self.wrapping:
             hint_subtrees(model, self.problem, base, self.wrap_vars)
 
     # ----------------------------------------------------------------------- solve

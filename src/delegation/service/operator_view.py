@@ -1,0 +1,91 @@
+"""The operator's own tree during execution (DESIGN 3.4 revised): pure state.
+
+The tree sent to the engine may regroup the caller's control nodes (series-parallel
+instantiation). The service relays unchanged the engine's feedback on the leaves and on the
+control nodes the sent tree kept (same uuid, same tasks: the engine computes them; the root is
+always kept). A control node of the operator's tree that the sent tree does not have is derived
+from its children, as the engine computes a control node: failed when a child failed, aborted
+when a child was aborted (or revoked), succeeded when all succeeded, running once any child has
+started. Nodes that exist only in the sent tree are not shown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from delegation.tst.node import TstNode, walk
+
+_FINAL = frozenset({"succeeded", "failed", "aborted", "revoked"})
+_STARTED = frozenset({"active", "waiting", "running", "paused", "succeeded", "failed",
+                      "aborted", "revoked"})
+
+
+@dataclass
+class OperatorView:
+    """The operator's tree by uuid: parents, children, leaves, and the control statuses shown."""
+
+    root: str
+    parent: dict[str, str] = field(default_factory=dict)
+    children: dict[str, list[str]] = field(default_factory=dict)  # control nodes only
+    leaves: set[str] = field(default_factory=set)
+    kept: set[str] = field(default_factory=set)  # control nodes the sent tree has too
+    shown: dict[str, str] = field(default_factory=dict)  # derived uuid -> last status published
+
+    @classmethod
+    def of(cls, tree: TstNode, sent: TstNode | None = None) -> OperatorView:
+        """The view of a tree with a uuid on every node (the plan's ``source``); ``sent``: the
+        tree sent (its control nodes with the operator's uuids are relayed, not derived)."""
+        view = cls(root=tree.node_uuid or "")
+        if sent is not None:
+            view.kept = {n.node_uuid or "" for _, n in walk(sent) if n.is_control}
+        for _, node in walk(tree):
+            uid = node.node_uuid or ""
+            if not node.is_control:
+                view.leaves.add(uid)
+                continue
+            kids = [c.node_uuid or "" for c in node.children]
+            view.children[uid] = kids
+            for kid in kids:
+                view.parent[kid] = uid
+        return view
+
+    def __contains__(self, node_uuid: object) -> bool:
+        return node_uuid in self.leaves or node_uuid in self.children
+
+    def relayed(self, node_uuid: str) -> bool:
+        """The engine's feedback on this node is shown unchanged (a leaf or a kept node)."""
+        return node_uuid in self.leaves or (node_uuid in self.children
+                                            and node_uuid in self.kept)
+
+    def derive(self, node_uuid: str, statuses: Mapping[str, str]) -> str:
+        """A control node's status from its children's (leaves: as the engine said)."""
+        if self.relayed(node_uuid):
+            return statuses.get(node_uuid, "not-active")
+        kids = [self.derive(k, statuses) for k in self.children.get(node_uuid, [])]
+        if "failed" in kids:
+            return "failed"
+        if "aborted" in kids or "revoked" in kids:
+            return "aborted"
+        if kids and all(k == "succeeded" for k in kids):
+            return "succeeded"
+        if any(k in _STARTED for k in kids):
+            return "running"
+        return "not-active"
+
+    def changes(self, node_uuid: str, statuses: Mapping[str, str]) -> list[tuple[str, str]]:
+        """After relayed ``node_uuid``'s status changed: the derived control nodes above it whose
+        status changed (innermost first), recorded as shown."""
+        out: list[tuple[str, str]] = []
+        node = self.parent.get(node_uuid)
+        while node is not None:
+            if self.relayed(node):
+                node = self.parent.get(node)
+                continue
+            status = self.derive(node, statuses)
+            if (status != "not-active" and self.shown.get(node) != status
+                    and self.shown.get(node) not in _FINAL):
+                self.shown[node] = status
+                out.append((node, status))
+            node = self.parent.get(node)
+        return out

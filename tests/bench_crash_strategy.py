@@ -1,0 +1,20 @@
+"""A strategy that kills its process (as OR-Tools does on an internal check failure), for the
+isolation tests of the bench executors; importable on Dask workers through PYTHONPATH."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+
+def abort(problem: Any, objective: Any, time_limit: float, /) -> Any:
+    os.abort()
+
+
+def sleepy(problem: Any, objective: Any, time_limit: float, /) -> Any:
+    """Touch ``$BENCH_TEST_MARKER`` and sleep (a run still going when the test presses Ctrl-C)."""
+    import pathlib
+    import time
+
+    pathlib.Path(os.environ["BENCH_TEST_MARKER"]).touch()
+    time.sleep(120)

@@ -1,0 +1,274 @@
+"""The operator's commands, run as an operator runs them: child processes against a real broker
+with a live fleet, engine and service (`LocalSystem`), output not on a terminal."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from delegation.local import LocalSystem
+from delegation.runtime.broker import LocalBroker
+from delegation.scenario import load_scenario
+from delegation.service import ServiceConfig
+
+pytestmark = pytest.mark.mqtt
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEEDUP = 20.0
+WP = {"latitude": 57.7608, "longitude": 16.6800, "altitude": 40.0}
+
+
+def open_ended(root: str, unit: str) -> dict[str, Any]:
+    """A seq that flies a little, then looks until told ``$enough``: it stays running."""
+    return {"name": "seq", "common_params": {"node-uuid": root}, "children": [
+        {"name": "move-to", "common_params": {"execunit": unit},
+         "params": {"waypoint": WP, "speed": "fast"}},
+        {"name": "look-at-position", "common_params": {"execunit": unit},
+         "params": {"geopoint": WP}},
+    ]}
+
+
+@pytest.fixture(scope="module")
+def live(broker: LocalBroker) -> Iterator[dict[str, str]]:
+    scenario = load_scenario(ROOT / "scenarios" / "demo.yaml")
+    prefix = f"test-{uuid.uuid4().hex[:10]}"
+    config = replace(ServiceConfig(), profiles=scenario.profiles())
+    with LocalSystem(scenario.units(), settings=broker.settings(), config=config, prefix=prefix,
+                     speedup=SPEEDUP):
+        yield {"port": str(broker.settings().port), "prefix": prefix}
+
+
+def cli(live: dict[str, str], args: list[str], timeout: float = 60.0,
+        cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(_argv(live, args), env=_env(), capture_output=True, text=True,
+                          timeout=timeout, cwd=cwd, stdin=subprocess.DEVNULL)
+
+
+def _argv(live: dict[str, str], args: list[str]) -> list[str]:
+    return [sys.executable, "-m", "delegation", *args, "--port", live["port"],
+            "--prefix", live["prefix"]]
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WARAPS_")}
+    env.update(PYTHONPATH=str(ROOT / "src"), COLUMNS="80")
+    return env
+
+
+class Child:
+    """A long-running command; its output lines are collected by a thread (waited on with a
+    deadline, never slept on)."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True,
+                                     stdin=subprocess.DEVNULL)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.out: list[str] = []
+        self.err: list[str] = []
+        for stream, sink in ((self.proc.stdout, self.out), (self.proc.stderr, self.err)):
+            threading.Thread(target=self._read, args=(stream, sink), daemon=True).start()
+
+    def _read(self, stream: Any, sink: list[str]) -> None:
+        for line in stream:
+            sink.append(line)
+            self.lines.put(line)
+
+    def wait_line(self, text: str, timeout: float = 20.0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=max(0.01, deadline - time.monotonic()))
+            except queue.Empty:
+                break
+            if text in line:
+                return line
+        raise AssertionError(f"no line with {text!r} in {timeout:g} s: {self.out + self.err}")
+
+    def stop(self, sig: int, within: float = 5.0) -> tuple[int, float]:
+        t0 = time.monotonic()
+        self.proc.send_signal(sig)
+        code = self.proc.wait(within)
+        return code, time.monotonic() - t0
+
+
+def _mission_file(tmp_path: Path, name: str, tree: dict[str, Any]) -> str:
+    path = tmp_path / name
+    path.write_text(json.dumps(tree))
+    return str(path)
+
+
+def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path: Path) -> None:
+    base = uuid.uuid4().hex[:6]
+    a, b = f"{base}a0-0000-4000-8000-000000000001", f"{base}b0-0000-4000-8000-000000000002"
+    fa = _mission_file(tmp_path, "a.json", open_ended(a, "/dji0"))
+    fb = _mission_file(tmp_path, "b.json", open_ended(b, "/dji1"))
+
+    # submit stops following (timeout): full id, plain progress lines, and how to go on
+    r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "4"])
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert f"mission {a} started" in r.stdout
+    assert f"mission {a[:8]} running" in r.stdout  # a plain line, not a live table
+    assert f"re-attach: delegation follow {a[:8]}" in r.stdout
+    assert "delegation cancel" in r.stdout
+    assert cli(live, ["submit", fb, "--timeout", "1"]).returncode == 1
+
+    r = cli(live, ["missions", "--json"])
+    rows = {m["root-uuid"]: m for m in json.loads(r.stdout)}
+    assert rows[a]["status"] in ("started", "running") and b in rows
+    r = cli(live, ["missions", "--status", "active"])
+    assert r.returncode == 0 and a[:8] in r.stdout
+    assert all(len(line) <= 80 for line in r.stdout.splitlines())
+    assert cli(live, ["missions", "--status", "succeeded", "--json"]).stdout.count(a) == 0
+
+    # ids: unique prefixes; ambiguous and unknown ones are one line, exit 1
+    r = cli(live, ["status", base])
+    assert r.returncode == 1 and "ambiguous" in r.stderr and len(r.stderr.splitlines()) == 1
+    r = cli(live, ["status", "ffffffff-nope"])
+    assert r.returncode == 1 and "no mission id starts with" in r.stderr
+    r = cli(live, ["status", a[:12], "--speedup", str(SPEEDUP)])
+    assert r.returncode == 0, r.stderr
+    assert "look-at-position" in r.stdout and "running" in r.stdout and "/dji0" in r.stdout
+    assert all(len(line) <= 80 for line in r.stdout.splitlines())
+    mission = json.loads(cli(live, ["status", a, "--json"]).stdout)
+    assert {n["name"] for n in mission["nodes"]} == {"seq", "move-to", "look-at-position"}
+
+    r = cli(live, ["signal", a[:10], "$pause", "--json"])
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == {"root-uuid": a, "signal": "$pause", "response": "ok"}
+    assert cli(live, ["signal", a[:10], "$continue"]).returncode == 0
+
+    # re-attach, end the open-ended task, see it succeed
+    r = cli(live, ["follow", a[:10], "--enough", "--speedup", str(SPEEDUP), "--timeout", "40"])
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"mission {a} succeeded" in r.stdout
+
+    r = cli(live, ["cancel", b[:10]])
+    assert r.returncode == 0, r.stderr
+    assert f"mission {b} cancelled" in r.stdout
+    assert json.loads(cli(live, ["status", b, "--json"]).stdout)["status"] == "aborted"
+    r = cli(live, ["cancel", b])
+    assert r.returncode == 1 and "already ended" in r.stderr
+
+
+def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) -> None:
+    tree = {"name": "conc", "children": [
+        {"name": "move-to", "params": {"waypoint": WP}},
+        {"name": "search-area", "params": {"area": [
+            {"latitude": 57.7613, "longitude": 16.6825},
+            {"latitude": 57.7613, "longitude": 16.6837},
+            {"latitude": 57.7618, "longitude": 16.6837}]}},
+    ]}
+    f = _mission_file(tmp_path, "m.json", tree)
+    r = cli(live, ["bids", f])
+    assert r.returncode == 0, r.stderr
+    assert "dji0" in r.stdout and "usv0" in r.stdout and "search-area" in r.stdout
+    assert all(len(line) <= 80 for line in r.stdout.splitlines())
+    bids = json.loads(cli(live, ["bids", f, "--json"]).stdout)
+    assert {b["unit"] for b in bids} >= {"/dji0", "/dji1", "/usv0"}
+    r = cli(live, ["agents", "--wait", "2"])  # piped: 80 columns, nothing dropped
+    assert r.returncode == 0 and all(len(line) <= 80 for line in r.stdout.splitlines())
+    assert "move-to" in r.stdout and "usv0" in r.stdout
+    r = cli(live, ["submit", f, "--json", "--speedup", str(SPEEDUP), "--timeout", "60"])
+    assert r.returncode == 0, r.stderr
+    done = json.loads(r.stdout)  # the JSON alone on stdout; progress went to stderr
+    assert done["status"] == "succeeded" and "running" in r.stderr
+    r = cli(live, ["follow", done["root-uuid"][:8], "--json"])
+    assert r.returncode == 0 and json.loads(r.stdout)["status"] == "succeeded"
+    r = cli(live, ["plan", f, "--live", "--format", "json"])
+    assert r.returncode == 0, r.stderr
+    plan = json.loads(r.stdout)
+    assert plan["feasible"] and {a["execunit"] for a in plan["assignments"]} <= {
+        "/dji0", "/dji1", "/usv0"}
+
+
+def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
+                                                       tmp_path: Path) -> None:
+    root = str(uuid.uuid4())
+    f = _mission_file(tmp_path, "c.json", open_ended(root, "/usv0"))
+    assert cli(live, ["submit", f, "--timeout", "1"]).returncode == 1
+    child = Child(_argv(live, ["follow", root[:8]]))
+    child.wait_line(f"mission {root[:8]}")
+    code, took = child.stop(signal.SIGINT)
+    assert code == 130 and took < 5.0
+    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out)
+    assert any("stopped by SIGINT" in line for line in child.err)
+    assert cli(live, ["cancel", root]).returncode == 0
+
+
+def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
+                                                        tmp_path: Path) -> None:
+    root = str(uuid.uuid4())
+    f = _mission_file(tmp_path, "d.json", open_ended(root, "/dji1"))
+    child = Child(_argv(live, ["submit", f]))
+    child.wait_line(f"mission {root} started")
+    code, took = child.stop(signal.SIGTERM)
+    assert code == 0 and took < 5.0
+    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out)
+    status = json.loads(cli(live, ["status", root, "--json"]).stdout)["status"]
+    assert status in ("started", "running")
+    assert cli(live, ["cancel", root]).returncode == 0
+
+
+def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
+                                                        tmp_path: Path) -> None:
+    """A second service (no profiles) on the same fleet: its log, in JSON, at INFO by default,
+    says what happened to each mission and unit; SIGTERM stops it with exit 0."""
+    name = f"delegator{uuid.uuid4().hex[:4]}"
+    serve = Child(_argv(live, ["serve", "--name", name, "--log-json"]))
+    try:
+        serve.wait_line("serving on")
+        serve.wait_line("appeared")
+        ok = _mission_file(tmp_path, "ok.json", {
+            "name": "move-to", "common_params": {"execunit": "usv0"},
+            "params": {"waypoint": WP}})
+        r = cli(live, ["submit", ok, "--service", name, "--speedup", str(SPEEDUP),
+                       "--timeout", "40"])
+        assert r.returncode == 0, r.stdout + r.stderr
+        bad = _mission_file(tmp_path, "bad.json", {
+            "name": "move-to", "common_params": {"execunit": "/dji9"},
+            "params": {"waypoint": WP}})
+        assert "note: root (move-to" in r.stdout and "is an alias" in r.stdout  # notes shown
+        assert cli(live, ["submit", bad, "--service", name]).returncode == 1
+        serve.wait_line("refused")
+    finally:
+        code, took = serve.stop(signal.SIGTERM)
+    assert code == 0 and took < 5.0
+    logs = [json.loads(line) for line in serve.err]
+    text = "\n".join(entry["message"] for entry in logs)
+    for expected in ("unit dji0 appeared", "received on delegation", "planned: auction/makespan",
+                     "makespan", "sent to engine op0", "succeeded", "refused", "/dji9",
+                     "is an alias", "defaults (slow", "stopped by SIGTERM"):
+        assert expected in text, expected
+
+
+@pytest.mark.parametrize(("command", "sig", "code", "ready"), [
+    (["engine"], signal.SIGTERM, 0, "TST engine"),
+    (["sim", "demo"], signal.SIGINT, 130, "simulated units"),
+    (["sim", "demo"], signal.SIGTERM, 0, "simulated units"),
+    (["serve"], signal.SIGINT, 130, "serving on"),
+    (["demo", "--speedup", "20", "--out", "{tmp}"], signal.SIGTERM, 0, "units, speedup"),
+])
+def test_long_running_commands_stop_on_signals(live: dict[str, str], command: list[str],
+                                               sig: int, code: int, ready: str,
+                                               tmp_path: Path) -> None:
+    """Each on a prefix of its own (a second simulated dji0 would confuse the shared fleet)."""
+    own = {**live, "prefix": f"sig-{uuid.uuid4().hex[:8]}"}
+    child = Child(_argv(own, [c.replace("{tmp}", str(tmp_path)) for c in command]))
+    child.wait_line(ready)
+    got, took = child.stop(sig)
+    assert got == code and took < 5.0, child.out + child.err
+    assert any(f"stopped by {signal.Signals(sig).name}" in line for line in child.err)

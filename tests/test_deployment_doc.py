@@ -1,0 +1,89 @@
+"""docs/deployment.md's ``console`` blocks, run in order as one shell session against a private
+mosquitto: each command must exit 0, or the code its ``# exit N`` comment names."""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "deployment.md"
+
+pytestmark = [
+    pytest.mark.mqtt,
+    pytest.mark.skipif(mosquitto_binary() is None, reason="no mosquitto binary"),
+]
+
+
+def console_commands(text: str) -> list[tuple[str, int]]:
+    """(command, expected exit code) for every ``$ `` line of every ``console`` block."""
+    out = []
+    for block in re.findall(r"```console\n(.*?)```", text, re.S):
+        for line in block.splitlines():
+            if line.startswith("$ "):
+                command = line[2:].strip()
+                m = re.search(r"#\s*exit (\d+)\s*$", command)
+                out.append((command, int(m.group(1)) if m else 0))
+    return out
+
+
+def script(commands: list[tuple[str, int]]) -> str:
+    lines = [
+        "set -u",
+        "trap 'kill $(jobs -p) 2>/dev/null; wait' EXIT",
+    ]
+    for i, (command, code) in enumerate(commands):
+        if command.endswith("&"):
+            lines.append(command)
+            continue
+        lines += [
+            f"echo '>>> step {i}: '{shlex.quote(command)}",
+            command,
+            f'rc=$?; if [ "$rc" -ne {code} ]; then '
+            f"echo 'FAILED step {i} (exit '$rc', wanted {code}): '{shlex.quote(command)} >&2; "
+            "exit 1; fi",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture(scope="module")
+def mosquitto() -> Iterator[PrivateMosquitto]:
+    broker = PrivateMosquitto()
+    broker.start()
+    try:
+        yield broker
+    finally:
+        broker.stop()
+
+
+def test_the_doc_has_commands_to_check() -> None:
+    commands = [c for c, _ in console_commands(DOC.read_text())]
+    for needed in ("delegation serve", "delegation missions", "delegation status",
+                   "delegation follow", "delegation cancel", "delegation signal",
+                   "delegation bids", "delegation plan", "delegation completion"):
+        assert any(c.startswith(needed) or f" {needed}" in c for c in commands), needed
+
+
+def test_documented_commands_run(mosquitto: PrivateMosquitto, tmp_path: Path) -> None:
+    # ``delegation`` as this checkout's, exec'd so that the script's ``kill`` reaches it
+    wrapper = tmp_path / "delegation"
+    wrapper.write_text(f'#!/bin/sh\nexec {shlex.quote(sys.executable)} -m delegation "$@"\n')
+    wrapper.chmod(0o755)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WARAPS_")}
+    env.update(WARAPS_BROKER="127.0.0.1", WARAPS_PORT=str(mosquitto.settings().port),
+               PYTHONPATH=str(ROOT / "src"), COLUMNS="100",
+               PATH=f"{tmp_path}{os.pathsep}{os.environ.get('PATH', '')}")
+    result = subprocess.run(["bash", "-c", script(console_commands(DOC.read_text()))], cwd=ROOT,
+                            env=env, capture_output=True, text=True, timeout=300,
+                            stdin=subprocess.DEVNULL)
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
+    assert "succeeded" in result.stdout and "aborted" in result.stdout
