@@ -33,7 +33,7 @@ from delegation.runtime.mqtt import Message, MqttClient
 from delegation.service import DelegationService, ServiceConfig
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
-HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7603, 16.6842)}
+HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
 GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840)}
 
 

@@ -38,7 +38,7 @@ pytestmark = [
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 #: Simulated seconds per wall second: a 300 m move-to at 4 m/s takes 75 s, 7.5 s wall.
 SPEEDUP = 10.0
-HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7603, 16.6842)}
+HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
 GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840), "near-u0": (57.7627, 16.6808)}
 
 

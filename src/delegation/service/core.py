@@ -904,6 +904,8 @@ class ServiceCore:
             fail_reason=replan.why, tasks=moved))
         log.info("mission %s re-delegated: %s", mission.root_uuid,
                  ", ".join(f"{t['path']} -> {t['unit']}" for t in moved))
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
         return effects
 
     def _abort_tree(self, root: str, now: float) -> Effects:
