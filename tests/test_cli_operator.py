@@ -79,8 +79,11 @@ class Child:
         self.lines: queue.Queue[str] = queue.Queue()
         self.out: list[str] = []
         self.err: list[str] = []
-        for stream, sink in ((self.proc.stdout, self.out), (self.proc.stderr, self.err)):
-            threading.Thread(target=self._read, args=(stream, sink), daemon=True).start()
+        self.readers = [threading.Thread(target=self._read, args=(stream, sink), daemon=True)
+                        for stream, sink in ((self.proc.stdout, self.out),
+                                             (self.proc.stderr, self.err))]
+        for reader in self.readers:
+            reader.start()
 
     def _read(self, stream: Any, sink: list[str]) -> None:
         for line in stream:
@@ -102,7 +105,10 @@ class Child:
         t0 = time.monotonic()
         self.proc.send_signal(sig)
         code = self.proc.wait(within)
-        return code, time.monotonic() - t0
+        took = time.monotonic() - t0
+        for reader in self.readers:  # the last lines are read once the pipes close
+            reader.join(5.0)
+        return code, took
 
 
 def _mission_file(tmp_path: Path, name: str, tree: dict[str, Any]) -> str:
@@ -204,7 +210,8 @@ def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
     child.wait_line(f"mission {root[:8]}")
     code, took = child.stop(signal.SIGINT)
     assert code == 130 and took < 5.0
-    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out)
+    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out), (
+        child.out + child.err)
     assert any("stopped by SIGINT" in line for line in child.err)
     assert cli(live, ["cancel", root]).returncode == 0
 
@@ -217,7 +224,8 @@ def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
     child.wait_line(f"mission {root} started")
     code, took = child.stop(signal.SIGTERM)
     assert code == 0 and took < 5.0
-    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out)
+    assert any(f"re-attach: delegation follow {root[:8]}" in line for line in child.out), (
+        child.out + child.err)
     status = json.loads(cli(live, ["status", root, "--json"]).stdout)["status"]
     assert status in ("started", "running")
     assert cli(live, ["cancel", root]).returncode == 0

@@ -48,7 +48,7 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("plan free.json --fleet free.json", {}, 1, "agents"),
     ("plan impossible.yaml --format json", {}, 1, ""),  # infeasible: the plan, and exit 1
     ("bench", {}, 1, "give scenario files/folders"),
-    (f"bench {DEMO} --strategies greedy,auction", {}, 1, "unknown 'greedy'"),
+    (f"bench {DEMO} --strategies greedy,auction", {}, 1, "'greedy': unknown strategy"),
     (f"bench {DEMO} --objectives speed", {}, 1, "unknown 'speed'"),
     (f"bench {DEMO} --repeat 0", {}, 1, "repeat"),
     ("bench --generate --units abc", {}, 2, "comma-separated integers"),

@@ -51,7 +51,8 @@ def test_table_format(capsys: pytest.CaptureFixture[str]) -> None:
 def test_table_says_when_optimal_kept_the_auctions_plan(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    # No unit can take the only vehicle task: optimal keeps the auction's plan and says so.
+    # No unit can take the only vehicle task: optimal keeps the auction's plan and says so (the
+    # plan is infeasible, so `plan` exits 1 after printing it).
     scenario = tmp_path / "one.yaml"
     scenario.write_text(
         "name: one\ndescription: one task nobody can take\nagents:\n"
@@ -59,11 +60,11 @@ def test_table_says_when_optimal_kept_the_auctions_plan(
         " tasks: [search-area]}\n"
         "mission: {name: seq, children: [{name: move-to, params: {waypoint: "
         "{latitude: 57.761, longitude: 16.681, altitude: 40}}}]}\n")
-    assert main(["plan", str(scenario), "--strategy", "optimal", "--time-limit", "1"]) == 0
+    assert main(["plan", str(scenario), "--strategy", "optimal", "--time-limit", "1"]) == 1
     out = capsys.readouterr().out
     assert "optimal (= auction)" in out
     assert main(["plan", str(scenario), "--strategy", "optimal", "--time-limit", "1",
-                 "--format", "json"]) == 0
+                 "--format", "json"]) == 1
     plan = json.loads(capsys.readouterr().out)
     assert plan["strategy"] == "optimal" and plan["fallback"] == "auction"
 

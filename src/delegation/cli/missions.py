@@ -153,7 +153,7 @@ def _status(args: argparse.Namespace) -> int:
     console = _console()
     console.print(mission_tree_table(mission, args.speedup))
     for note in mission.get("notes") or []:
-        console.print(f"note: {note}", soft_wrap=True)
+        console.print(f"note: {note}", markup=False, highlight=False)  # wrapped at 80 columns
     return 0
 
 
