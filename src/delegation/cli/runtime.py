@@ -105,6 +105,21 @@ def register(subparsers: Any) -> None:
 
     serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
     _service_args(serve)
+    serve.add_argument(
+        "--state",
+        default=None,
+        metavar="PATH|DSN",
+        help="where missions and answers survive a restart: an SQLite file (default "
+        "$XDG_STATE_HOME/delegation/NAME.sqlite, ~/.local/state when unset; ':memory:' keeps "
+        "nothing) or postgresql://... (shared: one instance active, the others stand by)",
+    )
+    serve.add_argument(
+        "--retention",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="ended missions leave memory after this long (they stay in the store; default 600)",
+    )
     add_broker_args(serve)
     serve.set_defaults(func=_serve)
 
@@ -413,7 +428,9 @@ def _demo(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace) -> int:
     from delegation.runtime.settings import BrokerSettings
-    from delegation.service import DelegationService, ServiceConfig
+    from delegation.service import ServiceConfig
+    from delegation.service.active import run_active
+    from delegation.service.store import default_state_path, open_store
 
     settings = broker_settings(args) or BrokerSettings()
     config = ServiceConfig(
@@ -427,22 +444,22 @@ def _serve(args: argparse.Namespace) -> int:
         role=args.role,
         profiles=_read_profiles(args.profiles) if args.profiles else None,
     )
-    service = DelegationService(settings, config)
-    service.start()
+    store = open_store(args.state or str(default_state_path(config.name)))
     print(
         f"{config.name} serving on {settings.describe()} at {config.base_topic} "
-        f"(engine {config.engine}); Ctrl-C stops",
+        f"(engine {config.engine}, state {store.where}); Ctrl-C stops",
         flush=True,
     )
     stop = threading.Event()
     with suppress(ValueError):  # not the main thread (tests): Ctrl-C still works there
         signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        stop.wait()
+        code = run_active(settings, config, store, stop, retention=args.retention,
+                          announce=lambda text: print(text, flush=True))
     finally:
-        service.stop()
-        print(f"{config.name} stopped", flush=True)
-    return 0
+        store.close()
+    print(f"{config.name} stopped", flush=True)
+    return code
 
 
 def _read_profiles(path: str) -> dict[str, dict[str, Any]]:

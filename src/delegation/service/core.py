@@ -16,7 +16,8 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
   ``fail-reason``, ``created``/``started``/``ended`` (epoch s), ``nodes`` (``node-uuid``, ``name``,
   ``execunit``, ``path``, ``status``, ``started``/``ended`` in s since the mission started),
   ``assignments``, ``unassigned``, ``makespan``, ``strategy``.
-* ``list-missions``: ``missions``: the summary fields above.
+* ``list-missions``: ``missions``: the summary fields above, oldest first, a page of ``limit``
+  from ``offset``; ``total`` and ``next`` (the next page's offset, null on the last).
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
   ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...).
 * ``cancel-mission``: ``ok`` once the engine confirmed the ``$abort`` of the tree.
@@ -85,7 +86,7 @@ from delegation.service.jobs import (
 )
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
 from delegation.topics import QOS_PERIODIC, parse_unit_topic
-from delegation.tst.node import with_uuids
+from delegation.tst.node import to_dict, with_uuids
 from delegation.tst.validate import parse_and_validate
 
 log = logging.getLogger(__name__)
@@ -297,7 +298,9 @@ class ServiceCore:
         if isinstance(cmd, QueryMission):
             return ok(mission=self.book.get(cmd.root_uuid).to_json())
         if isinstance(cmd, ListMissions):
-            return ok(missions=[m.summary() for m in self.book])
+            missions, total = self.book.page(cmd.offset, cmd.limit)
+            end = cmd.offset + len(missions)
+            return ok(missions=missions, total=total, next=end if end < total else None)
         if isinstance(cmd, ListAgents):
             return ok(agents=self.agents(now))
         if isinstance(cmd, CancelMission):
@@ -382,7 +385,8 @@ class ServiceCore:
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=now,
-                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst)))
+                              tst=plan_json["tst"], plan=plan_json, nodes=node_infos(plan.tst),
+                              received=to_dict(job.tree), command=job.key))
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self._respond("delegation", job.key, DelegationResponse(
