@@ -12,7 +12,7 @@ Printed: RSS at start, after the warm-up, at the end, and the slope after the wa
 mission); answers received, commands answered more than once, commands never answered; final
 statuses.
 
-    .venv/bin/python benchmarks/soak.py [--missions 2000] [--warmup 500] [--units 8]
+    .venv/bin/python benchmarks/soak.py [--missions 2000] [--warmup 1000] [--units 8]
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ class Watch:
         self.answers: Counter[str] = Counter()
         self.answer_kind: dict[str, str] = {}
         self.final: dict[str, str] = {}
+        self.reasons: Counter[str] = Counter()
         self.root_of: dict[str, str] = {}
         self.beats = 0
         self.cond = threading.Condition()
@@ -82,6 +83,8 @@ class Watch:
                     self.root_of[com] = root
             elif data.get("status") in FINAL:
                 self.final[data["root-uuid"]] = data["status"]
+                if data.get("fail-reason"):
+                    self.reasons[_shape(data["fail-reason"])] += 1
             self.cond.notify_all()
 
     def done(self, com: str) -> bool:
@@ -91,6 +94,12 @@ class Watch:
     def wait(self, predicate: Any, timeout: float) -> bool:
         with self.cond:
             return self.cond.wait_for(predicate, timeout)
+
+
+def _shape(reason: str) -> str:
+    """A fail-reason without its uuids (to count the kinds)."""
+    return " ".join("<id>" if len(w) > 30 or w.count("-") >= 4 else w
+                    for w in reason.split())[:160]
 
 
 def tree(rng: random.Random, units: int) -> dict[str, Any]:
@@ -106,7 +115,9 @@ def tree(rng: random.Random, units: int) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--missions", type=int, default=2000)
-    ap.add_argument("--warmup", type=int, default=500)
+    ap.add_argument("--warmup", type=int, default=1000,
+                    help="missions before the RSS baseline (the service keeps the latest 1000 "
+                    "answers in memory: its caches are full by then)")
     ap.add_argument("--units", type=int, default=8)
     ap.add_argument("--window", type=int, default=8, help="missions in flight at once")
     ap.add_argument("--speedup", type=float, default=100.0)
@@ -175,17 +186,22 @@ def main(argv: list[str] | None = None) -> int:
     warm = next(kb for n, kb in samples if n >= args.warmup)
     end_kb = samples[-1][1]
     slope = (end_kb - warm) / max(1, args.missions - args.warmup)
+    half = next(kb for n, kb in samples if n >= args.missions // 2)
+    slope2 = (end_kb - half) / max(1, args.missions - args.missions // 2)
     print(f"soak: {args.missions} missions ({args.units} units, window {args.window}, speed-up "
           f"{args.speedup:g}, retention {args.retention:g} s) in {wall:.1f} s")
     print(f"service RSS: start {start_kb / 1024:.1f} MB, after {args.warmup} (warm-up) "
           f"{warm / 1024:.1f} MB, end {end_kb / 1024:.1f} MB; after warm-up "
-          f"{slope:+.2f} kB/mission (max {max(kb for _, kb in samples) / 1024:.1f} MB)")
+          f"{slope:+.2f} kB/mission, second half {slope2:+.2f} kB/mission "
+          f"(max {max(kb for _, kb in samples) / 1024:.1f} MB)")
     print("RSS every 100 missions (MB): "
           + " ".join(f"{kb / 1024:.1f}" for _, kb in samples))
     print(f"answers: {total_answers} for {len(sent)} commands; answered {len(answered)}, "
           f"more than once {len(dupes)}, never {len(sent) - len(answered)}; "
           f"responses {dict(kinds)}")
     print(f"missions: {dict(finals)}")
+    for reason, n in watch.reasons.most_common(5):
+        print(f"  {n} x {reason}")
     ok = not dupes and len(answered) == len(sent)
     return 0 if ok else 1
 

@@ -36,13 +36,9 @@ def mission(root: str, created: float) -> Mission:
     return m
 
 
-@pytest.fixture(params=["sqlite", "postgres"])
-def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Store]:
-    if request.param == "sqlite":
-        s: Store = SqliteStore(tmp_path / "s.sqlite")
-        yield s
-        s.close()
-        return
+@pytest.fixture
+def pg_store() -> Iterator[PostgresStore]:
+    """A PostgreSQL store in a schema of this test alone (dropped after); skipped without one."""
     psycopg = pytest.importorskip("psycopg")
     try:
         psycopg.connect(PG_BASE, connect_timeout=3).close()
@@ -58,6 +54,16 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Store]:
         s.close()
         with psycopg.connect(PG_BASE, autocommit=True) as conn:
             conn.execute(f"DROP SCHEMA {schema} CASCADE")
+
+
+@pytest.fixture(params=["sqlite", "postgres"])
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Store]:
+    if request.param == "postgres":
+        yield request.getfixturevalue("pg_store")
+        return
+    s = SqliteStore(tmp_path / "s.sqlite")
+    yield s
+    s.close()
 
 
 def test_mission_record_round_trip() -> None:
@@ -143,9 +149,8 @@ def test_sqlite_file_is_locked_by_one_instance(tmp_path: Path) -> None:
     two.close()
 
 
-def test_postgres_lock_one_holder(store: Store) -> None:
-    if not isinstance(store, PostgresStore):
-        pytest.skip("PostgreSQL only")
+def test_postgres_lock_one_holder(pg_store: PostgresStore) -> None:
+    store = pg_store
     other = PostgresStore(store.dsn)
     name = f"svc-{uuid.uuid4().hex}"
     try:
@@ -156,3 +161,37 @@ def test_postgres_lock_one_holder(store: Store) -> None:
     finally:
         other.close()
     assert lock_key("a") == lock_key("a") != lock_key("b")
+
+
+def test_restart_answers_commands_that_were_in_progress(tmp_path: Path) -> None:
+    """A command the dead instance was working on is answered ``failed`` (never run again),
+    naming the mission it created; open missions are loaded, ended ones left in the store."""
+    import json
+
+    from delegation.runtime.settings import BrokerSettings
+    from delegation.service import DelegationService, ServiceConfig
+
+    store = SqliteStore(tmp_path / "s.sqlite")
+    log = CommandLog(archive=store)
+    log.begin(("delegation", "c-r1"), 1.0)  # waiting for the engine when the instance died
+    log.begin(("tst", "c-plan"), 2.0)  # still being planned
+    book = MissionBook(archive=store)
+    book.add(mission("r1", 1.0))
+    book.add(mission("r2", 1.5))
+    book.set_status("r2", MissionStatus.SUCCEEDED, 3.0)
+    store.save(book.drain_dirty(), log.drain_dirty())
+
+    service = DelegationService(BrokerSettings(host="127.0.0.1", port=1),
+                                ServiceConfig(name="svc"), store=store)
+    core = service.core
+    assert "r1" in core.book and "r2" not in core.book  # open in memory, ended in the store
+    assert core.book.get("r2").status is MissionStatus.SUCCEEDED
+    first = core.commands.get(("delegation", "c-r1"))
+    assert first is not None and first.state is CommandState.DONE
+    answer = json.loads(first.answer[0].payload)
+    assert first.answer[0].topic.endswith("/svc/delegation/response")
+    assert answer["response"] == "failed" and "it created mission r1" in answer["fail-reason"]
+    planning = store.load_command(("tst", "c-plan"))  # stored too: a later instance agrees
+    assert planning is not None and planning.answer[0].topic.endswith("/svc/tst/response")
+    assert "nothing was started" in json.loads(planning.answer[0].payload)["fail-reason"]
+    store.close()
