@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 
 from delegation.runtime.commands import CommandEntry, CommandLog, CommandState
@@ -76,6 +77,7 @@ class DelegationService(CoreUnit[ServiceCore]):
         core = self.core
         core.book = MissionBook(archive=store)
         core.commands = CommandLog(COMMANDS_IN_MEMORY, archive=store)
+        core.timings = deque(maxlen=COMMANDS_IN_MEMORY)  # latency figures: the latest only
         missions = store.open_missions()
         for mission in missions:
             core.book.add(mission)
