@@ -113,7 +113,7 @@ def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, p
 
 @pytest.mark.mqtt
 def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerSettings,
-                                                          prefix: str) -> None:
+                                                          prefix: str, tmp_path: Path) -> None:
     import signal
     import subprocess
     import sys
@@ -122,7 +122,8 @@ def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerS
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "delegation", "serve", "--broker", mqtt_settings.host,
-         "--port", str(mqtt_settings.port), "--prefix", prefix, "--name", "svc7"],
+         "--port", str(mqtt_settings.port), "--prefix", prefix, "--name", "svc7",
+         "--state", str(tmp_path / "state.sqlite")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:

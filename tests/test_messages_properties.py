@@ -154,7 +154,9 @@ _BY_ANNOTATION: dict[str, st.SearchStrategy[Any]] = {
     "str | None": st.none() | text,
     "float": finite,
     "float | None": st.none() | st.floats(0.001, 1e6),
-    "int": st.integers(),
+    # Within every int field's bounds (list-missions' offset >= 0, limit 1-1000).
+    "int": st.integers(1, 1000),
+    "int | None": st.none() | st.integers(0, 10**6),
     "bool": st.booleans(),
     "list[str]": st.lists(text, max_size=3),
     "dict[str, Any]": json_objects,

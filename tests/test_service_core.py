@@ -369,3 +369,20 @@ def test_fleet_events_are_logged_and_do_not_pile_up(caplog) -> None:
     assert "unit dji9 appeared" in caplog.text
     assert "unit dji9 rebooted" in caplog.text
     assert core.fleet.drain_events() == []
+
+
+def test_list_missions_pages(core: ServiceCore) -> None:
+    for i in range(3):
+        tree = {"name": "move-to", "common_params": {"node-uuid": f"r{i}"},
+                "params": {"waypoint": _wp(57.7611, 16.6805)}}
+        delegation(core, {"command": "delegate", "tst": tree}, now=101.0 + i, com=f"p{i}")
+    first = on(delegation(core, {"command": "list-missions", "limit": 2}, com="l1"),
+               "delegation/response")[0]
+    assert [m["root-uuid"] for m in first["missions"]] == ["r0", "r1"]
+    assert first["total"] == 3 and first["next"] == 2
+    last = on(delegation(core, {"command": "list-missions", "offset": 2, "limit": 2}, com="l2"),
+              "delegation/response")[0]
+    assert [m["root-uuid"] for m in last["missions"]] == ["r2"] and "next" not in last
+    bad = on(delegation(core, {"command": "list-missions", "limit": 0}, com="l3"),
+             "delegation/response")[0]
+    assert bad["response"] == "failed" and "limit" in bad["fail-reason"]

@@ -126,6 +126,21 @@ def register(subparsers: Any) -> None:
 
     serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
     _service_args(serve)
+    serve.add_argument(
+        "--state",
+        default=None,
+        metavar="PATH|DSN",
+        help="where missions and answers survive a restart: an SQLite file (default "
+        "$XDG_STATE_HOME/delegation/NAME.sqlite, ~/.local/state when unset; ':memory:' keeps "
+        "nothing) or postgresql://... (shared: one instance active, the others stand by)",
+    )
+    serve.add_argument(
+        "--retention",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="ended missions leave memory after this long (they stay in the store; default 600)",
+    )
     add_broker_args(serve)
     serve.set_defaults(func=_serve)
 
@@ -516,7 +531,9 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from delegation.service import DelegationService, ServiceConfig
+    from delegation.service import ServiceConfig
+    from delegation.service.active import run_active
+    from delegation.service.store import default_state_path, open_store
 
     settings = client_settings(args)
     config = ServiceConfig(
@@ -532,19 +549,21 @@ def _serve(args: argparse.Namespace) -> int:
         min_battery=args.min_battery,
         commitments=args.commitments,
     )
-    service = DelegationService(settings, config)
-    service.start()
+    store = open_store(args.state or str(default_state_path(config.name)))
     print(
         f"{config.name} serving on {settings.describe()} at {config.base_topic} "
-        f"(engine {config.engine}); Ctrl-C stops",
+        f"(engine {config.engine}, state {store.where}); Ctrl-C stops",
         flush=True,
     )
     try:
-        threading.Event().wait()  # until SIGINT/SIGTERM (`cli.options.Stopped`)
+        # Serves until SIGINT/SIGTERM (`cli.options.Stopped` is raised in the wait), or exits 1
+        # when the lock on a shared store is lost.
+        code = run_active(settings, config, store, threading.Event(), retention=args.retention,
+                          announce=lambda text: print(text, flush=True))
     finally:
-        service.stop()
+        store.close()
         print(f"{config.name} stopped", flush=True)
-    return 0
+    return code
 
 
 def _read_profiles(path: str) -> dict[str, dict[str, Any]]:

@@ -67,11 +67,13 @@ class QueryMission(WireModel):
 
 
 class ListMissions(WireModel):
-    """``list-missions``: every mission with its status."""
+    """``list-missions``: the missions with their status, a page at a time (oldest first)."""
 
     com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["list-missions"] = "list-missions"
     sender: str = ""
+    offset: int = Field(default=0, ge=0, strict=True)
+    limit: int = Field(default=100, ge=1, le=1000, strict=True)
 
 
 class ListAgents(WireModel):
@@ -111,6 +113,9 @@ class DelegationResponse(WireModel):
     bids: list[dict[str, Any]] | None = None
     mission: dict[str, Any] | None = None
     missions: list[dict[str, Any]] | None = None
+    #: ``list-missions``: how many missions there are in all; the offset of the next page.
+    total: int | None = None
+    next: int | None = None
     agents: list[dict[str, Any]] | None = None
 
 

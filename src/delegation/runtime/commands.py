@@ -4,7 +4,9 @@ The seed's protocol: unreliable links are handled by re-sending a command with t
 until a response arrives. Every unit that answers commands (the delegation service, the TST
 engine, the simulated units) keeps one `CommandLog`. A command is first ``pending`` (being worked
 on: planning, or waiting for the engine), then ``done`` with the exact messages that answered it.
-Pure: no clock (``now`` is passed in), no threads.
+Pure: no clock (``now`` is passed in), no threads. Persistence is the unit's: ``begin`` and
+``finish`` note the key in ``dirty`` (drained and written before the answer is published), and a
+command no longer in memory is looked up through an injected `CommandArchive`.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Protocol
 
 from delegation.runtime.core import Outgoing
 
@@ -54,13 +57,39 @@ class CommandEntry:
     resends: int = 0
 
 
+class CommandArchive(Protocol):
+    """Where answered commands that left memory are read back (a store; the unit's)."""
+
+    def load_command(self, key: CommandKey) -> CommandEntry | None:
+        """The stored entry for ``key``, or None."""
+        ...
+
+
 class CommandLog:
     """Commands by (face, com-uuid): ``seen`` on arrival, ``begin`` a new one, ``finish`` with the
-    answer. Bounded by ``capacity``; a command still pending is never forgotten."""
+    answer. Bounded by ``capacity``; a command still pending is never forgotten. With an
+    ``archive``, a key not in memory is looked up there before it counts as new."""
 
-    def __init__(self, capacity: int = DEFAULT_CAPACITY) -> None:
+    def __init__(
+        self, capacity: int = DEFAULT_CAPACITY, archive: CommandArchive | None = None
+    ) -> None:
         self.capacity = capacity
+        self.archive = archive
         self._entries: OrderedDict[CommandKey, CommandEntry] = OrderedDict()
+        #: Keys begun or finished since the unit last drained them (to persist; kept only with
+        #: an archive, so a log nobody drains does not grow).
+        self.dirty: set[CommandKey] = set()
+
+    def drain_dirty(self) -> list[CommandEntry]:
+        """The entries changed since the last call, and forget the notes."""
+        changed = [self._entries[k] for k in self.dirty if k in self._entries]
+        self.dirty.clear()
+        return changed
+
+    def restore(self, entry: CommandEntry) -> None:
+        """Put back an entry read from a store (not dirty: it is stored already)."""
+        self._entries[entry.key] = entry
+        self._trim()
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -68,6 +97,10 @@ class CommandLog:
     def seen(self, key: CommandKey) -> CommandEntry | None:
         """The entry of a command already received (counting this re-send), or None if new."""
         entry = self._entries.get(key)
+        if entry is None and self.archive is not None:
+            entry = self.archive.load_command(key)
+            if entry is not None:
+                self.restore(entry)
         if entry is not None:
             entry.resends += 1
         return entry
@@ -80,6 +113,8 @@ class CommandLog:
         """Record a new command as pending."""
         entry = CommandEntry(key, now)
         self._entries[key] = entry
+        if self.archive is not None:
+            self.dirty.add(key)
         self._trim()
         return entry
 
@@ -92,6 +127,8 @@ class CommandLog:
             return False
         entry.state = CommandState.DONE
         entry.answer = list(answer)
+        if self.archive is not None:
+            self.dirty.add(key)
         return True
 
     def _trim(self) -> None:

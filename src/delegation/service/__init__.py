@@ -6,6 +6,8 @@
 * `jobs` — planning jobs and their typed results (`run_job` runs on the unit's worker).
 * `missions` — the mission book.
 * `unit` — `DelegationService`: the core on a broker (`CoreUnit`), and `serve`.
+* `store` — where missions and answers survive a restart (SQLite file, PostgreSQL).
+* `active` — one active instance per name: lock, standby and takeover, or refuse to start.
 """
 
 from __future__ import annotations

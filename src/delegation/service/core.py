@@ -17,7 +17,8 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
   ``execunit``, ``path``, ``status``, ``started``/``ended`` in s since the mission started),
   ``assignments``, ``unassigned``, ``makespan``, ``strategy``, ``notes`` (the plan's), ``tst``
   (the instantiated tree, so that a client can re-attach).
-* ``list-missions``: ``missions``: the summary fields above.
+* ``list-missions``: ``missions``: the summary fields above, oldest first, a page of ``limit``
+  from ``offset``; ``total`` and ``next`` (the next page's offset, null on the last).
 * ``list-agents``: ``agents``: the fleet registry's rows (``name``, ``type``, ``position``,
   ``tasks-available``, ``last-seen``, ``busy``/``state``, ``battery``, ...) plus the ``speeds``
   the service plans with and their ``speeds-source`` (``learnt``/``profile``/``default``).
@@ -26,7 +27,7 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
   confirm it within ``cancel_timeout``; ``failed`` if the mission ended otherwise first. With no
   live engine the mission is ended ``aborted`` at once, saying so.
 
-Faults (DESIGN 3.9, docs/protocol.md §11): a unit lost (heartbeat stopped, or a new agent-uuid) or
+Faults (docs/protocol.md §11): a unit lost (heartbeat stopped, or a new agent-uuid) or
 answering ``failed`` has its unfinished tasks re-delegated (`delegation.service.redelegation`); an
 engine lost or restarted fails its missions with the reason. ``now`` is monotonic (every timeout);
 mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` + offset).
@@ -107,7 +108,7 @@ from delegation.service.redelegation import (
     unfinished_on,
 )
 from delegation.topics import QOS_PERIODIC, parse_unit_topic
-from delegation.tst.node import parse_tree, walk, where, with_uuids
+from delegation.tst.node import parse_tree, to_dict, walk, where, with_uuids
 from delegation.tst.validate import parse_and_validate
 
 log = logging.getLogger(__name__)
@@ -454,7 +455,9 @@ class ServiceCore:
         if isinstance(cmd, QueryMission):
             return ok(mission=self.book.get(cmd.root_uuid).to_json())
         if isinstance(cmd, ListMissions):
-            return ok(missions=[m.summary() for m in self.book])
+            missions, total = self.book.page(cmd.offset, cmd.limit)
+            end = cmd.offset + len(missions)
+            return ok(missions=missions, total=total, next=end if end < total else None)
         if isinstance(cmd, ListAgents):
             return ok(agents=self.agents(now))
         if isinstance(cmd, CancelMission):
@@ -578,7 +581,8 @@ class ServiceCore:
                               nodes={**(node_infos(plan.source) if plan.source else {}),
                                      **node_infos(plan.tst)},
                               operator=(OperatorView.of(plan.source, plan.tst)
-                                        if plan.source else None)))
+                                        if plan.source else None),
+                              received=to_dict(job.tree), command=job.key))
         for _, node in walk(plan.tst):
             cls = speed_class(node)
             if cls and node.node_uuid and isinstance(node.execunit, str):
@@ -794,7 +798,7 @@ class ServiceCore:
                      f": {e.fail_reason}" if e.fail_reason else "")
         return effects
 
-    # ------------------------------------------------------------------ faults (DESIGN 3.9)
+    # ------------------------------------------------------------- faults (docs/protocol.md §11)
 
     def _engine_gone(self, event: FleetEvent, now: float) -> Effects:
         """The engine's heartbeat stopped, or it came back with a new agent-uuid: the trees it

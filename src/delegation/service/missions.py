@@ -1,8 +1,10 @@
 """Mission book-keeping for the delegation service (pure state).
 
 The service core feeds these values with decoded messages and ``now``; nothing here reads the
-clock, touches the network or locks. The book is a plain in-memory map today, shaped so that it
-can later be persisted: every mutation goes through a small method. Command
+clock, touches the network or locks. The book is an in-memory map; persistence is the unit's
+(`delegation.service.store`): every mutation goes through a method that notes the mission in
+``dirty``, the unit drains it after each step and writes those missions before publishing. Missions
+that left memory (`forget_ended`) are read back through an injected `MissionArchive`. Command
 idempotency is `delegation.runtime.commands.CommandLog`, shared by every unit.
 """
 
@@ -10,12 +12,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from delegation.errors import InputError, Problem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.service.operator_view import OperatorView
-from delegation.tst.node import TstNode, walk
+from delegation.tst.node import TstNode, parse_tree, walk
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
 _RANK = {MissionStatus.PLANNED: 0, MissionStatus.STARTED: 1, MissionStatus.RUNNING: 2}
@@ -66,6 +68,9 @@ class Mission:
     node_status: dict[str, str] = field(default_factory=dict)
     node_started: dict[str, float] = field(default_factory=dict)  # first "running"
     node_ended: dict[str, float] = field(default_factory=dict)  # first final status
+    #: The tree as received (validated, uuids completed), and the command that created it.
+    received: dict[str, Any] | None = None
+    command: tuple[str, str] | None = None  # (face, com-uuid)
     #: The root uuid of the tree the engine executes for this mission: ``root_uuid`` until a
     #: re-delegation replaces the tree, ``""`` while a replacement is being planned (no root
     #: status then ends the mission).
@@ -150,6 +155,71 @@ class Mission:
         }
 
 
+def mission_record(m: Mission) -> dict[str, Any]:
+    """Every field of a mission as JSON-able data (what the store keeps; `mission_from_record`
+    reads it back)."""
+    return {
+        "root-uuid": m.root_uuid,
+        "source": m.source,
+        "created": m.created,
+        "tst": m.tst,
+        "plan": m.plan,
+        "nodes": [[i.node_uuid, i.name, i.execunit, i.path, i.is_task] for i in m.nodes.values()],
+        "status": m.status.value,
+        "fail-reason": m.fail_reason,
+        "started": m.started_at,
+        "ended": m.ended_at,
+        "node-status": m.node_status,
+        "node-started": m.node_started,
+        "node-ended": m.node_ended,
+        "received": m.received,
+        "command": list(m.command) if m.command else None,
+        # re-delegation: the tree the engine executes now, and where its nodes came from
+        "current-root": m.current_root,
+        "current-tst": m.current_tst,
+        "current-nodes": sorted(m.current_nodes),
+        "origin": m.origin,
+        "retries": m.retries,
+        "redelegations": m.redelegations,
+    }
+
+
+def mission_from_record(r: dict[str, Any]) -> Mission:
+    """The mission `mission_record` wrote."""
+    nodes = {n[0]: NodeInfo(n[0], n[1], n[2], n[3], bool(n[4])) for n in r["nodes"]}
+    command = r.get("command")
+    received = r.get("received")
+    return Mission(
+        root_uuid=r["root-uuid"], source=r["source"], created=r["created"], tst=r["tst"],
+        plan=r["plan"], nodes=nodes, status=MissionStatus(r["status"]),
+        fail_reason=r["fail-reason"], started_at=r["started"], ended_at=r["ended"],
+        node_status=dict(r["node-status"]), node_started=dict(r["node-started"]),
+        node_ended=dict(r["node-ended"]), received=received,
+        command=(command[0], command[1]) if command else None,
+        current_root=r.get("current-root", ""),
+        current_tst=r.get("current-tst") or {},
+        current_nodes=set(r.get("current-nodes") or ()),
+        origin=dict(r.get("origin") or {}),
+        retries=dict(r.get("retries") or {}),
+        redelegations=int(r.get("redelegations") or 0),
+        # The operator's view is derived again from the tree received and the tree sent.
+        operator=OperatorView.of(parse_tree(received), parse_tree(r["tst"])) if received else None,
+    )
+
+
+class MissionArchive(Protocol):
+    """Where missions that left memory are read back (the store; implemented by the unit)."""
+
+    def load_mission(self, root_uuid: str) -> Mission | None:
+        """One mission by root uuid, or None."""
+        ...
+
+    def page_missions(self, offset: int, limit: int) -> tuple[list[dict[str, Any]], int]:
+        """Summaries (oldest first) of every mission, from ``offset``, at most ``limit``; and
+        how many there are in all."""
+        ...
+
+
 def _rel(t: float | None, origin: float | None) -> float | None:
     """Seconds since mission start (the plan's clock), or None."""
     if t is None or origin is None:
@@ -172,9 +242,51 @@ def node_infos(tree: TstNode) -> dict[str, NodeInfo]:
 class MissionBook:
     """Every mission the service has planned or run, indexed by root and by node uuid."""
 
-    def __init__(self) -> None:
+    def __init__(self, archive: MissionArchive | None = None) -> None:
         self._missions: dict[str, Mission] = {}
         self._node_root: dict[str, str] = {}
+        self.archive = archive
+        #: Root uuids of missions changed since the unit last drained them (to persist; kept only
+        #: with an archive, so a book nobody drains does not grow).
+        self.dirty: set[str] = set()
+
+    def touch(self, root_uuid: str) -> None:
+        """Note a mission as changed (every mutating method does; code that changes a `Mission`
+        in place must call it too)."""
+        if self.archive is not None and root_uuid in self._missions:
+            self.dirty.add(root_uuid)
+
+    def drain_dirty(self) -> list[Mission]:
+        """The missions changed since the last call (in memory), and forget the notes."""
+        changed = [self._missions[r] for r in sorted(self.dirty) if r in self._missions]
+        self.dirty.clear()
+        return changed
+
+    def forget_ended(self, ended_before: float) -> list[str]:
+        """Drop from memory the missions that ended before ``ended_before`` (they stay in the
+        archive); returns their root uuids. Nothing is dropped while it is still dirty."""
+        gone = [m.root_uuid for m in self._missions.values()
+                if m.ended and m.ended_at is not None and m.ended_at < ended_before
+                and m.root_uuid not in self.dirty]
+        for root in gone:
+            self._remove(root)
+        return gone
+
+    def _remove(self, root_uuid: str) -> Mission | None:
+        old = self._missions.pop(root_uuid, None)
+        if old is not None:
+            for uid in old.nodes:
+                if self._node_root.get(uid) == old.root_uuid:
+                    del self._node_root[uid]
+        return old
+
+    def page(self, offset: int, limit: int) -> tuple[list[dict[str, Any]], int]:
+        """Summaries (oldest first) from ``offset``, at most ``limit``, and the total: from the
+        archive when there is one (it holds every mission, memory only the recent ones)."""
+        if self.archive is not None:
+            return self.archive.page_missions(offset, limit)
+        ordered = sorted(self._missions.values(), key=lambda m: (m.created, m.root_uuid))
+        return [m.summary() for m in ordered[offset:offset + limit]], len(ordered)
 
     def __len__(self) -> int:
         return len(self._missions)
@@ -204,14 +316,11 @@ class MissionBook:
 
     def add(self, mission: Mission) -> None:
         """Record a new mission; an ended mission with the same uuids is replaced."""
-        old = self._missions.pop(mission.root_uuid, None)
-        if old is not None:
-            for uid in old.nodes:
-                if self._node_root.get(uid) == old.root_uuid:
-                    del self._node_root[uid]
+        self._remove(mission.root_uuid)
         self._missions[mission.root_uuid] = mission
         for uid in mission.nodes:
             self._node_root[uid] = mission.root_uuid
+        self.touch(mission.root_uuid)
 
     def replace_tree(
         self, mission: Mission, tst: dict[str, Any], root: str, nodes: dict[str, NodeInfo],
@@ -226,16 +335,21 @@ class MissionBook:
             self._node_root[uid] = mission.root_uuid
         mission.current_root = root
         mission.redelegations += 1
+        self.touch(mission.root_uuid)
 
     def get(self, root_uuid: str) -> Mission:
         """The mission with this root uuid; ``InputError`` naming it if there is none."""
-        mission = self._missions.get(root_uuid)
+        mission = self.find(root_uuid)
         if mission is None:
             raise InputError(Problem("command", "root-uuid", f"unknown mission {root_uuid!r}"))
         return mission
 
     def find(self, root_uuid: str) -> Mission | None:
-        return self._missions.get(root_uuid)
+        """In memory, else in the archive (a mission past its retention; not brought back)."""
+        mission = self._missions.get(root_uuid)
+        if mission is None and self.archive is not None:
+            mission = self.archive.load_mission(root_uuid)
+        return mission
 
     def of_node(self, node_uuid: str) -> Mission | None:
         """The mission a node belongs to, if any."""
@@ -260,6 +374,7 @@ class MissionBook:
             mission.ended_at = now
         mission.status = status
         mission.fail_reason = fail_reason
+        self.touch(root_uuid)
         return LifecycleEvent(root_uuid, status, fail_reason)
 
     def observe_feedback(
@@ -272,6 +387,7 @@ class MissionBook:
         mission = self.of_node(node_uuid)
         if mission is None:
             return None, []
+        self.touch(mission.root_uuid)
         if mission.node_status.get(node_uuid) not in TERMINAL_NODE_STATUSES:
             mission.node_status[node_uuid] = status
         if status == "running":

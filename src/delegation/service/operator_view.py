@@ -1,4 +1,4 @@
-"""The operator's own tree during execution (DESIGN 3.4 revised): pure state.
+"""The operator's own tree during execution (docs/protocol.md §8): pure state.
 
 The tree sent to the engine may regroup the caller's control nodes (series-parallel
 instantiation). The service relays unchanged the engine's feedback on the leaves and on the

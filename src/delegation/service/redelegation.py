@@ -1,5 +1,5 @@
-"""Re-delegation (DESIGN 3.9): what a running mission still has to do when one of its units is lost
-or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and rows out.
+"""Re-delegation (docs/protocol.md §11): what a running mission still has to do when one of its
+units is lost or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and rows out.
 
 Semantics (docs/protocol.md §9): the mission's tree on the engine is *replaced*. The remaining
 tree keeps the original structure (``seq`` order, ``conc`` grouping) with every task that has not

@@ -1,0 +1,120 @@
+"""One active instance per service name: lock, stand by, take over, or refuse to start.
+
+* Shared store (PostgreSQL): the instance holding the store's lock (`Store.acquire`:
+  ``pg_try_advisory_lock`` on a dedicated connection) is active; the others stand by, with no
+  MQTT connection at all, and try the lock every ``poll`` seconds. The server releases the lock
+  when the active instance's connection ends (``kill -9`` included), so a standby takes over within
+  about ``poll`` s plus its start (loading the missions from the store and connecting).
+* Own store (SQLite): a second instance on the same file finds it locked and refuses; one on
+  another file but the same name and broker is caught by its heartbeat (``probe`` seconds of
+  listening for a heartbeat of the same name with another ``agent-uuid`` before acting).
+
+docs/deployment-ha.md says how this extends to several active instances.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Callable
+
+from delegation.errors import DelegationError
+from delegation.runtime.mqtt import Message, MqttClient, MqttError
+from delegation.runtime.settings import BrokerSettings
+from delegation.service.config import ServiceConfig
+from delegation.service.store import SqliteStore, Store
+from delegation.service.unit import DEFAULT_RETENTION, DelegationService
+
+log = logging.getLogger(__name__)
+
+#: Seconds between two tries of the lock by a standby instance.
+STANDBY_POLL = 1.0
+#: Seconds a new instance listens for another live instance of its name (3 heartbeat periods).
+PROBE_SECONDS = 3.0
+
+
+class InstanceConflict(DelegationError):
+    """Another instance of this service is active and the state cannot be shared."""
+
+
+def other_instance(
+    settings: BrokerSettings, config: ServiceConfig, agent_uuid: str, seconds: float
+) -> str | None:
+    """Listen ``seconds`` for a heartbeat of ``config.name`` with another agent-uuid; its topic
+    and agent-uuid if one came, else None."""
+    found: list[str] = []
+    got = threading.Event()
+
+    def sink(message: Message) -> None:
+        try:
+            data = json.loads(message.payload)
+        except ValueError:
+            return
+        other = data.get("agent-uuid") if isinstance(data, dict) else None
+        if other and other != agent_uuid:
+            found.append(f"{message.topic} (agent-uuid {other})")
+            got.set()
+
+    client = MqttClient(settings, f"{config.name}-probe-{uuid.uuid4().hex[:8]}", sink=sink)
+    client.subscribe(f"{config.prefix}/unit/+/+/{config.name}/heartbeat")
+    try:
+        client.connect(timeout=10.0)
+    except MqttError as exc:
+        raise DelegationError(f"cannot connect to {settings.describe()}: {exc}") from exc
+    try:
+        got.wait(seconds)
+    finally:
+        client.disconnect()
+    return found[0] if found else None
+
+
+def run_active(
+    settings: BrokerSettings,
+    config: ServiceConfig,
+    store: Store,
+    stop: threading.Event,
+    *,
+    retention: float = DEFAULT_RETENTION,
+    poll: float = STANDBY_POLL,
+    probe: float = PROBE_SECONDS,
+    announce: Callable[[str], None] = log.info,
+) -> int:
+    """Become the active instance (or stand by until it can), then serve until ``stop``; 0 after
+    ``stop``, 1 if the lock was lost. `InstanceConflict` when it must not start at all."""
+    if not store.acquire(config.name):
+        if not store.shared:
+            holder = store.holder() if isinstance(store, SqliteStore) else "?"
+            raise InstanceConflict(
+                f"another delegation service uses the state {store.where} (lock held by "
+                f"{holder}); one store serves one active instance: stop it, or give this one "
+                f"another --state (and --name), or share a PostgreSQL --state to stand by")
+        announce(f"{config.name}: standby: another instance is active on {store.where}; "
+                 f"taking over when it stops")
+        while not store.acquire(config.name):
+            if stop.wait(poll):
+                return 0
+        announce(f"{config.name}: the active instance stopped; taking over")
+    agent_uuid = str(uuid.uuid4())
+    if not store.shared and probe > 0:
+        other = other_instance(settings, config, agent_uuid, probe)
+        if other is not None:
+            raise InstanceConflict(
+                f"another delegation service named {config.name!r} is live on "
+                f"{settings.describe()}: heartbeat on {other}; two instances would answer every "
+                f"command twice: stop it or use another --name")
+    began = time.monotonic()
+    service = DelegationService(settings, config, store=store, retention=retention)
+    service.core.identity = config.identity(agent_uuid)
+    service.start()
+    announce(f"{config.name}: active ({len(service.core.book)} open missions from "
+             f"{store.where}, ready in {time.monotonic() - began:.1f} s)")
+    try:
+        while not stop.wait(0.5):
+            if service.lock_lost.is_set():
+                return 1
+        return 0
+    finally:
+        service.stop()

@@ -1,0 +1,339 @@
+"""Where the service's state survives a crash: missions and the answer to every com-uuid.
+
+One schema, two back ends behind the `Store` protocol:
+
+* `SqliteStore` (default): one file, WAL, ``synchronous=FULL`` (a transaction the service
+  committed survives ``kill -9`` and a power cut). No server. The file is locked (``flock`` on
+  ``PATH.lock``) by the one service using it: a second one on the same file refuses to start.
+* `PostgresStore` (``--state postgresql://...``, psycopg 3, extra ``postgres``): the same tables;
+  several instances share it, and ``pg_try_advisory_lock`` on a dedicated connection decides which
+  one is active (the others stand by, `delegation.service.active`). Put the tables in a schema of
+  your own with ``?options=-csearch_path%3DNAME`` in the DSN (the schema must exist).
+
+The unit (`delegation.service.unit`) writes the missions and commands a step changed in one
+transaction before it publishes that step's messages, so an answer that went out is on disk. The
+pure core never sees this module: it reads back through `MissionArchive` / `CommandArchive`.
+"""
+
+from __future__ import annotations
+
+import base64
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import sqlite3
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from delegation.errors import DelegationError
+from delegation.runtime.commands import CommandEntry, CommandKey, CommandState
+from delegation.runtime.core import Outgoing
+from delegation.service.missions import Mission, mission_from_record, mission_record
+
+log = logging.getLogger(__name__)
+
+#: Tables (the same DDL for SQLite and PostgreSQL; times are epoch seconds).
+SCHEMA = (
+    """CREATE TABLE IF NOT EXISTS missions (
+        root_uuid TEXT PRIMARY KEY,
+        created DOUBLE PRECISION NOT NULL,
+        status TEXT NOT NULL,
+        ended DOUBLE PRECISION,
+        summary TEXT NOT NULL,
+        data TEXT NOT NULL)""",
+    "CREATE INDEX IF NOT EXISTS missions_by_created ON missions (created, root_uuid)",
+    "CREATE INDEX IF NOT EXISTS missions_by_status ON missions (status)",
+    """CREATE TABLE IF NOT EXISTS commands (
+        face TEXT NOT NULL,
+        com_uuid TEXT NOT NULL,
+        state TEXT NOT NULL,
+        received DOUBLE PRECISION NOT NULL,
+        answer TEXT NOT NULL,
+        PRIMARY KEY (face, com_uuid))""",
+    "CREATE INDEX IF NOT EXISTS commands_by_received ON commands (received)",
+)
+
+_UPSERT_MISSION = (
+    "INSERT INTO missions (root_uuid, created, status, ended, summary, data) "
+    "VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (root_uuid) DO UPDATE SET "
+    "status = excluded.status, ended = excluded.ended, summary = excluded.summary, "
+    "data = excluded.data"
+)
+_UPSERT_COMMAND = (
+    "INSERT INTO commands (face, com_uuid, state, received, answer) VALUES (?, ?, ?, ?, ?) "
+    "ON CONFLICT (face, com_uuid) DO UPDATE SET state = excluded.state, answer = excluded.answer"
+)
+_OPEN_STATUSES = ("planned", "started", "running")
+
+
+class StoreError(DelegationError):
+    """The state store cannot be opened or used."""
+
+
+class Store(Protocol):
+    """What the service keeps across restarts (also its `MissionArchive` and
+    `CommandArchive`)."""
+
+    #: Where the state is, for messages (no password).
+    where: str
+    #: True when other instances can share this store (one active, the others stand by).
+    shared: bool
+
+    def acquire(self, name: str) -> bool:
+        """Become the one active instance of service ``name`` on this store; False if another
+        one is (it keeps the lock until it dies or `close`)."""
+        ...
+
+    def holds(self) -> bool:
+        """True while the lock taken by `acquire` is still held (its connection is alive)."""
+        ...
+
+    def save(self, missions: Sequence[Mission], commands: Sequence[CommandEntry]) -> None:
+        """Write changed missions and commands in one transaction."""
+        ...
+
+    def load_mission(self, root_uuid: str) -> Mission | None: ...
+
+    def page_missions(self, offset: int, limit: int) -> tuple[list[dict[str, Any]], int]: ...
+
+    def open_missions(self) -> list[Mission]:
+        """Missions that have not ended (to follow them after a restart)."""
+        ...
+
+    def load_command(self, key: CommandKey) -> CommandEntry | None: ...
+
+    def commands(self, state: CommandState, limit: int) -> list[CommandEntry]:
+        """The latest ``limit`` commands in ``state``, oldest first."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def _answer_json(answer: Sequence[Outgoing]) -> str:
+    return json.dumps([[o.topic, base64.b64encode(o.payload).decode(), o.qos] for o in answer])
+
+
+def _answer_of(text: str) -> list[Outgoing]:
+    return [Outgoing(t, base64.b64decode(p), int(q)) for t, p, q in json.loads(text)]
+
+
+def _entry(row: Sequence[Any]) -> CommandEntry:
+    face, com, state, received, answer = row
+    return CommandEntry((face, com), float(received), CommandState(state), _answer_of(answer))
+
+
+def lock_key(name: str) -> int:
+    """The advisory-lock key of a service name (64-bit, signed, stable across processes)."""
+    digest = hashlib.sha256(f"delegation-service:{name}".encode()).digest()
+    return int.from_bytes(digest[:8], "big", signed=True)
+
+
+class _SqlStore:
+    """The queries, for any DB-API connection; subclasses open it and lock."""
+
+    placeholder = "?"
+    where = ""
+    shared = False
+
+    def __init__(self, conn: Any) -> None:
+        self._conn = conn
+        self._lock = threading.Lock()  # the loop thread and the starting thread share the store
+
+    def _q(self, sql: str) -> str:
+        return sql if self.placeholder == "?" else sql.replace("?", self.placeholder)
+
+    def _fetch(self, sql: str, args: Sequence[Any] = ()) -> list[Any]:
+        with self._lock:
+            cur = self._conn.cursor()
+            try:
+                cur.execute(self._q(sql), tuple(args))
+                rows = list(cur.fetchall())
+            finally:
+                cur.close()
+            self._conn.commit()
+            return rows
+
+    def _create(self) -> None:
+        with self._lock:
+            cur = self._conn.cursor()
+            for ddl in SCHEMA:
+                cur.execute(ddl)
+            cur.close()
+            self._conn.commit()
+
+    def save(self, missions: Sequence[Mission], commands: Sequence[CommandEntry]) -> None:
+        if not missions and not commands:
+            return
+        m_rows = [
+            (m.root_uuid, m.created, m.status.value, m.ended_at, json.dumps(m.summary()),
+             json.dumps(mission_record(m)))
+            for m in missions
+        ]
+        c_rows = [(e.key[0], e.key[1], e.state.value, e.received, _answer_json(e.answer))
+                  for e in commands]
+        with self._lock:
+            cur = self._conn.cursor()
+            try:
+                if m_rows:
+                    cur.executemany(self._q(_UPSERT_MISSION), m_rows)
+                if c_rows:
+                    cur.executemany(self._q(_UPSERT_COMMAND), c_rows)
+                self._conn.commit()
+            except BaseException:
+                self._conn.rollback()
+                raise
+            finally:
+                cur.close()
+
+    def load_mission(self, root_uuid: str) -> Mission | None:
+        rows = self._fetch("SELECT data FROM missions WHERE root_uuid = ?", (root_uuid,))
+        return mission_from_record(json.loads(rows[0][0])) if rows else None
+
+    def page_missions(self, offset: int, limit: int) -> tuple[list[dict[str, Any]], int]:
+        total = int(self._fetch("SELECT COUNT(*) FROM missions")[0][0])
+        rows = self._fetch("SELECT summary FROM missions ORDER BY created, root_uuid "
+                           "LIMIT ? OFFSET ?", (limit, offset))
+        return [json.loads(r[0]) for r in rows], total
+
+    def open_missions(self) -> list[Mission]:
+        rows = self._fetch("SELECT data FROM missions WHERE status IN (?, ?, ?) "
+                           "ORDER BY created, root_uuid", _OPEN_STATUSES)
+        return [mission_from_record(json.loads(r[0])) for r in rows]
+
+    def load_command(self, key: CommandKey) -> CommandEntry | None:
+        rows = self._fetch("SELECT face, com_uuid, state, received, answer FROM commands "
+                           "WHERE face = ? AND com_uuid = ?", key)
+        return _entry(rows[0]) if rows else None
+
+    def commands(self, state: CommandState, limit: int) -> list[CommandEntry]:
+        rows = self._fetch("SELECT face, com_uuid, state, received, answer FROM commands "
+                           "WHERE state = ? ORDER BY received DESC LIMIT ?", (state.value, limit))
+        return [_entry(r) for r in reversed(rows)]
+
+
+def default_state_path(name: str) -> Path:
+    """``$XDG_STATE_HOME/delegation/NAME.sqlite`` (``~/.local/state`` when unset)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "delegation" / f"{name}.sqlite"
+
+
+class SqliteStore(_SqlStore):
+    """One SQLite file (or ``:memory:``), WAL, ``synchronous=FULL``; locked by one service."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        self.where = self.path
+        self._lock_fd: int | None = None
+        if self.path != ":memory:":
+            Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        try:
+            conn = sqlite3.connect(self.path, check_same_thread=False, timeout=10.0)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+        except sqlite3.Error as exc:
+            raise StoreError(f"cannot open state file {self.path}: {exc}") from exc
+        super().__init__(conn)
+        self._create()
+
+    def acquire(self, name: str) -> bool:
+        """An exclusive ``flock`` on ``PATH.lock`` (released by the kernel when the process
+        dies); always True for ``:memory:``."""
+        if self.path == ":memory:" or self._lock_fd is not None:
+            return True
+        fd = os.open(f"{self.path}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            return False
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()} {name}\n".encode())
+        self._lock_fd = fd
+        return True
+
+    def holder(self) -> str:
+        """What the lock file says (``PID NAME``) of the process holding it."""
+        try:
+            return Path(f"{self.path}.lock").read_text().strip()
+        except OSError:
+            return "?"
+
+    def holds(self) -> bool:
+        return self.path == ":memory:" or self._lock_fd is not None
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+
+class PostgresStore(_SqlStore):
+    """The same tables in PostgreSQL (psycopg 3); the active instance holds an advisory lock."""
+
+    placeholder = "%s"
+    shared = True
+
+    def __init__(self, dsn: str) -> None:
+        try:
+            import psycopg
+        except ImportError as exc:
+            raise StoreError('a PostgreSQL state needs psycopg: pip install "delegation[postgres]"'
+                             ) from exc
+        self._psycopg = psycopg
+        self.dsn = dsn
+        try:
+            info = psycopg.conninfo.conninfo_to_dict(dsn)
+        except psycopg.Error as exc:
+            raise StoreError(f"bad PostgreSQL DSN: {exc}") from exc
+        self.where = (f"postgresql://{info.get('host', '')}:{info.get('port', 5432)}/"
+                      f"{info.get('dbname', '')}")
+        try:
+            conn = psycopg.connect(dsn, connect_timeout=10)
+        except psycopg.Error as exc:
+            raise StoreError(f"cannot connect to {self.where}: {exc}") from exc
+        super().__init__(conn)
+        self._lock_conn: Any = None
+        self._create()
+
+    def acquire(self, name: str) -> bool:
+        """``pg_try_advisory_lock`` on a connection of its own (autocommit), kept open: the
+        server releases the lock when that connection ends, however the process died."""
+        psycopg = self._psycopg
+        if self._lock_conn is None:
+            try:
+                self._lock_conn = psycopg.connect(self.dsn, autocommit=True, connect_timeout=10)
+            except psycopg.Error as exc:
+                raise StoreError(f"cannot connect to {self.where}: {exc}") from exc
+        row = self._lock_conn.execute("SELECT pg_try_advisory_lock(%s)",
+                                      (lock_key(name),)).fetchone()
+        return bool(row and row[0])
+
+    def holds(self) -> bool:
+        if self._lock_conn is None:
+            return False
+        try:
+            self._lock_conn.execute("SELECT 1").fetchone()
+        except self._psycopg.Error:
+            return False
+        return True
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+        if self._lock_conn is not None:
+            self._lock_conn.close()
+            self._lock_conn = None
+
+
+def open_store(spec: str) -> SqliteStore | PostgresStore:
+    """``postgresql://...`` / ``postgres://...``: PostgreSQL; anything else: an SQLite file
+    (``:memory:`` for none)."""
+    if spec.startswith(("postgresql://", "postgres://")):
+        return PostgresStore(spec)
+    return SqliteStore(spec)
