@@ -1,7 +1,8 @@
 """Re-delegation (docs/protocol.md §11): what a running mission still has to do when one of its
-units is lost or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and rows out.
+units is lost or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and
+rows out.
 
-Semantics (docs/protocol.md §9): the mission's tree on the engine is *replaced*. The remaining
+Semantics (docs/protocol.md §11): the mission's tree on the engine is *replaced*. The remaining
 tree keeps the original structure (``seq`` order, ``conc`` grouping) with every task that has not
 succeeded; a task that succeeded is never run again, a control node left without tasks is
 dropped. Tasks of the lost (or failing) unit become free (``execunit`` ``""``) and are planned
