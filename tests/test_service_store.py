@@ -200,3 +200,27 @@ def test_restart_answers_commands_that_were_in_progress(tmp_path: Path) -> None:
     assert planning is not None and planning.answer[0].topic.endswith("/svc/tst/response")
     assert "nothing was started" in json.loads(planning.answer[0].payload)["fail-reason"]
     store.close()
+
+
+def test_a_regrouped_and_re_delegated_mission_round_trips() -> None:
+    """The operator's view (rebuilt from the tree received and the tree sent) and the
+    re-delegation fields come back from the record, so feedback after a restart still maps."""
+    from delegation.service.operator_view import OperatorView
+    from delegation.tst.node import parse_tree
+
+    a, b = str(uuid.uuid4()), str(uuid.uuid4())
+    received = {"name": "seq", "common_params": {"node-uuid": "r3"}, "children": [
+        {"name": "move-to", "common_params": {"node-uuid": a}, "params": {}},
+        {"name": "move-to", "common_params": {"node-uuid": b}, "params": {}}]}
+    sent = {"name": "conc", "common_params": {"node-uuid": "new-root"}, "children":
+            received["children"]}
+    m = mission("r3", 5.0)
+    m.received, m.tst = received, sent
+    m.operator = OperatorView.of(parse_tree(received), parse_tree(sent))
+    m.current_root, m.redelegations = "r3-second", 1
+    m.origin, m.retries, m.current_nodes = {"x": a}, {a: 1}, {"x"}
+    back = mission_from_record(mission_record(m))
+    assert back.operator is not None and back.operator.root == "r3"
+    assert back.operator.leaves == m.operator.leaves and back.operator.kept == m.operator.kept
+    assert (back.current_root, back.redelegations) == ("r3-second", 1)
+    assert (back.origin, back.retries, back.current_nodes) == ({"x": a}, {a: 1}, {"x"})

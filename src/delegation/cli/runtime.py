@@ -390,8 +390,8 @@ def run_mission(
         return None
     started = time.monotonic()
     root = str(answer["plan"]["tst"].get("common_params", {}).get("node-uuid", ""))
-    console.print(f"mission {root} started", soft_wrap=True)
     try:  # from here on a stop leaves a running mission behind: always say how to go on
+        console.print(f"mission {root} started", soft_wrap=True)
         for note in answer["plan"].get("notes") or []:  # default speeds, suspicious input
             console.print(f"note: {note}", soft_wrap=True, highlight=False)
         progress = follow(

@@ -181,6 +181,7 @@ def mission_record(m: Mission) -> dict[str, Any]:
         "origin": m.origin,
         "retries": m.retries,
         "redelegations": m.redelegations,
+        "operator-view": m.operator is not None,  # rebuilt from `received` and `tst` on load
     }
 
 
@@ -203,7 +204,8 @@ def mission_from_record(r: dict[str, Any]) -> Mission:
         retries=dict(r.get("retries") or {}),
         redelegations=int(r.get("redelegations") or 0),
         # The operator's view is derived again from the tree received and the tree sent.
-        operator=OperatorView.of(parse_tree(received), parse_tree(r["tst"])) if received else None,
+        operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]))
+                  if received and r.get("operator-view") else None),
     )
 
 
