@@ -41,6 +41,24 @@ def test_demo_runs_to_success_and_writes_a_map(tmp_path: Path,
     assert plan["feasible"] and plan["strategy"] == "auction"
 
 
+def test_demo_runs_the_mission_twice_and_prints_plan_vs_flown(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without the fleet's profile the service plans with default speeds, learns the real ones
+    while the first mission flies, and says so; the same mission runs again with fresh uuids.
+    (How close the second plan gets is a figure: benchmarks/learning.py.)"""
+    for var in ("WARAPS_BROKER", "WARAPS_PORT"):
+        monkeypatch.delenv(var, raising=False)
+    out = tmp_path / "out"
+    assert main(["demo", "--speedup", "30", "--missions", "2", "--no-profiles",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "plan vs flown, per mission" in text
+    assert "mission 1: plan" in text and "mission 2: plan" in text
+    assert text.count(" started") >= 2
+    assert_png(out / "map.png")
+
+
 def test_scenarios_are_found_by_name_from_anywhere(tmp_path: Path,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)

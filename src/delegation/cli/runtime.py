@@ -113,7 +113,12 @@ def register(subparsers: Any) -> None:
     demo.add_argument(
         "--no-profiles", action="store_true",
         help="the service starts without the fleet's profile (type default speeds) and learns "
-        "the speeds while it flies (benchmarks/learning.py runs several missions)",
+        "the speeds while it flies (with --missions 2, the second plan matches the flight)",
+    )
+    demo.add_argument(
+        "--missions", type=_positive_int, default=1,
+        help="run the scenario's mission this many times, one after the other (fresh node "
+        "uuids), and print plan vs flown for each",
     )
     demo.add_argument(
         "--timeout",
@@ -435,6 +440,41 @@ def _print_summary(console: Console, progress: MissionProgress, wall: float) -> 
 # --------------------------------------------------------------------------- demo
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def _without_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a mission tree without node uuids (the service gives it fresh ones), so the same
+    mission can run again."""
+    out = {k: v for k, v in tree.items() if k not in ("children", "common_params",
+                                                       "common-params")}
+    for key in ("common_params", "common-params"):
+        if isinstance(tree.get(key), dict):
+            out[key] = {k: v for k, v in tree[key].items() if k != "node-uuid"}
+    if isinstance(tree.get("children"), list):
+        out["children"] = [_without_node_uuids(c) if isinstance(c, dict) else c
+                           for c in tree["children"]]
+    return out
+
+
+def _print_plan_vs_flown(console: Console, flown: list[MissionProgress]) -> None:
+    """Per mission: the plan's makespan against the flown one (the service learns speeds from
+    the flight, so with a wrong profile the first is off and the next close)."""
+    console.print("plan vs flown, per mission (mission seconds):")
+    for number, progress in enumerate(flown, start=1):
+        plan = float(progress.plan.get("makespan") or 0.0)
+        actual = progress.elapsed
+        if actual is None or not plan:
+            console.print(f"  mission {number}: plan {plan:.0f} s, flown -")
+            continue
+        console.print(f"  mission {number}: plan {plan:.0f} s, flown {actual:.0f} s "
+                      f"({(plan - actual) / actual * 100.0:+.1f} % plan vs flown)")
+
+
 def _demo(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -488,18 +528,27 @@ def _demo(args: argparse.Namespace) -> int:
             "objective": args.objective,
             "time-limit": args.time_limit,
         }
-        progress = run_mission(
-            client,
-            command,
-            console,
-            speedup=speedup,
-            timeout=args.timeout,
-            tracks=tracks,
-            enough=True,
-            hint=False,  # the demo stops the whole system: nothing goes on to re-attach to
-        )
-        if progress is None:
-            return 1
+        flown: list[MissionProgress] = []
+        for number in range(args.missions):
+            tree = scenario.mission if number == 0 else _without_node_uuids(scenario.mission)
+            progress = run_mission(
+                client,
+                {**command, "tst": tree},
+                console,
+                speedup=speedup,
+                timeout=args.timeout,
+                tracks=tracks,
+                enough=True,
+                hint=False,  # the demo stops the whole system: nothing goes on to re-attach to
+            )
+            if progress is None:
+                return 1
+            flown.append(progress)
+            if not progress.succeeded:
+                break
+        if len(flown) > 1:
+            _print_plan_vs_flown(console, flown)
+        progress = flown[-1]
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         plan = progress.plan
