@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import random
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,10 @@ from delegation.allocation.auction import auction
 from delegation.allocation.optimal import optimise
 from delegation.allocation.optimal import routing as routing_mod
 from delegation.allocation.optimal.minmax import MinMaxModel, minmax_search
+from delegation.allocation.optimal.parallel import HELPER_SCRIPT, use_second_core
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.strategies import Objective
+from delegation.runtime.second_core import launch
 from delegation.scenario import berlin52_scenario
 from delegation.tst import with_defaults, with_uuids
 
@@ -127,8 +130,17 @@ def test_minmax_never_worse_than_the_routing_solver_alone(tmp_path: Path) -> Non
     assert found.key() <= model.route_set(start).key()
 
 
+@pytest.fixture
+def second_core() -> Iterator[None]:
+    use_second_core(launch)
+    yield
+    use_second_core(None)
+
+
 @pytest.mark.parametrize("limit", [0.6, 2.5])
-def test_optimal_makespan_within_its_time_limit(tmp_path: Path, limit: float) -> None:
+def test_optimal_makespan_within_its_time_limit(
+    tmp_path: Path, limit: float, second_core: None
+) -> None:
     """Routing, then ``minmax``; from 2 s on also the helper process on the second core. Never
     worse than the auction, and done within the limit (loosely: + 10 % + start-up)."""
     problem = _instance(tmp_path, 30, 3, seed=2)
@@ -146,3 +158,19 @@ def test_optimal_makespan_within_its_time_limit(tmp_path: Path, limit: float) ->
         assert "min-max search on the second core from the auction's routes (" in notes
     else:
         assert "second core" not in notes
+
+
+def test_optimal_makespan_on_one_core_without_a_second_core(tmp_path: Path) -> None:
+    """Allocation starts no process by itself: without ``use_second_core`` it searches alone."""
+    problem = _instance(tmp_path, 30, 3, seed=3)
+    result = optimise(problem, Objective.MAKESPAN, 2.5)
+    notes = " ".join(result.notes)
+    assert "min-max local search" in notes
+    assert "second core" not in notes
+
+
+def test_helper_process_failure_is_reported_not_raised(second_core: None) -> None:
+    """A helper that dies gives a reason, not an exception (and not a hang)."""
+    pending = launch(HELPER_SCRIPT, b"not a pickle")
+    answer = pending.result(30)
+    assert isinstance(answer, str) and answer.startswith("helper failed")

@@ -33,8 +33,11 @@ MINMAX_ROUTING_SHARE = 0.5
 MINMAX_END = 0.96
 #: Makespan: from this time limit (s) on, a second process runs ``minmax`` from the auction.
 PORTFOLIO_MIN_SECONDS = 2.0
-#: How long (s) past the deadline the helper process's answer is waited for.
-HELPER_GRACE = 0.3
+#: Makespan: the helper process stops searching at this share of the time limit (a little before
+#: this process: it still has to send its routes, and on a loaded machine it runs slower).
+HELPER_END = 0.92
+#: Makespan: the helper's answer is waited for until this share of the time limit at most.
+HELPER_WAIT_END = 1.04
 log = logging.getLogger(__name__)
 
 #: Routing runs for makespan: (weight of the longest route against the total, share of the time).
@@ -87,7 +90,7 @@ def solve_routing(
         and len(setup.classes) * (len(tasks) + 2 * problem.n_units) ** 2 <= HELPER_MAX_ENTRIES
     ):
         start = [[pos[t] for t in order if t in pos] for order in base.orders]
-        helper = HelperSearch(model, start, limit * MINMAX_END, seed=1)
+        helper = HelperSearch.start(model, start, limit * HELPER_END, seed=1)
     search = _Best(problem, objective, base, use_all_units)
     # Makespan: a short run that weighs the longest route lightly (the total guides the search
     # to good tours), then one that weighs it heavily, from the best so far. Measured on berlin52
@@ -106,7 +109,8 @@ def solve_routing(
         if orders is not None:
             search.offer(orders)
     if model is not None:
-        _minmax_phase(search, model, tasks, pos, began + limit * MINMAX_END, helper)
+        _minmax_phase(search, model, tasks, pos, began + limit * MINMAX_END, helper,
+                      began + limit * HELPER_WAIT_END)
     if search.best is base:
         return None, "; ".join(search.notes)
     return search.best, "; ".join(search.notes)
@@ -135,7 +139,7 @@ class _Best:
 
 def _minmax_phase(
     search: _Best, model: MinMaxModel, tasks: list[int], pos: dict[int, int], deadline: float,
-    helper: HelperSearch | None,
+    helper: HelperSearch | None, wait_until: float,
 ) -> None:
     """``minmax`` from the best routes so far until ``deadline``; then the helper's routes."""
     start = [[pos[t] for t in order if t in pos] for order in search.orders]
@@ -147,7 +151,7 @@ def _minmax_phase(
     )
     if helper is None:
         return
-    theirs = helper.result(deadline + HELPER_GRACE - time.perf_counter())
+    theirs = helper.result(wait_until - time.perf_counter())
     if isinstance(theirs, str):
         search.notes.append(f"min-max search on the second core: {theirs}")
         log.warning("optimal: min-max search on the second core: %s", theirs)
