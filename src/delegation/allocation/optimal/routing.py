@@ -8,13 +8,17 @@ end node per unit. Guided local search from the auction's routes; it proves no b
 from __future__ import annotations
 
 import itertools
+import logging
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from delegation.allocation.optimal.minmax import MinMaxModel, minmax_search
+from delegation.allocation.optimal.parallel import HELPER_MAX_ENTRIES, HelperSearch
 from delegation.allocation.optimal.shared import TICKS, finish, points
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import xy_distances
@@ -23,6 +27,19 @@ from delegation.allocation.strategies import Objective
 
 #: Routing is not tried when its transit matrices would hold more entries than this.
 ROUTING_MAX_ENTRIES = 30_000_000
+#: Makespan: the share of the time limit the routing solver gets before ``minmax`` takes over.
+MINMAX_ROUTING_SHARE = 0.5
+#: Makespan: the searches stop at this share of the time limit (the rest: evaluating, answers).
+MINMAX_END = 0.96
+#: Makespan: from this time limit (s) on, a second process runs ``minmax`` from the auction.
+PORTFOLIO_MIN_SECONDS = 2.0
+#: Makespan: the helper process stops searching at this share of the time limit (a little before
+#: this process: it still has to send its routes, and on a loaded machine it runs slower).
+HELPER_END = 0.92
+#: Makespan: the helper's answer is waited for until this share of the time limit at most.
+HELPER_WAIT_END = 1.04
+log = logging.getLogger(__name__)
+
 #: Routing runs for makespan: (weight of the longest route against the total, share of the time).
 ROUTING_MAKESPAN_PHASES: tuple[tuple[int, float], ...] = ((10, 0.5), (100, 0.5))
 
@@ -58,15 +75,23 @@ def solve_routing(
     *,
     use_all_units: bool = False,
 ) -> tuple[Schedule | None, str]:
-    """The best routes the routing solver finds within ``limit`` seconds (None: none better than
-    ``base``), and a note of what it did."""
+    """The best routes the routing solver (and, for makespan, ``minmax`` on both cores) finds
+    within ``limit`` seconds (None: none better than ``base``), and a note of what it did."""
     setup = _setup(problem, objective, base, tasks, use_all_units)
     if isinstance(setup, str):
         return None, setup
     began = time.perf_counter()
-    best = base
-    best_orders = [list(o) for o in base.orders]
-    notes = []
+    minmax = objective is Objective.MAKESPAN and not use_all_units
+    pos = {t: k for k, t in enumerate(tasks)}
+    model = minmax_model(setup) if minmax else None
+    helper = None
+    if (
+        model is not None and limit >= PORTFOLIO_MIN_SECONDS and (os.cpu_count() or 1) >= 2
+        and len(setup.classes) * (len(tasks) + 2 * problem.n_units) ** 2 <= HELPER_MAX_ENTRIES
+    ):
+        start = [[pos[t] for t in order if t in pos] for order in base.orders]
+        helper = HelperSearch.start(model, start, limit * HELPER_END, seed=1)
+    search = _Best(problem, objective, base, use_all_units)
     # Makespan: a short run that weighs the longest route lightly (the total guides the search
     # to good tours), then one that weighs it heavily, from the best so far. Measured on berlin52
     # (3 units, 10 s): 3072 vs 3154 for one heavy run alone.
@@ -75,20 +100,67 @@ def solve_routing(
             phases = ROUTING_MAKESPAN_PHASES
         case Objective.TOTAL:
             phases = ((0, 1.0),)
+    routing_limit = limit * (MINMAX_ROUTING_SHARE if model is not None else 1.0)
     for k, (weight, share) in enumerate(phases):
-        left = limit - (time.perf_counter() - began)
-        budget = left if k == len(phases) - 1 else limit * share
-        orders, note = _routing_phase(setup, _Phase(weight, max(0.05, budget), best_orders))
-        notes.append(note)
-        if orders is None:
-            continue
-        found = finish(problem, orders)
-        counts = not use_all_units or all(best.orders)
-        if found.valid and (better(found, best, objective) or not counts):
-            best, best_orders = found, orders
-    if best is base:
-        return None, "; ".join(notes)
-    return best, "; ".join(notes)
+        left = routing_limit - (time.perf_counter() - began)
+        budget = left if k == len(phases) - 1 else routing_limit * share
+        orders, note = _routing_phase(setup, _Phase(weight, max(0.05, budget), search.orders))
+        search.notes.append(note)
+        if orders is not None:
+            search.offer(orders)
+    if model is not None:
+        _minmax_phase(search, model, tasks, pos, began + limit * MINMAX_END, helper,
+                      began + limit * HELPER_WAIT_END)
+    if search.best is base:
+        return None, "; ".join(search.notes)
+    return search.best, "; ".join(search.notes)
+
+
+class _Best:
+    """The best schedule so far among the routes offered (the routing solver's, ``minmax``'s)."""
+
+    def __init__(
+        self, problem: Problem, objective: Objective, base: Schedule, use_all_units: bool
+    ) -> None:
+        self.problem, self.objective, self.use_all_units = problem, objective, use_all_units
+        self.best = base
+        self.orders = [list(o) for o in base.orders]
+        self.notes: list[str] = []
+
+    def offer(self, orders: list[list[int]]) -> bool:
+        """Keep ``orders`` (task indices per unit) if they are valid and better."""
+        found = finish(self.problem, orders)
+        counts = not self.use_all_units or all(self.best.orders)
+        if found.valid and (better(found, self.best, self.objective) or not counts):
+            self.best, self.orders = found, orders
+            return True
+        return False
+
+
+def _minmax_phase(
+    search: _Best, model: MinMaxModel, tasks: list[int], pos: dict[int, int], deadline: float,
+    helper: HelperSearch | None, wait_until: float,
+) -> None:
+    """``minmax`` from the best routes so far until ``deadline``; then the helper's routes."""
+    start = [[pos[t] for t in order if t in pos] for order in search.orders]
+    mine = minmax_search(model, start, deadline, seed=0)
+    kept = search.offer([[tasks[k] for k in route] for route in mine.routes])
+    search.notes.append(
+        f"min-max local search from the best routes ({mine.rounds} perturbations"
+        + (", improved them)" if kept else ", no better)")
+    )
+    if helper is None:
+        return
+    theirs = helper.result(wait_until - time.perf_counter())
+    if isinstance(theirs, str):
+        search.notes.append(f"min-max search on the second core: {theirs}")
+        log.warning("optimal: min-max search on the second core: %s", theirs)
+        return
+    kept = search.offer([[tasks[k] for k in route] for route in theirs.routes])
+    search.notes.append(
+        f"min-max search on the second core from the auction's routes ({theirs.rounds} "
+        "perturbations" + (", best of all)" if kept else ", not better)")
+    )
 
 
 def _setup(
@@ -153,23 +225,48 @@ def _routing_phase(setup: _Setup, phase: _Phase) -> tuple[list[list[int]] | None
 def _costs_and_battery(setup: _Setup, routing: Any, span_weight: int) -> None:
     """Arc costs per unit; each unit's route time (travel + work + way home) is bounded by its
     remaining endurance; for makespan, the longest route dominates and the total breaks ties."""
-    problem, n_units = setup.problem, setup.problem.n_units
+    n_units = setup.problem.n_units
     evaluators = [0] * n_units
     for key, members in setup.classes.items():
         evaluator = routing.RegisterTransitMatrix(setup.matrices[key])
         for v in members:
             evaluators[v] = evaluator
-    capacity = [
-        int(min(problem.endurance[u] * setup.scale, 2**52)) if math.isfinite(problem.endurance[u])
-        else 2**52
-        for u in range(n_units)
-    ]
+    capacity = _capacities(setup)
     routing.AddDimensionWithVehicleTransitAndCapacity(evaluators, 0, capacity, True, "time")
     time_dim = routing.GetDimensionOrDie("time")
     for u in range(n_units):
         routing.SetArcCostEvaluatorOfVehicle(evaluators[u], u)
     if setup.objective is Objective.MAKESPAN:
         time_dim.SetGlobalSpanCostCoefficient(span_weight)
+
+
+def _capacities(setup: _Setup) -> list[int]:
+    """Per unit, its remaining endurance in ticks (the route's time may not exceed it)."""
+    endurance = setup.problem.endurance
+    return [int(min(e * setup.scale, 2**52)) if math.isfinite(e) else 2**52 for e in endurance]
+
+
+def minmax_model(setup: _Setup) -> MinMaxModel:
+    """The routing model's matrices, capacities, capabilities and aliases for ``minmax``."""
+    problem, n, n_units = setup.problem, len(setup.tasks), setup.problem.n_units
+    matrices: list[np.ndarray] = [np.zeros(0)] * n_units
+    for key, members in setup.classes.items():
+        matrix = np.asarray(setup.matrices[key], dtype=float)
+        for u in members:
+            matrices[u] = matrix
+    idx = np.asarray(setup.tasks, dtype=int)
+    pinned = np.zeros(n, dtype=bool)
+    pos = {t: k for k, t in enumerate(setup.tasks)}
+    for group in problem.alias_groups:
+        pinned[[pos[t] for t in group if t in pos]] = True
+    return MinMaxModel(
+        matrices=matrices,
+        starts=list(range(n, n + n_units)),
+        ends=list(range(n + n_units, n + 2 * n_units)),
+        capacity=np.asarray(_capacities(setup), dtype=float),
+        allowed=np.asarray(problem.allowed[:, idx], dtype=bool),
+        pinned=pinned,
+    )
 
 
 def _tasks_and_units(setup: _Setup, manager: Any, routing: Any, span_weight: int) -> None:

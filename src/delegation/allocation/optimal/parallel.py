@@ -1,0 +1,83 @@
+"""The second core: a min-max search in its own process, beside the routing solver.
+
+A portfolio: while this process runs the routing solver (then ``minmax`` from its routes), a helper
+process runs ``minmax`` from the auction's routes with another seed; the caller keeps the better.
+
+Allocation is pure (no processes, no threads: the import contracts), so it only says what to run:
+the script ``minmax_helper.py`` and a pickled payload of plain arrays. Starting the process is the
+job of a ``SecondCore`` that a composition root hands to ``use_second_core`` (the runtime's
+``runtime.second_core.launch``); without one, ``optimal`` searches on one core. The helper gets its
+deadline as wall-clock time (it is a script run by path, not ``-m``: importing the whole package
+would take seconds on a loaded machine); its answer is waited for with a timeout.
+"""
+
+from __future__ import annotations
+
+import pickle
+import time
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from delegation.allocation.optimal.minmax import MinMaxModel, RouteSet
+
+#: The helper is not started for models larger than this (matrix entries): the copy would cost
+#: more than the search gains.
+HELPER_MAX_ENTRIES = 4_000_000
+#: What the helper process runs: ``python HELPER_SCRIPT payload-file``.
+HELPER_SCRIPT = Path(__file__).with_name("minmax_helper.py")
+
+
+class Pending(Protocol):
+    """A started helper: its stdout when it is done, or why there is none (the helper is gone
+    after this returns)."""
+
+    def result(self, timeout: float) -> bytes | str: ...
+
+
+class SecondCore(Protocol):
+    """Starts ``python script <file holding payload>`` in its own process."""
+
+    def __call__(self, script: Path, payload: bytes) -> Pending: ...
+
+
+_second_core: SecondCore | None = None
+
+
+def use_second_core(launcher: SecondCore | None) -> None:
+    """Let ``optimal`` run a helper search through ``launcher`` (None: one core only)."""
+    global _second_core
+    _second_core = launcher
+
+
+class HelperSearch:
+    """``minmax_search`` in a helper process until ``seconds`` from now."""
+
+    def __init__(self, pending: Pending) -> None:
+        self._pending = pending
+
+    @staticmethod
+    def start(
+        model: MinMaxModel, routes: list[list[int]], seconds: float, seed: int
+    ) -> HelperSearch | None:
+        """Start the helper (None: no ``SecondCore`` was given)."""
+        if _second_core is None:
+            return None
+        data = {
+            "matrices": model.matrices, "starts": model.starts, "ends": model.ends,
+            "capacity": model.capacity, "allowed": model.allowed, "pinned": model.pinned,
+            "routes": routes, "wall_deadline": time.time() + seconds, "seed": seed,
+        }
+        return HelperSearch(_second_core(HELPER_SCRIPT, pickle.dumps(data)))
+
+    def result(self, timeout: float) -> RouteSet | str:
+        """The helper's routes, or why there are none (late, failed)."""
+        out = self._pending.result(timeout)
+        if isinstance(out, str):
+            return out
+        try:
+            routes, lengths, rounds = pickle.loads(out)
+        except (pickle.UnpicklingError, EOFError, ValueError, TypeError) as exc:
+            return f"helper answered nothing usable ({type(exc).__name__})"
+        return RouteSet(routes, np.asarray(lengths, dtype=float), rounds)

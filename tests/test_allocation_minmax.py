@@ -1,0 +1,176 @@
+"""The min-max local search (``optimal.minmax``) and the makespan portfolio of the routing path.
+
+Small instances only; the quality figures come from ``benchmarks/minmax.py``.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from delegation.allocation.auction import auction
+from delegation.allocation.optimal import optimise
+from delegation.allocation.optimal import routing as routing_mod
+from delegation.allocation.optimal.minmax import MinMaxModel, minmax_search
+from delegation.allocation.optimal.parallel import HELPER_SCRIPT, use_second_core
+from delegation.allocation.problem import Problem, build_problem
+from delegation.allocation.strategies import Objective
+from delegation.runtime.second_core import launch
+from delegation.scenario import berlin52_scenario
+from delegation.tst import with_defaults, with_uuids
+
+
+def _random_model(seed: int, n: int, units: int, *, restricted: bool) -> MinMaxModel:
+    """Asymmetric travel + work ticks between random points; optionally random capabilities,
+    a few pinned tasks and batteries."""
+    rng = np.random.default_rng(seed)
+    size = n + 2 * units
+    xy = rng.uniform(0, 1000, (size, 2))
+    xy[n:] = xy[n]  # every unit starts and ends at one depot
+    work = rng.uniform(0, 50, size)
+    work[n:] = 0.0
+    dist = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    matrices = [np.rint(dist * (1 + 0.3 * u) + work[None, :]) for u in range(units)]
+    allowed = np.ones((units, n), dtype=bool)
+    pinned = np.zeros(n, dtype=bool)
+    capacity = np.full(units, np.inf)
+    if restricted:
+        allowed = rng.random((units, n)) < 0.7
+        allowed[rng.integers(0, units, n), np.arange(n)] = True  # someone may take each
+        pinned[rng.choice(n, 2, replace=False)] = True
+    return MinMaxModel(matrices, list(range(n, n + units)), list(range(n + units, size)),
+                       capacity, allowed, pinned)
+
+
+def _start(model: MinMaxModel, n: int, seed: int) -> list[list[int]]:
+    rng = random.Random(seed)
+    routes: list[list[int]] = [[] for _ in range(model.n_units)]
+    for k in range(n):
+        choices = np.nonzero(model.allowed[:, k])[0].tolist()
+        routes[rng.choice(choices)].append(k)
+    return routes
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("restricted", [False, True])
+def test_minmax_search_never_worse_and_keeps_every_rule(seed: int, restricted: bool) -> None:
+    n, units = 14, 3
+    model = _random_model(seed, n, units, restricted=restricted)
+    start = _start(model, n, seed)
+    before = model.route_set(start)
+    found = minmax_search(model, start, time.perf_counter() + 30, seed=seed, max_rounds=40)
+    assert found.key() <= before.key()
+    assert sorted(t for r in found.routes for t in r) == list(range(n))
+    for u, route in enumerate(found.routes):
+        assert found.lengths[u] == pytest.approx(model.length(u, route))
+        assert all(model.allowed[u, t] for t in route)
+    owner_before = {t: u for u, r in enumerate(start) for t in r}
+    owner_after = {t: u for u, r in enumerate(found.routes) for t in r}
+    for t in np.nonzero(model.pinned)[0].tolist():
+        assert owner_after[t] == owner_before[t]
+
+
+def test_minmax_search_shortens_a_bad_start() -> None:
+    """Everything on one unit: the search spreads the tasks (the longest route shrinks)."""
+    n = 12
+    model = _random_model(7, n, 3, restricted=False)
+    start = [list(range(n)), [], []]
+    found = minmax_search(model, start, time.perf_counter() + 30, max_rounds=20)
+    assert found.key()[0] < 0.6 * model.route_set(start).key()[0]
+    assert all(found.routes)
+
+
+def test_minmax_search_respects_battery() -> None:
+    n = 12
+    model = _random_model(3, n, 3, restricted=False)
+    start = [list(range(0, 4)), list(range(4, 8)), list(range(8, 12))]
+    lengths = model.route_set(start).lengths
+    model.capacity = lengths.copy()  # no route may grow past what it is now
+    found = minmax_search(model, start, time.perf_counter() + 30, max_rounds=30)
+    assert (found.lengths <= model.capacity + 1e-6).all()
+
+
+def test_minmax_search_stops_at_its_deadline() -> None:
+    model = _random_model(5, 40, 4, restricted=False)
+    start = _start(model, 40, 5)
+    began = time.perf_counter()
+    minmax_search(model, start, began + 0.3)
+    assert time.perf_counter() - began < 0.3 + 0.5  # loose: one move past the deadline at most
+
+
+def _instance(tmp_path: Path, n: int, units: int, seed: int) -> Problem:
+    rng = random.Random(seed)
+    lines = ["NAME: t", "TYPE: TSP", "EDGE_WEIGHT_TYPE: EUC_2D", "NODE_COORD_SECTION"]
+    lines += [f"{i + 1} {rng.randint(0, 1000)} {rng.randint(0, 1000)}" for i in range(n)]
+    path = tmp_path / f"r{seed}.tsp"
+    path.write_text("\n".join([*lines, "EOF"]) + "\n")
+    scenario = berlin52_scenario(path, units)
+    return build_problem(with_defaults(with_uuids(scenario.tree())), scenario.units())
+
+
+def test_minmax_never_worse_than_the_routing_solver_alone(tmp_path: Path) -> None:
+    """The old makespan search was the routing solver alone; the new one runs ``minmax`` from
+    the routing solver's routes, so it can only keep or improve them."""
+    problem = _instance(tmp_path, 25, 3, seed=1)
+    base = auction(problem, Objective.MAKESPAN)
+    tasks = [t for t in range(problem.n_tasks) if base.assign[t] >= 0]
+    setup = routing_mod._setup(problem, Objective.MAKESPAN, base, tasks, False)
+    assert not isinstance(setup, str)
+    orders, _ = routing_mod._routing_phase(setup, routing_mod._Phase(100, 0.5, base.orders))
+    assert orders is not None
+    pos = {t: k for k, t in enumerate(tasks)}
+    model = routing_mod.minmax_model(setup)
+    start = [[pos[t] for t in o] for o in orders]
+    found = minmax_search(model, start, time.perf_counter() + 30, max_rounds=30)
+    assert found.key() <= model.route_set(start).key()
+
+
+@pytest.fixture
+def second_core() -> Iterator[None]:
+    use_second_core(launch)
+    yield
+    use_second_core(None)
+
+
+@pytest.mark.parametrize("limit", [0.6, 2.5])
+def test_optimal_makespan_within_its_time_limit(
+    tmp_path: Path, limit: float, second_core: None
+) -> None:
+    """Routing, then ``minmax``; from 2 s on also the helper process on the second core. Never
+    worse than the auction, and done within the limit (loosely: + 10 % + start-up)."""
+    problem = _instance(tmp_path, 30, 3, seed=2)
+    base = auction(problem, Objective.MAKESPAN)
+    began = time.perf_counter()
+    result = optimise(problem, Objective.MAKESPAN, limit)
+    took = time.perf_counter() - began
+    assert took <= 1.1 * limit + 0.5
+    assert result.solver == "routing"
+    assert result.schedule.valid
+    assert result.schedule.makespan <= base.makespan + 1e-6
+    notes = " ".join(result.notes)
+    assert "min-max local search" in notes
+    if limit >= routing_mod.PORTFOLIO_MIN_SECONDS:
+        assert "min-max search on the second core from the auction's routes (" in notes
+    else:
+        assert "second core" not in notes
+
+
+def test_optimal_makespan_on_one_core_without_a_second_core(tmp_path: Path) -> None:
+    """Allocation starts no process by itself: without ``use_second_core`` it searches alone."""
+    problem = _instance(tmp_path, 30, 3, seed=3)
+    result = optimise(problem, Objective.MAKESPAN, 2.5)
+    notes = " ".join(result.notes)
+    assert "min-max local search" in notes
+    assert "second core" not in notes
+
+
+def test_helper_process_failure_is_reported_not_raised(second_core: None) -> None:
+    """A helper that dies gives a reason, not an exception (and not a hang)."""
+    pending = launch(HELPER_SCRIPT, b"not a pickle")
+    answer = pending.result(30)
+    assert isinstance(answer, str) and answer.startswith("helper failed")
