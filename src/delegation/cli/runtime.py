@@ -39,7 +39,8 @@ DEMO_TARGET_WALL_S = 15.0
 
 
 def add_broker_args(parser: argparse.ArgumentParser) -> None:
-    """``--broker/--port/--tls/--username/--password``, defaulting to ``WARAPS_*``."""
+    """``--broker/--port/--tls/--ca-file/--cert-file/--key-file/--username/--password-file``,
+    defaulting to ``WARAPS_*``; a password never has to be given on the command line."""
     g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
     g.add_argument(
         "--broker", default=None, metavar="HOST", help="MQTT broker host [WARAPS_BROKER]"
@@ -48,25 +49,66 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--tls", action="store_true", default=None, help="connect with TLS [WARAPS_TLS_CONNECTION]"
     )
+    g.add_argument(
+        "--ca-file",
+        default=None,
+        metavar="PEM",
+        help="CA to verify the broker with (implies --tls) [WARAPS_CA_FILE]",
+    )
+    g.add_argument(
+        "--cert-file",
+        default=None,
+        metavar="PEM",
+        help="client certificate (implies --tls) [WARAPS_CERT_FILE]",
+    )
+    g.add_argument(
+        "--key-file", default=None, metavar="PEM", help="client certificate's key [WARAPS_KEY_FILE]"
+    )
     g.add_argument("--username", default=None, help="[WARAPS_USERNAME]")
-    g.add_argument("--password", default=None, help="[WARAPS_PASSWORD]")
+    g.add_argument(
+        "--password-file",
+        default=None,
+        metavar="FILE",
+        help="file whose first line is the password [WARAPS_PASSWORD_FILE; or the "
+        "password itself in WARAPS_PASSWORD]",
+    )
+    g.add_argument("--password", default=None, help=argparse.SUPPRESS)  # visible in ps: avoid
     g.add_argument("--prefix", default="waraps", help="first topic level (default: waraps)")
 
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
     """Flags over environment; None when neither names a broker."""
-    from delegation.runtime.settings import BrokerSettings
+    from delegation.runtime.settings import BrokerSettings, read_password_file
 
-    env = BrokerSettings.from_env()
-    host = args.broker or (env.host if env else None)
+    found = BrokerSettings.from_env()
+    host = args.broker or (found.host if found else None)
     if not host:
         return None
+    # Every other WARAPS_* variable applies to a broker named by --broker too.
+    env = BrokerSettings.from_env({**os.environ, "WARAPS_BROKER": host})
     tls = args.tls if args.tls is not None else (env.tls if env else False)
     port = args.port or os.environ.get("WARAPS_PORT") or None
     username = args.username if args.username is not None else (env.username if env else "")
-    password = args.password if args.password is not None else (env.password if env else "")
+    if getattr(args, "password_file", None):
+        password = read_password_file(args.password_file)
+    elif getattr(args, "password", None) is not None:
+        password = args.password
+    else:
+        password = env.password if env else ""
+
+    def pick(flag: str, attr: str) -> str | None:
+        value = getattr(args, flag, None)
+        return str(value) if value else (getattr(env, attr) if env else None)
+
     return BrokerSettings.from_values(
-        host=host, port=port, tls=bool(tls), username=username, password=password
+        host=host,
+        port=port,
+        tls=bool(tls),
+        username=username,
+        password=password,
+        ca_certs=pick("ca_file", "ca_certs"),
+        certfile=pick("cert_file", "certfile"),
+        keyfile=pick("key_file", "keyfile"),
     )
 
 
