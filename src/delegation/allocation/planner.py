@@ -12,12 +12,14 @@ import numpy as np
 from delegation.allocation.auction import unassigned_reason
 from delegation.allocation.instantiate import Placement, instantiate
 from delegation.allocation.plan import Assignment, Plan, Unassigned
+from delegation.allocation.plausibility import plausibility_notes
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError
 from delegation.errors import Problem as InputProblem
 from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
+from delegation.tst.validate import DEFAULT_LIMITS, Limits
 
 if TYPE_CHECKING:
     from delegation.fleet import UnitState
@@ -58,6 +60,7 @@ def plan_mission(
     time_limit: float = 5.0,
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
+    limits: Limits = DEFAULT_LIMITS,
 ) -> Plan:
     """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
 
@@ -65,9 +68,12 @@ def plan_mission(
     unknown strategy or objective or a tree that is not valid.
     """
     check_options(strategy, objective, time_limit)
-    problems = tree_problems(tree)
+    problems = tree_problems(tree, limits)
     if problems:
         raise InputError(problems)
+    warnings = plausibility_notes(tree, units)
+    for warning in warnings:
+        log.warning("implausible input: %s", warning)
     began = time.perf_counter()
     prepared = with_defaults(with_uuids(tree, new_uuid))
     problem = build_problem(prepared, units)
@@ -76,7 +82,7 @@ def plan_mission(
     return make_plan(
         problem, result.schedule, prepared, strategy=strategy, objective=objective,
         solve_time=solve_time, bound=result.bound, engine_unit=engine_unit, new_uuid=new_uuid,
-        notes=result.notes,
+        notes=[*warnings, *result.notes],
     )
 
 

@@ -119,6 +119,7 @@ def validate_model(model: type[M], data: Any, where: str) -> M:
     problems: list[Problem] = []
     if "com_uuid" in model.model_fields and "com-uuid" not in data and "com_uuid" not in data:
         problems.append(Problem(where, "com-uuid", "missing"))
+
     try:
         message = model.model_validate(data)
     except ValidationError as exc:
@@ -143,6 +144,8 @@ def parse_command(data: Any, api: str | None = None) -> WireModel:
     tables = [COMMANDS[api]] if api else list(COMMANDS.values())
     for table in tables:
         if name in table:
+            if data.get("com-uuid") == "":  # a command's answer must name what it answers
+                raise MessageError(Problem(name, "com-uuid", "must not be empty"))
             return validate_model(table[name], data, name)
     known = sorted({c for t in tables for c in t})
     raise MessageError(

@@ -17,6 +17,7 @@ from delegation.fleet import UnitState
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
 from delegation.tst.node import TstNode, walk, where
+from delegation.tst.validate import DEFAULT_LIMITS, Limits
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +75,8 @@ class Job:
     source: str
     #: When the command arrived (core clock), for `Timing`.
     received: float
+    #: The physical ranges the tree was validated with (the planner checks it again).
+    limits: Limits = DEFAULT_LIMITS
 
     @property
     def com_uuid(self) -> str:
@@ -117,6 +120,7 @@ def run_job(job: Job) -> JobResult:
             objective=job.options.objective,
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
+            limits=job.limits,
         ))
     except InputError as exc:
         return JobFailed(exc.fail_reason)

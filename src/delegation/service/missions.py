@@ -58,6 +58,8 @@ class Mission:
     tst: dict[str, Any]  # the fully instantiated tree, as sent to the engine
     plan: dict[str, Any]  # docs/plan.md §1
     nodes: dict[str, NodeInfo]
+    #: Who created it ("" anonymous: anyone may manage it); see ``service.access``.
+    owner: str = ""
     status: MissionStatus = MissionStatus.PLANNED
     fail_reason: str = ""
     started_at: float | None = None
@@ -82,6 +84,7 @@ class Mission:
             "root-uuid": self.root_uuid,
             "name": self.name,
             "source": self.source,
+            "owner": self.owner,
             "status": self.status.value,
             "fail-reason": self.fail_reason,
             "created": self.created,
