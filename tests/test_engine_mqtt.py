@@ -161,7 +161,7 @@ def test_not_instantiated_tree_fails_with_the_node(system, collector, prefix: st
     resp = c.wait_json(f"{engine.base}/tst/response", lambda d: d["response-to"] == cmd["com-uuid"])
     assert resp["response"] == "failed"
     assert "root/children[1]" in resp["fail-reason"] and "free" in resp["fail-reason"]
-    assert engine.core.trees == {}
+    assert engine.inspect(lambda core: core.trees) == {}
 
 
 def test_resent_start_tst_is_answered_again_and_runs_once(system, collector, prefix: str) -> None:

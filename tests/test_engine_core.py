@@ -1,22 +1,28 @@
-"""The engine's tree state machine, message by message, without MQTT or a clock."""
+"""The engine without a broker: its tree state machine (`TreeExecutor`) action by action, and its
+core (`EngineCore`) message by message, with ``now`` passed in."""
 
 from __future__ import annotations
 
 import itertools
+import json
 from typing import Any
 
 import pytest
 
-from delegation.engine_state import (
+from delegation.engine import (
     Action,
     EngineCore,
+    EngineOptions,
     NodeChanged,
     SendSignal,
     SendStartTask,
+    TreeExecutor,
     check_instantiated,
 )
 from delegation.errors import InputError
+from delegation.messages import ExecFeedback, ExecResponse, HeartBeat, encode
 from delegation.messages import NodeStatus as S
+from delegation.runtime.core import Core, Effects, Identity
 from delegation.tst.node import parse_tree
 
 WP = {"latitude": 57.76, "longitude": 16.68, "altitude": 40.0}
@@ -39,9 +45,10 @@ def ctl(kind: str, uid: str, *children: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def core(*units: str) -> EngineCore:
+def core(*units: str) -> TreeExecutor:
     counter = itertools.count()
-    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", resend_after=2.0, max_attempts=3)
+    options = EngineOptions(resend_after=2.0, max_attempts=3)
+    c = TreeExecutor(options, new_uuid=lambda: f"u{next(counter)}")
     for u in units:
         c.unit_seen(u, 0.0)
     return c
@@ -55,7 +62,7 @@ def changes(actions: list[Action]) -> list[tuple[str, S]]:
     return [(a.node_uuid, a.status) for a in actions if isinstance(a, NodeChanged)]
 
 
-def accept(c: EngineCore, start: SendStartTask, now: float = 0.0) -> list[Action]:
+def accept(c: TreeExecutor, start: SendStartTask, now: float = 0.0) -> list[Action]:
     return c.on_response(start.com_uuid, "running", now, task_uuid=start.task_uuid)
 
 
@@ -294,7 +301,7 @@ def test_enough_on_a_control_node_ends_it_successfully() -> None:
 
 def test_finished_trees_are_forgotten_beyond_keep_done() -> None:
     counter = itertools.count()
-    c = EngineCore(new_uuid=lambda: f"u{next(counter)}", keep_done=2)
+    c = TreeExecutor(EngineOptions(keep_done=2), new_uuid=lambda: f"u{next(counter)}")
     c.unit_seen("dji0", 0.0)
     for i in range(5):
         _, actions = c.start_tree(parse_tree(ctl("seq", f"R{i}", task(f"a{i}"))), float(i))
@@ -307,3 +314,186 @@ def test_finished_trees_are_forgotten_beyond_keep_done() -> None:
     # A finished tree's uuids may be used again (a4 then waits: dji0 is busy with a5).
     _, actions = c.start_tree(parse_tree(ctl("seq", "R4", task("a4"))), 7.0)
     assert changes(actions) == [("R4", S.RUNNING), ("a4", S.WAITING)]
+
+
+# --------------------------------------------------------------------------- the core: messages
+
+IDENTITY = Identity("op0", "ground", "engine-uuid", prefix="test")
+COMMAND = f"{IDENTITY.base}/tst/command"
+RESPONSE = f"{IDENTITY.base}/tst/response"
+FEEDBACK = f"{IDENTITY.base}/tst/feedback"
+DJI0 = "test/unit/air/real/dji0"  # a role other than the engine's: the heartbeat tells
+
+
+def engine(*units: str) -> EngineCore:
+    counter = itertools.count()
+    options = EngineOptions(resend_after=2.0, max_attempts=3)
+    c = EngineCore(IDENTITY, options, new_uuid=lambda: f"u{next(counter)}")
+    for name in units:
+        heartbeat_of(c, name)
+    return c
+
+
+def heartbeat_of(c: EngineCore, name: str, now: float = 0.0) -> Effects:
+    hb = HeartBeat(
+        agent_type="air", agent_uuid=name, levels=["direct execution"], name=name, rate=1.0, stamp=1
+    )
+    return c.on_message(f"test/unit/air/real/{name}/heartbeat", encode(hb), now)
+
+
+def send(c: EngineCore, command: dict[str, Any] | bytes, now: float = 1.0) -> Effects:
+    payload = command if isinstance(command, bytes) else json.dumps(command).encode()
+    return c.on_message(COMMAND, payload, now)
+
+
+def on(effects: Effects, topic: str) -> list[dict[str, Any]]:
+    return [json.loads(out.payload) for out in effects.publish if out.topic == topic]
+
+
+def start_tst(tree: dict[str, Any], com_uuid: str = "c1") -> dict[str, Any]:
+    return {"com-uuid": com_uuid, "command": "start-tst", "sender": "test", "tst": tree}
+
+
+def test_the_core_speaks_the_core_protocol() -> None:
+    c = engine()
+    assert isinstance(c, Core)
+    assert c.name == "op0" and c.status_period == 1.0
+    assert COMMAND in c.subscriptions() and "test/unit/+/+/+/exec/feedback" in c.subscriptions()
+
+
+def test_status_is_a_heartbeat_and_the_trees_executing() -> None:
+    c = engine("dji0")
+    send(c, start_tst(ctl("seq", "R", task("a"))))
+    hb, info = c.status(5.0, 1234.5)
+    assert hb.topic == f"{IDENTITY.base}/heartbeat" and hb.qos == 0
+    beat = json.loads(hb.payload)
+    assert (beat["levels"], beat["name"], beat["agent-uuid"]) == (
+        ["tst execution"],
+        "op0",
+        "engine-uuid",
+    )
+    assert info.topic == f"{IDENTITY.base}/tst_execution_info"
+    data = json.loads(info.payload)
+    assert (data["trees-executing"], data["stamp"], data["type"]) == (
+        ["R"],
+        1234.5,
+        "TstExecutionInfo",
+    )
+
+
+def test_ping_is_answered_with_pong() -> None:
+    c = engine()
+    (pong,) = on(send(c, {"com-uuid": "p1", "command": "ping", "sender": "test"}), RESPONSE)
+    assert (pong["response"], pong["response-to"]) == ("pong", "p1")
+
+
+def test_bad_json_with_a_com_uuid_is_answered_failed_naming_the_problem() -> None:
+    c = engine()
+    bad = {"com-uuid": "b1", "command": "signal-tst-node", "sender": "test", "signal": "$abort"}
+    (answer,) = on(send(c, bad), RESPONSE)
+    assert (answer["response"], answer["response-to"]) == ("failed", "b1")
+    assert "node-uuid" in answer["fail-reason"]
+    assert send(c, b"{not json") == Effects()  # no com-uuid: nobody to answer
+
+
+def test_unsupported_command_is_answered_failed() -> None:
+    c = engine()
+    (answer,) = on(send(c, {"com-uuid": "d1", "command": "delegate", "sender": "t"}), RESPONSE)
+    assert (answer["response"], answer["response-to"]) == ("failed", "d1")
+    assert "delegate" in answer["fail-reason"] and "start-tst" in answer["fail-reason"]
+
+
+def test_resent_start_tst_gets_the_same_bytes_and_starts_the_tree_once() -> None:
+    c = engine("dji0")
+    cmd = start_tst(ctl("seq", "R", task("a")))
+    first = send(c, cmd)
+    again = send(c, cmd, now=3.0)
+    (started,) = on(first, RESPONSE)
+    assert (started["response"], started["root-uuid"]) == ("started", "R")
+    assert again.publish == [o for o in first.publish if o.topic == RESPONSE]  # no start-task
+    assert again.publish[0].payload == first.publish[0].payload
+    assert len(on(first, f"{DJI0}/exec/command")) == 1  # the start-task, sent once
+    assert list(c.trees) == ["R"] and c.commands.get(("tst", "c1")) is not None
+
+
+def test_start_tst_of_a_tree_not_fully_instantiated_fails_naming_the_node() -> None:
+    c = engine("dji0")
+    effects = send(c, start_tst(ctl("seq", "R", task("a"), task("free", "*"))))
+    (answer,) = on(effects, RESPONSE)
+    assert answer["response"] == "failed"
+    assert "root/children[1]" in answer["fail-reason"] and "free" in answer["fail-reason"]
+    assert c.trees == {} and on(effects, FEEDBACK) == []
+
+
+def test_start_task_goes_to_the_base_topic_learnt_from_the_heartbeat() -> None:
+    c = engine()
+    effects = send(c, start_tst(ctl("seq", "R", task("a"))))
+    assert [d["status"] for d in on(effects, FEEDBACK)] == ["running", "waiting"]
+    assert not c.knows(["dji0"])
+    effects = heartbeat_of(c, "dji0", 2.0)
+    assert c.knows(["/dji0"]) and c.bases["dji0"] == DJI0
+    (start,) = on(effects, f"{DJI0}/exec/command")
+    assert (start["command"], start["execution-unit"], start["sender"]) == (
+        "start-task",
+        "/dji0",
+        "op0",
+    )
+    assert start["task"]["name"] == "move-to" and start["task"]["params"]["speed"] == "standard"
+    assert [(d["node-uuid"], d["status"]) for d in on(effects, FEEDBACK)] == [("a", "active")]
+
+
+def test_unit_response_and_feedback_become_tst_feedback() -> None:
+    c = engine("dji0")
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
+    accepted = ExecResponse(
+        response="running", response_to=start["com-uuid"], task_uuid=start["task-uuid"]
+    )
+    effects = c.on_message(f"{DJI0}/exec/response", encode(accepted), 2.0)
+    assert [(d["node-uuid"], d["status"]) for d in on(effects, FEEDBACK)] == [("a", "running")]
+    done = ExecFeedback(status="finished", task_uuid=start["task-uuid"])
+    effects = c.on_message(f"{DJI0}/exec/feedback", encode(done), 3.0)
+    assert [(d["node-uuid"], d["status"], d["root-flag"]) for d in on(effects, FEEDBACK)] == [
+        ("a", "succeeded", False),
+        ("R", "succeeded", True),
+    ]
+    assert json.loads(c.status(4.0, 0.0)[1].payload)["trees-executing"] == []
+
+
+def test_signals_are_answered_ok_and_reach_the_unit() -> None:
+    c = engine("dji0")
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a"), task("b")))), f"{DJI0}/exec/command")
+    accepted = ExecResponse(response="running", response_to=start["com-uuid"])
+    c.on_message(f"{DJI0}/exec/response", encode(accepted), 2.0)
+    abort = {
+        "com-uuid": "s1",
+        "command": "signal-tst-tree",
+        "node-uuid": "R",
+        "sender": "t",
+        "signal": "$abort",
+    }
+    effects = send(c, abort, 3.0)
+    assert effects.publish[0].topic == RESPONSE  # the answer first, then what it set going
+    assert on(effects, RESPONSE)[0]["response"] == "ok"
+    (signal,) = on(effects, f"{DJI0}/exec/command")
+    assert (signal["command"], signal["signal"], signal["task-uuid"]) == (
+        "signal-task",
+        "$abort",
+        start["task-uuid"],
+    )
+    assert ("b", "revoked") in [(d["node-uuid"], d["status"]) for d in on(effects, FEEDBACK)]
+    unknown = {
+        "com-uuid": "s2",
+        "command": "signal-unit",
+        "unit": "/dji0",
+        "sender": "t",
+        "signal": "$explode",
+    }
+    (answer,) = on(send(c, unknown, 4.0), RESPONSE)
+    assert answer["response"] == "failed" and "$explode" in answer["fail-reason"]
+
+
+def test_unanswered_start_task_is_resent_on_tick() -> None:
+    c = engine("dji0")
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
+    assert on(c.on_tick(2.5), f"{DJI0}/exec/command") == []  # sent at 1.0
+    assert on(c.on_tick(3.0), f"{DJI0}/exec/command") == [start]  # same com-uuid and task-uuid

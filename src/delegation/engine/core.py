@@ -1,0 +1,263 @@
+"""The reference TST engine's core: the seed's TST Execution API (section 14), pure.
+
+`EngineCore` reads ``tst/command`` (``start-tst`` for fully instantiated trees,
+``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``), every unit's heartbeat (to
+learn base topics) and ``exec/response``/``exec/feedback``; it returns ``tst/response``,
+``tst/feedback`` for every node status change, and ``start-task``/``signal-task`` to the units'
+``exec/command``. Its status is a ``heartbeat`` (levels ``["tst execution"]``) and a
+``tst_execution_info``. A command re-sent with the same com-uuid gets the same answer again and is
+never run twice (`CommandLog`). The tree logic itself is `TreeExecutor`'s; `TstEngine` puts this
+core on a broker.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+
+from delegation.engine.executor import (
+    Action,
+    EngineOptions,
+    NodeChanged,
+    SendSignal,
+    SendStartTask,
+    TreeExecutor,
+)
+from delegation.engine.tree import Tree
+from delegation.errors import InputError
+from delegation.messages import (
+    ExecFeedback,
+    ExecResponse,
+    MessageError,
+    NodeStatus,
+    Ping,
+    SignalTask,
+    SignalTstNode,
+    SignalTstTree,
+    SignalUnit,
+    StartTask,
+    StartTst,
+    TaskSpecMsg,
+    TstExecutionInfo,
+    TstFeedback,
+    TstResponse,
+    WireModel,
+    decode,
+)
+from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
+from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
+from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
+from delegation.tst.node import parse_tree
+
+log = logging.getLogger(__name__)
+
+__all__ = ["LEVELS", "EngineCore"]
+
+#: The engine's heartbeat levels.
+LEVELS: tuple[str, ...] = ("tst execution",)
+#: A tree's final statuses worth a log line (a root is never revoked).
+ENDED = frozenset({NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED})
+#: The face commands arrive on (the `CommandLog` key's first part).
+FACE = "tst"
+
+
+class EngineCore:
+    """The TST engine's every decision: commands, unit messages and time in, `Effects` out."""
+
+    def __init__(
+        self,
+        identity: Identity,
+        options: EngineOptions | None = None,
+        *,
+        new_uuid: Callable[[], str] | None = None,
+    ) -> None:
+        self.identity = identity
+        self.executor = TreeExecutor(options, new_uuid=new_uuid)
+        self.commands = CommandLog()
+        self.bases: dict[str, str] = {}
+        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes)."""
+        self._command_topic = identity.topic("tst/command")
+
+    # ---- the Core protocol
+
+    @property
+    def name(self) -> str:
+        return self.identity.name
+
+    @property
+    def status_period(self) -> float:
+        return 1.0 / self.identity.rate
+
+    def subscriptions(self) -> list[str]:
+        prefix = self.identity.prefix
+        return [
+            self._command_topic,
+            unit_filter(prefix, "heartbeat"),
+            unit_filter(prefix, "exec/response"),
+            unit_filter(prefix, "exec/feedback"),
+        ]
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        if topic == self._command_topic:
+            return self._command(topic, payload, now)
+        parsed = parse_unit_topic(topic)
+        if parsed is None:
+            return Effects()
+        if parsed.rest == "heartbeat":
+            self.bases[parsed.name] = parsed.base
+            return self._carry_out(self.executor.unit_seen(parsed.name, now))
+        if parsed.rest in ("exec/response", "exec/feedback"):
+            return self._from_unit(topic, payload, now)
+        return Effects()
+
+    def on_tick(self, now: float) -> Effects:
+        """Re-sends, busy retries and timeouts (see `TreeExecutor.tick`)."""
+        return self._carry_out(self.executor.tick(now))
+
+    def status(self, now: float, stamp: float) -> list[Outgoing]:
+        info = TstExecutionInfo(
+            name=self.identity.name,
+            rate=self.identity.rate,
+            stamp=stamp,
+            trees_executing=self.executor.executing(),
+        )
+        return [
+            heartbeat(self.identity, LEVELS, stamp),
+            Outgoing.of(self.identity.topic("tst_execution_info"), info, QOS_PERIODIC),
+        ]
+
+    # ---- views (tests, `TstEngine.wait_for_units`)
+
+    @property
+    def base(self) -> str:
+        return self.identity.base
+
+    @property
+    def trees(self) -> dict[str, Tree]:
+        """The trees executing or recently finished, by root uuid."""
+        return self.executor.trees
+
+    def knows(self, names: Iterable[str]) -> bool:
+        """Whether a heartbeat of every unit in ``names`` has arrived (their tasks can start)."""
+        return {n.strip("/") for n in names} <= set(self.bases)
+
+    # ---- tst/command
+
+    def _command(self, topic: str, payload: bytes, now: float) -> Effects:
+        com_uuid = com_uuid_of(payload)
+        key: CommandKey | None = (FACE, com_uuid) if com_uuid else None
+        if key is not None:
+            entry = self.commands.seen(key)
+            if entry is not None and entry.state is CommandState.DONE:
+                log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
+                return Effects.of(entry.answer)
+            self.commands.begin(key, now)
+        try:
+            command = decode(topic, payload)
+        except MessageError as exc:
+            log.warning("%s: bad command: %s", self.name, exc)
+            if key is None:
+                return Effects()
+            return self._answer(key, key[1], "failed", fail_reason=exc.fail_reason)
+        try:
+            return self._dispatch(command, key, now)
+        except InputError as exc:
+            answer_to = getattr(command, "com_uuid", "")
+            return self._answer(key, answer_to, "failed", fail_reason=exc.fail_reason)
+
+    def _dispatch(self, command: WireModel, key: CommandKey | None, now: float) -> Effects:
+        """Run one decoded command: its answer first, then what it set going."""
+        if isinstance(command, Ping):
+            return self._answer(key, command.com_uuid, "pong")
+        if isinstance(command, StartTst):
+            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now)
+            log.info("%s: executing tree %s", self.name, root_uuid)
+            answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
+            return answer.extend(self._carry_out(actions))
+        if isinstance(command, SignalTstNode):
+            actions = self.executor.signal_node(command.node_uuid, command.signal, now)
+        elif isinstance(command, SignalTstTree):
+            actions = self.executor.signal_tree(command.node_uuid, command.signal, now)
+        elif isinstance(command, SignalUnit):
+            actions = self.executor.signal_unit(command.unit, command.signal, now)
+        else:  # a tst command this engine does not implement (decode knows every tst command)
+            name = getattr(command, "command", type(command).__name__)
+            reason = f"{name} is not supported by the TST engine"
+            return self._answer(key, getattr(command, "com_uuid", ""), "failed", reason)
+        return self._answer(key, command.com_uuid, "ok").extend(self._carry_out(actions))
+
+    def _answer(
+        self,
+        key: CommandKey | None,
+        com_uuid: str,
+        response: str,
+        fail_reason: str = "",
+        root_uuid: str | None = None,
+    ) -> Effects:
+        """The ``tst/response``, remembered for re-sends of the command."""
+        answer = TstResponse(
+            fail_reason=fail_reason, response=response, response_to=com_uuid, root_uuid=root_uuid
+        )
+        out = Outgoing.of(self.identity.topic("tst/response"), answer, QOS_COMMAND)
+        if key is not None:
+            self.commands.finish(key, [out])
+        return Effects.of([out])
+
+    # ---- from the units
+
+    def _from_unit(self, topic: str, payload: bytes, now: float) -> Effects:
+        """A unit's ``exec/response`` or ``exec/feedback``, handed to the executor."""
+        try:
+            msg = decode(topic, payload)
+        except MessageError as exc:
+            log.debug("%s: unreadable message on %s: %s", self.name, topic, exc)
+            return Effects()
+        if isinstance(msg, ExecResponse):
+            actions = self.executor.on_response(
+                msg.response_to,
+                msg.response,
+                now,
+                fail_reason=msg.fail_reason,
+                task_uuid=msg.task_uuid,
+            )
+        elif isinstance(msg, ExecFeedback):
+            actions = self.executor.on_feedback(msg.task_uuid, msg.status, now)
+        else:
+            return Effects()
+        return self._carry_out(actions)
+
+    # ---- actions to messages
+
+    def _carry_out(self, actions: list[Action]) -> Effects:
+        effects = Effects()
+        for action in actions:
+            if isinstance(action, NodeChanged):
+                effects.send(self.identity.topic("tst/feedback"), self._feedback(action))
+                continue
+            base = self.bases.get(action.unit)
+            if base is None:  # the executor starts tasks only on units it has seen
+                log.error("%s: no base topic for /%s", self.name, action.unit)
+                continue
+            effects.send(f"{base}/exec/command", self._to_unit(action))
+        return effects
+
+    def _to_unit(self, action: SendStartTask | SendSignal) -> StartTask | SignalTask:
+        if isinstance(action, SendStartTask):
+            return StartTask(
+                com_uuid=action.com_uuid,
+                execution_unit=f"/{action.unit}",
+                sender=self.name,
+                task=TaskSpecMsg(name=action.name, params=action.params),
+                task_uuid=action.task_uuid,
+            )
+        return SignalTask(signal=action.signal.value, sender=self.name, task_uuid=action.task_uuid)
+
+    def _feedback(self, change: NodeChanged) -> TstFeedback:
+        if change.root_flag and change.status in ENDED:
+            log.info("%s: tree %s %s", self.name, change.root_uuid, change.status.value)
+        return TstFeedback(
+            fail_reason=change.fail_reason,
+            node_uuid=change.node_uuid,
+            root_flag=change.root_flag,
+            status=change.status.value,
+        )
