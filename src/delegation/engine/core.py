@@ -75,7 +75,11 @@ class EngineCore:
         self.executor = TreeExecutor(options, new_uuid=new_uuid)
         self.commands = CommandLog()
         self.bases: dict[str, str] = {}
-        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes)."""
+        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes).
+
+        Bound at the first heartbeat (DESIGN 3.10): the same name from another base topic is an
+        impostor's, logged once per topic and ignored, as are its exec answers."""
+        self._impostors: set[tuple[str, str]] = set()
         self._command_topic = identity.topic("tst/command")
 
     # ---- the Core protocol
@@ -103,12 +107,30 @@ class EngineCore:
         parsed = parse_unit_topic(topic)
         if parsed is None:
             return Effects()
+        if parsed.rest not in ("heartbeat", "exec/response", "exec/feedback"):
+            return Effects()
+        bound = (
+            self.bases.setdefault(parsed.name, parsed.base)
+            if parsed.rest == "heartbeat"
+            else self.bases.get(parsed.name)
+        )
+        if bound != parsed.base:
+            self._impostor(parsed.name, parsed.base, bound)
+            return Effects()
         if parsed.rest == "heartbeat":
-            self.bases[parsed.name] = parsed.base
             return self._carry_out(self.executor.unit_seen(parsed.name, now))
-        if parsed.rest in ("exec/response", "exec/feedback"):
-            return self._from_unit(topic, payload, now)
-        return Effects()
+        return self._from_unit(topic, payload, now)
+
+    def _impostor(self, name: str, base: str, bound: str | None) -> None:
+        """A message for ``name`` from a base topic it is not bound to: logged once, ignored."""
+        if (name, base) in self._impostors:
+            return
+        if len(self._impostors) < 1024:
+            self._impostors.add((name, base))
+        if bound is None:
+            log.warning("%s: ignoring %s: no heartbeat of %s yet", self.name, base, name)
+        else:
+            log.warning("%s: ignoring %s: %s is bound to %s", self.name, base, name, bound)
 
     def on_tick(self, now: float) -> Effects:
         """Re-sends, busy retries and timeouts (see `TreeExecutor.tick`)."""
