@@ -287,3 +287,18 @@ def test_plausibility_notes_name_the_node_and_the_nearest_unit() -> None:
     assert note.endswith("latitude and longitude look swapped")
     (note,) = plausibility_notes(far, units)
     assert "swapped" not in note and "km from the nearest unit" in note
+
+
+def test_serve_takes_operators_max_speed_and_a_password_file(tmp_path: Any) -> None:
+    from delegation.cli import build_parser
+    from delegation.cli.runtime import broker_settings
+
+    secret = tmp_path / "pw"
+    secret.write_text("hunter2\n")
+    args = build_parser().parse_args(["serve", "--broker", "127.0.0.1", "--operator", "ops",
+                                      "--operator", "lead", "--max-speed", "30",
+                                      "--username", "delegator0", "--password-file", str(secret)])
+    assert args.operator == ["ops", "lead"] and args.max_speed == 30.0
+    settings = broker_settings(args)
+    assert settings is not None and settings.password == "hunter2"
+    assert ServiceConfig(max_speed=args.max_speed).limits.max_speed == 30.0

@@ -147,6 +147,20 @@ def register(subparsers: Any) -> None:
 
     serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
     _service_args(serve)
+    serve.add_argument(
+        "--operator",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="may query, cancel and signal every mission (repeatable)",
+    )
+    serve.add_argument(
+        "--max-speed",
+        type=float,
+        default=100.0,
+        metavar="M/S",
+        help="the highest explicit speed a task may ask for (default 100)",
+    )
     add_broker_args(serve)
     serve.set_defaults(func=_serve)
 
@@ -468,6 +482,8 @@ def _serve(args: argparse.Namespace) -> int:
         agent_type=args.agent_type,
         role=args.role,
         profiles=_read_profiles(args.profiles) if args.profiles else None,
+        operators=frozenset(args.operator),
+        max_speed=args.max_speed,
     )
     service = DelegationService(settings, config)
     service.start()
