@@ -43,8 +43,9 @@ scalars = (
 )  # fmt: skip
 json_values = st.recursive(
     scalars,
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner,
-                                                                max_size=4),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
     max_leaves=20,
 )
 node = st.fixed_dictionaries(
@@ -88,13 +89,21 @@ def payloads() -> st.SearchStrategy[bytes]:
     as_json = commands().map(lambda d: json.dumps(d).encode())
     truncated = as_json.flatmap(lambda b: st.integers(0, len(b)).map(lambda n: b[:n]))
     non_finite = as_json.map(lambda b: b.replace(b"7.0", b"NaN", 1).replace(b"0.2", b"1e999"))
-    return as_json | truncated | non_finite | st.binary(max_size=200) | json_values.map(
-        lambda v: json.dumps(v).encode())
+    return (
+        as_json
+        | truncated
+        | non_finite
+        | st.binary(max_size=200)
+        | json_values.map(lambda v: json.dumps(v).encode())
+    )
 
 
 def fresh_core() -> ServiceCore:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX, operators=frozenset({"ops"}),
-                                     max_time_limit=1.0, strategy="nearest"))
+    core = ServiceCore(
+        ServiceConfig(
+            prefix=PREFIX, operators=frozenset({"ops"}), max_time_limit=1.0, strategy="nearest"
+        )
+    )
     core.commands.capacity = CAPACITY
     feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to", "search-area"], 100.0)
     feed_engine(core, 100.0)
@@ -102,8 +111,13 @@ def fresh_core() -> ServiceCore:
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(st.sampled_from(["tst", "delegation", "delegation/alice"]),
-                          payloads()), min_size=1, max_size=8))
+@given(
+    st.lists(
+        st.tuples(st.sampled_from(["tst", "delegation", "delegation/alice"]), payloads()),
+        min_size=1,
+        max_size=8,
+    )
+)
 def test_the_core_answers_every_readable_command_exactly_once(
     messages: list[tuple[str, bytes]],
 ) -> None:
@@ -121,8 +135,11 @@ def test_the_core_answers_every_readable_command_exactly_once(
         now = 101.0 + i
         effects = run_jobs(core, core.on_message(topic, payload, now), now)
         effects.extend(core.on_tick(now + 60.0))  # whatever waits for the engine times out
-        published += [json.loads(o.payload) for o in effects.publish
-                      if o.topic.split("/")[-1] == "response" or "/response/" in o.topic]
+        published += [
+            json.loads(o.payload)
+            for o in effects.publish
+            if o.topic.split("/")[-1] == "response" or "/response/" in o.topic
+        ]
     counts = Counter(a.get("response-to") for a in published)
     for com in expected:
         assert counts[com] == 1, (com, published)
@@ -168,23 +185,52 @@ def hostile_messages(rng: random.Random, n: int) -> list[tuple[str, bytes, str |
             full = json.dumps({"com-uuid": com, "command": "ping", "pad": "x" * 40}).encode()
             out.append((face, full[: rng.randrange(20, len(full))], com))
         elif kind == 2:  # an over-long com-uuid: answered with an empty response-to, not kept
-            out.append((face, json.dumps({"com-uuid": "u" * 200_000, "command": "ping"})
-                        .encode(), None))
+            out.append(
+                (face, json.dumps({"com-uuid": "u" * 200_000, "command": "ping"}).encode(), None)
+            )
         elif kind == 3:
             bad = rng.choice(['"yes"', "NaN", "1e999", "null"])
-            body = (f'{{"com-uuid": "{com}", "command": "delegate", "start": {bad}, "tst": '
-                    '{"name": "move-to", "params": {"speed": 1e308}}}')
+            body = (
+                f'{{"com-uuid": "{com}", "command": "delegate", "start": {bad}, "tst": '
+                '{"name": "move-to", "params": {"speed": 1e308}}}'
+            )
             out.append(("delegation", body.encode(), com))
         elif kind == 4:
-            out.append((face, json.dumps({"com-uuid": com, "command": rng.choice(
-                ["nope", "cancel-mission", "query-mission", "signal-tst-node"]),
-                "root-uuid": "r", "node-uuid": "n", "signal": "$abort"}).encode(), com))
+            out.append(
+                (
+                    face,
+                    json.dumps(
+                        {
+                            "com-uuid": com,
+                            "command": rng.choice(
+                                ["nope", "cancel-mission", "query-mission", "signal-tst-node"]
+                            ),
+                            "root-uuid": "r",
+                            "node-uuid": "n",
+                            "signal": "$abort",
+                        }
+                    ).encode(),
+                    com,
+                )
+            )
         elif kind == 5 and i % 97 == 0:  # an oversized payload, refused unread
-            out.append((face, b'{"com-uuid": "' + com.encode() + b'", "x": "'
-                        + b"x" * 400_000 + b'"}', com))
+            out.append(
+                (
+                    face,
+                    b'{"com-uuid": "' + com.encode() + b'", "x": "' + b"x" * 400_000 + b'"}',
+                    com,
+                )
+            )
         else:
-            out.append((face, json.dumps({"com-uuid": com, "command": "ping",
-                                          "sender": rng.choice(["a", "b", ""])}).encode(), com))
+            out.append(
+                (
+                    face,
+                    json.dumps(
+                        {"com-uuid": com, "command": "ping", "sender": rng.choice(["a", "b", ""])}
+                    ).encode(),
+                    com,
+                )
+            )
     return out
 
 
@@ -207,8 +253,11 @@ def test_a_running_service_survives_thousands_of_hostile_messages(
         sender.connect()
         try:
             # Warm up (first plan imports, logging), then measure what the service retains.
-            sender.publish(f"{base}/delegation/command", json.dumps(
-                {"com-uuid": "warm", "command": "ping"}), qos=1)
+            sender.publish(
+                f"{base}/delegation/command",
+                json.dumps({"com-uuid": "warm", "command": "ping"}),
+                qos=1,
+            )
             assert answers.wait({"warm"}, 20)
             gc.collect()
             tracemalloc.start()
@@ -218,8 +267,11 @@ def test_a_running_service_survives_thousands_of_hostile_messages(
                 sender.publish(f"{base}/{face}/command", payload, qos=1)
             expected = {com for _, _, com in messages if com is not None}
             assert answers.wait(expected, 120), "not every readable command was answered"
-            sender.publish(f"{base}/delegation/command", json.dumps(
-                {"com-uuid": "after", "command": "ping"}), qos=1)
+            sender.publish(
+                f"{base}/delegation/command",
+                json.dumps({"com-uuid": "after", "command": "ping"}),
+                qos=1,
+            )
             assert answers.wait({"after"}, 10)  # still responsive
             elapsed = time.monotonic() - began
             retained = service.inspect(lambda core: len(core.commands))
