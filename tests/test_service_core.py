@@ -293,7 +293,7 @@ def test_signals_are_forwarded_and_answered(core: ServiceCore) -> None:
     for cmd in ({"command": "signal-tst-node", "node-uuid": "n1", "signal": "$pause"},
                 {"command": "signal-tst-tree", "node-uuid": "root-1", "signal": "$continue"},
                 {"command": "signal-unit", "unit": "/dji0", "signal": "$abort"}):
-        payload = json.dumps({"com-uuid": f"s-{cmd['command']}", "sender": "t", **cmd}).encode()
+        payload = json.dumps({"com-uuid": f"s-{cmd['command']}", "sender": "test", **cmd}).encode()
         fwd = core.on_message(f"{BASE}/tst/command", payload, 102.0)
         sent = on(fwd, "op0/tst/command")[0]
         assert sent["command"] == cmd["command"] and sent["signal"] == cmd["signal"]

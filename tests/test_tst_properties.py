@@ -73,6 +73,15 @@ def value_for(task: str, name: str, ptype: ParamType, choices: tuple[str, ...] |
         return st.sampled_from(choices)
     if name in ("radius", "target-size"):
         return st.floats(0.1, 1e4)
+    # Physical ranges (tst.validate.Limits): distances, heights, durations, commanded speeds.
+    if name == "distance":
+        return st.floats(0, 1e5)
+    if name in ("height", "height-above-takeoff", "z"):
+        return st.floats(-12_000, 50_000)
+    if name == "duration":
+        return st.integers(INT32_MIN, 7 * 24 * 3600)
+    if name == "commanded-speed":
+        return st.lists(st.floats(0.1, 100), max_size=3)
     return {
         ParamType.GEOPOINT: geopoints(),
         ParamType.GEOPOINTS: polygons()

@@ -28,6 +28,11 @@ advertising a very low rate is still declared lost within a bounded time). A hea
 ``agent-uuid`` means the unit rebooted: everything it reported executing is forgotten. `check`
 reports each unit whose heartbeat stopped as a ``lost`` event, once per loss.
 
+Bound identities (DESIGN 3.10): a name is bound to the base topic of its first heartbeat. A
+heartbeat (or any message) for the same name from another base topic is an impostor's: logged
+once per topic and ignored, so that neither the service's trees nor the engine's tasks follow it.
+Only `forget` unbinds a name.
+
 Fleet profiles (``FleetRegistry(profiles=...)``) give what heartbeats do not carry: a dict keyed
 by unit name or agent type (a name entry wins), each value with any of ``speeds``, ``home``,
 ``endurance``, ``battery``, ``camera-fov``, ``sweep-altitude`` (scenario spelling, see
@@ -39,7 +44,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING, Any
 
@@ -188,6 +193,8 @@ class FleetEventKind(Enum):
     """A heartbeat with a new ``agent-uuid``: the unit lost its tasks."""
     LOST = "lost"
     """No heartbeat for the unit's timeout (reported by `FleetRegistry.check`)."""
+    IMPOSTOR = "impostor"
+    """A message for a bound name from another base topic: ignored."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -218,6 +225,8 @@ class _Record:
     has_direct_execution: bool = False
     reboots: int = 0
     lost: bool = False
+    #: Base topics that claimed this name after it was bound (logged once each; bounded).
+    impostors: set[str] = field(default_factory=set)
 
 
 class FleetRegistry:
@@ -268,6 +277,14 @@ class FleetRegistry:
         rec = self._units.get(name)
         if rec is None:
             rec = self._units[name] = _Record(name=name, base_topic=base)
+        if base != rec.base_topic:
+            if rec.last_heartbeat is not None:  # bound: someone else claims this name
+                self._impostor(rec, base, now)
+                return
+            if not isinstance(message, HeartBeat):
+                return  # not bound yet, and only a heartbeat binds
+            rec.base_topic = base
+            rec.position, rec.battery, rec.agent_type = None, None, None
         rec.last_seen = now if rec.last_seen is None else max(rec.last_seen, now)
 
         if isinstance(message, HeartBeat):
@@ -282,6 +299,14 @@ class FleetRegistry:
             self._sensor(rec, sensor, value)
         if rec.agent_type is None:
             rec.agent_type = type_from_base(base)
+
+    def _impostor(self, rec: _Record, base: str, now: float) -> None:
+        if base in rec.impostors:
+            return
+        if len(rec.impostors) < 16:
+            rec.impostors.add(base)
+        log.warning("fleet: ignoring %s: %s is bound to %s", base, rec.name, rec.base_topic)
+        self._events.append(FleetEvent(FleetEventKind.IMPOSTOR, rec.name, now))
 
     def _heartbeat(self, rec: _Record, base: str, hb: HeartBeat, now: float) -> None:
         if rec.last_heartbeat is None:

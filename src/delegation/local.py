@@ -54,6 +54,7 @@ class LocalSystem:
         service: bool = True,
         planner: Callable[[Any], Any] | None = None,
         ready_timeout: float = 15.0,
+        credentials: Mapping[str, BrokerSettings] | None = None,
     ) -> None:
         self.units = list(units)
         self.settings = settings
@@ -67,6 +68,9 @@ class LocalSystem:
         self.with_service = service
         self.planner = planner
         self.ready_timeout = ready_timeout
+        #: Per-part settings by part name (service, engine, unit): each its own broker login,
+        #: as a broker with an ACL wants (docs/security.md); other parts use ``settings``.
+        self.credentials = dict(credentials or {})
         self.broker: EmbeddedBroker | None = None
         self.fleet: SimFleet | None = None
         self.engine: TstEngine | None = None
@@ -108,15 +112,19 @@ class LocalSystem:
             self.settings = self.broker.settings()
             log.info("embedded broker on %s", self.settings.describe())
         settings = self.settings
+        creds = self.credentials
         if self.with_service:
+            own = creds.get(self.config.name, settings)
             if self.planner is not None:
-                self.service = DelegationService(settings, self.config, planner=self.planner)
+                self.service = DelegationService(own, self.config, planner=self.planner)
             else:
-                self.service = DelegationService(settings, self.config)
+                self.service = DelegationService(own, self.config)
             self.service.start()
             stack.callback(self.service.stop)
         if self.with_engine:
-            self.engine = TstEngine(settings, self.config.engine, prefix=self.prefix)
+            self.engine = TstEngine(
+                creds.get(self.config.engine, settings), self.config.engine, prefix=self.prefix
+            )
             self.engine.start()
             stack.callback(self.engine.stop)
         self.fleet = SimFleet(
@@ -126,6 +134,7 @@ class LocalSystem:
             speedup=self.speedup,
             rates=self.rates,
             example_agent=self.example_agent,
+            unit_settings=creds,
         )
         self.fleet.start()
         stack.callback(self.fleet.stop)

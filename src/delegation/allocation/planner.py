@@ -13,6 +13,7 @@ from delegation.allocation.auction import unassigned_reason
 from delegation.allocation.bounds import makespan_lower_bound
 from delegation.allocation.instantiate import Placement
 from delegation.allocation.plan import Assignment, Plan, Unassigned
+from delegation.allocation.plausibility import plausibility_notes
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
@@ -20,6 +21,7 @@ from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError
 from delegation.errors import Problem as InputProblem
 from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
+from delegation.tst.validate import DEFAULT_LIMITS, Limits
 
 if TYPE_CHECKING:
     from delegation.fleet import UnitState
@@ -60,6 +62,7 @@ def plan_mission(
     time_limit: float = 5.0,
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
+    limits: Limits = DEFAULT_LIMITS,
 ) -> Plan:
     """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
 
@@ -67,9 +70,12 @@ def plan_mission(
     unknown strategy or objective or a tree that is not valid.
     """
     check_options(strategy, objective, time_limit)
-    problems = tree_problems(tree)
+    problems = tree_problems(tree, limits)
     if problems:
         raise InputError(problems)
+    warnings = plausibility_notes(tree, units)
+    for warning in warnings:
+        log.warning("implausible input: %s", warning)
     began = time.perf_counter()
     prepared = with_defaults(with_uuids(tree, new_uuid))
     problem = build_problem(prepared, units)
@@ -78,7 +84,7 @@ def plan_mission(
     return make_plan(
         problem, result.schedule, prepared, strategy=strategy, objective=objective,
         solve_time=solve_time, bound=result.bound, engine_unit=engine_unit, new_uuid=new_uuid,
-        notes=result.notes, fallback=result.fallback,
+        notes=[*warnings, *result.notes], fallback=result.fallback,
     )
 
 

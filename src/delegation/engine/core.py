@@ -77,7 +77,11 @@ class EngineCore:
         self.executor = TreeExecutor(options, new_uuid=new_uuid)
         self.commands = CommandLog()
         self.bases: dict[str, str] = {}
-        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes)."""
+        """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes).
+
+        Bound at the first heartbeat (DESIGN 3.10): the same name from another base topic is an
+        impostor's, logged once per topic and ignored, as are its exec answers."""
+        self._impostors: set[tuple[str, str]] = set()
         self._command_topic = identity.topic("tst/command")
         self.heard: dict[str, float] = {}
         """Unit name -> when its last heartbeat arrived (``now``)."""
@@ -110,17 +114,35 @@ class EngineCore:
         parsed = parse_unit_topic(topic)
         if parsed is None:
             return Effects()
+        if parsed.rest not in ("heartbeat", "exec/response", "exec/feedback"):
+            return Effects()
+        bound = (
+            self.bases.setdefault(parsed.name, parsed.base)
+            if parsed.rest == "heartbeat"
+            else self.bases.get(parsed.name)
+        )
+        if bound != parsed.base:
+            self._impostor(parsed.name, parsed.base, bound)
+            return Effects()
         if parsed.rest == "heartbeat":
-            self.bases[parsed.name] = parsed.base
             actions = self.executor.unit_seen(parsed.name, now)
             if self._missed(parsed.name, now):
                 log.info("%s: /%s is back: asking for its tasks' status", self.name, parsed.name)
                 actions += self.executor.query(parsed.name)
             self.heard[parsed.name] = now
             return self._carry_out(actions)
-        if parsed.rest in ("exec/response", "exec/feedback"):
-            return self._from_unit(topic, payload, now)
-        return Effects()
+        return self._from_unit(topic, payload, now)
+
+    def _impostor(self, name: str, base: str, bound: str | None) -> None:
+        """A message for ``name`` from a base topic it is not bound to: logged once, ignored."""
+        if (name, base) in self._impostors:
+            return
+        if len(self._impostors) < 1024:
+            self._impostors.add((name, base))
+        if bound is None:
+            log.warning("%s: ignoring %s: no heartbeat of %s yet", self.name, base, name)
+        else:
+            log.warning("%s: ignoring %s: %s is bound to %s", self.name, base, name, bound)
 
     def _missed(self, unit: str, now: float) -> bool:
         """True when messages from ``unit`` may have been lost: its heartbeat comes back after a

@@ -10,7 +10,20 @@ from __future__ import annotations
 import uuid
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+
+#: The longest identifier a message may carry (com-uuid, node-uuid, sender, ...): a 1 MB com-uuid
+#: is refused, never kept in the command log.
+MAX_IDENTIFIER = 128
+
+#: Fields holding identifiers, bounded by ``MAX_IDENTIFIER``.
+IDENTIFIER_FIELDS: frozenset[str] = frozenset(
+    {
+        "com_uuid", "response_to", "root_uuid", "node_uuid", "task_uuid", "agent_uuid", "sender",
+        "receiver", "unit", "signal", "strategy", "objective", "command", "response_topic",
+        "name",
+    }
+)  # fmt: skip
 
 
 def hyphenate(name: str) -> str:
@@ -38,6 +51,18 @@ class WireModel(BaseModel):
     #: Wire keys left out when they hold ``""`` or ``[]`` (the seed omits e.g. ``fail-reason`` on
     #: ``pong`` and ``tasks-executing`` when nothing runs).
     _omit_empty: ClassVar[frozenset[str]] = frozenset()
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _bounded_identifier(cls, value: Any, info: ValidationInfo) -> Any:
+        """Identifiers are short; checked before a decoded message is kept anywhere."""
+        if (
+            isinstance(value, str)
+            and info.field_name in IDENTIFIER_FIELDS
+            and len(value) > MAX_IDENTIFIER
+        ):
+            raise ValueError(f"is {len(value)} characters long; at most {MAX_IDENTIFIER}")
+        return value
 
     def omit_when_empty(self) -> frozenset[str]:
         """Keys to drop from the wire form when empty; subclasses refine this."""

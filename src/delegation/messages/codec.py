@@ -117,13 +117,18 @@ def validate_model(model: type[M], data: Any, where: str) -> M:
     problems: list[Problem] = []
     if "com_uuid" in model.model_fields and "com-uuid" not in data and "com_uuid" not in data:
         problems.append(Problem(where, "com-uuid", "missing"))
+
+    # Raised outside the ``except`` blocks: pydantic's ValidationError takes no part in garbage
+    # collection, so a frame that held it while a new exception was raised (its traceback) was
+    # never freed, and with it the payload (measured: 100 pings with 1 MB com-uuids kept 201 MB).
+    message: M | None = None
     try:
         message = model.model_validate(data)
     except ValidationError as exc:
-        raise MessageError(problems + validation_problems(exc, where)) from None
+        problems += validation_problems(exc, where)
     except RecursionError:  # pragma: no cover - JSON this deep is refused by json_value first
-        raise MessageError(Problem(where, "", "nested too deeply")) from None
-    if problems:
+        problems.append(Problem(where, "", "nested too deeply"))
+    if problems or message is None:
         raise MessageError(problems)
     return message
 
@@ -141,6 +146,8 @@ def parse_command(data: Any, api: str | None = None) -> WireModel:
     tables = [COMMANDS[api]] if api else list(COMMANDS.values())
     for table in tables:
         if name in table:
+            if data.get("com-uuid") == "":  # a command's answer must name what it answers
+                raise MessageError(Problem(name, "com-uuid", "must not be empty"))
             return validate_model(table[name], data, name)
     known = sorted({c for t in tables for c in t})
     raise MessageError(

@@ -10,7 +10,7 @@ from __future__ import annotations
 from enum import StrEnum
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, StrictBool
 
 from delegation.messages.base import WireModel, new_com_uuid
 
@@ -44,8 +44,9 @@ class Delegate(WireModel):
     tst: dict[str, Any]
     strategy: str | None = None
     objective: str | None = None
-    time_limit: float | None = Field(default=None, gt=0, allow_inf_nan=False)
-    start: bool = False
+    time_limit: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
+    #: Strict: ``"yes"`` is no boolean (it once started 17 missions).
+    start: StrictBool = False
 
 
 class GetBids(WireModel):

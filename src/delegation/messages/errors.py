@@ -30,15 +30,56 @@ def json_depth(value: Any) -> int:
     return deepest
 
 
+class _NotFinite(ValueError):
+    """A ``NaN``/``Infinity`` literal or a number beyond a float's range."""
+
+
+class _Marker:
+    """Stands in for a non-finite number while looking for the field that holds it."""
+
+    __slots__ = ("text",)
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
 def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not valid JSON")
+    raise _NotFinite(f"{name} is not valid JSON")
 
 
 def _finite_float(text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
-        raise ValueError(f"number {text[:20]} is out of range")
+        raise _NotFinite(f"number {text[:20]} is out of range")
     return value
+
+
+def _marked_float(text: str) -> Any:
+    value = float(text)
+    return value if math.isfinite(value) else _Marker(f"number {text[:20]} is out of range")
+
+
+def _non_finite_field(text: str) -> tuple[str, str] | None:
+    """(field, reason) of the first non-finite number in ``text``, found by parsing again with
+    markers (iteratively: no recursion on deep JSON)."""
+    try:
+        value = json.loads(
+            text,
+            parse_constant=lambda name: _Marker(f"{name} is not a finite number"),
+            parse_float=_marked_float,
+        )
+    except (ValueError, RecursionError):
+        return None
+    stack: list[tuple[tuple[int | str, ...], Any]] = [((), value)]
+    while stack:
+        loc, item = stack.pop()
+        if isinstance(item, _Marker):
+            return loc_text(loc), item.text
+        if isinstance(item, dict):
+            stack.extend(((*loc, k), v) for k, v in reversed(list(item.items())))
+        elif isinstance(item, list):
+            stack.extend(((*loc, i), v) for i, v in reversed(list(enumerate(item))))
+    return None
 
 
 def json_value(
@@ -63,7 +104,11 @@ def json_value(
         ) from None
     except RecursionError:
         raise MessageError(Problem(where, "", "invalid JSON: nested too deeply")) from None
-    except ValueError as exc:  # NaN/Infinity, integers too long to convert
+    except _NotFinite as exc:  # NaN/Infinity/1e999: name the field that holds it
+        found = _non_finite_field(text)
+        field, reason = found if found is not None else ("", str(exc))
+        raise MessageError(Problem(where, field, f"invalid JSON: {reason}")) from None
+    except ValueError as exc:  # integers too long to convert
         raise MessageError(Problem(where, "", f"invalid JSON: {exc}")) from None
     if max_depth is not None and json_depth(value) > max_depth:
         raise MessageError(Problem(where, "", f"JSON nested deeper than {max_depth} levels"))

@@ -53,10 +53,12 @@ def sensor_value(sensor_name: str, data: Any) -> SensorValue:
     """Interpret decoded JSON ``data`` from ``sensor/<sensor_name>``; raise ``MessageError``."""
     where = f"sensor/{sensor_name}"
     if sensor_name == "position":
+        problems = []
         try:
             return GeoPoint.model_validate(data)
         except ValidationError as exc:
-            raise MessageError(validation_problems(exc, where)) from None
+            problems = validation_problems(exc, where)
+        raise MessageError(problems)  # outside ``except``: see ``validate_model``
     if sensor_name in NUMERIC_SENSORS:
         number = _number(data)
         if number is None and isinstance(data, dict):

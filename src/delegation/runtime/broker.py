@@ -239,19 +239,33 @@ class PrivateMosquitto:
         certfile: str | None = None,
         keyfile: str | None = None,
         password_file: str | None = None,
+        acl_file: str | None = None,
+        cafile: str | None = None,
+        require_certificate: bool = False,
     ) -> None:
         """``certfile``/``keyfile`` make the listener TLS; ``password_file`` (made with
-        ``mosquitto_passwd``) turns anonymous access off."""
+        ``mosquitto_passwd``) turns anonymous access off; ``acl_file`` limits who may read and
+        write which topics; ``cafile`` with ``require_certificate`` asks clients for a
+        certificate signed by that CA."""
         found = binary or mosquitto_binary()
         if found is None:
             raise BrokerError("mosquitto is not installed")
         if (certfile is None) != (keyfile is None):
             raise BrokerError("a TLS listener needs both certfile and keyfile")
+        if require_certificate and (cafile is None or certfile is None):
+            raise BrokerError("client certificates need a TLS listener and the cafile")
         self.binary = found
         self.host = host
         self.port = 0
         self.tls = certfile is not None
-        self._files = {"certfile": certfile, "keyfile": keyfile, "password_file": password_file}
+        self._files = {
+            "certfile": certfile,
+            "keyfile": keyfile,
+            "cafile": cafile,
+            "password_file": password_file,
+            "acl_file": acl_file,
+        }
+        self._require_certificate = require_certificate
         self._anonymous = "false" if password_file else "true"
         self._proc: subprocess.Popen[bytes] | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
@@ -311,6 +325,8 @@ class PrivateMosquitto:
             shutil.copyfile(source, target)
             target.chmod(0o600)
             lines += f"{option} {target}\n"
+        if self._require_certificate:
+            lines += "require_certificate true\n"
         if os.geteuid() == 0:
             try:
                 pw = pwd.getpwnam("mosquitto")

@@ -11,7 +11,9 @@ command no longer in memory is looked up through an injected `CommandArchive`.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -28,15 +30,54 @@ DEFAULT_CAPACITY = 10_000
 CommandKey = tuple[str, str]
 
 
-def com_uuid_of(payload: bytes) -> str | None:
-    """The ``com-uuid`` of a raw command, if it is JSON with a non-empty string one (no other
-    validation: a command too broken to decode is still answered by its com-uuid)."""
-    try:
-        raw = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
+#: The longest com-uuid kept (a longer one is refused, never stored); as ``MAX_IDENTIFIER``.
+MAX_COM_UUID = 128
+#: How much of an unparsable payload is searched for its com-uuid.
+_SCAN_BYTES = 4096
+_COM_UUID = re.compile(rb'"com-uuid"\s*:\s*"([^"\\]{1,%d})"' % MAX_COM_UUID)
+
+
+def com_uuid_of(payload: bytes, max_bytes: int | None = None) -> str | None:
+    """The ``com-uuid`` of a raw command, if it has a non-empty string one of at most
+    ``MAX_COM_UUID`` characters (no other validation: a command too broken to decode is still
+    answered by its com-uuid).
+
+    A payload that is not JSON (truncated, invalid UTF-8 elsewhere, nested too deep) or longer
+    than ``max_bytes`` is searched for ``"com-uuid": "..."`` in its first bytes only.
+    """
+    raw: object = None
+    if max_bytes is None or len(payload) <= max_bytes:
+        try:
+            raw = json.loads(payload)
+        except (ValueError, UnicodeDecodeError, RecursionError):
+            raw = None
+    if isinstance(raw, dict):
+        value = raw.get("com-uuid")
+        ok = isinstance(value, str) and 0 < len(value) <= MAX_COM_UUID
+        return value if ok and isinstance(value, str) else None
+    if raw is not None:
         return None
-    value = raw.get("com-uuid") if isinstance(raw, dict) else None
-    return value if isinstance(value, str) and value else None
+    match = _COM_UUID.search(payload[:_SCAN_BYTES])
+    if match is None:
+        return None
+    try:
+        return match.group(1).decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+
+
+def payload_digest(payload: bytes, max_bytes: int | None = None) -> str:
+    """What a command said, for telling a re-send from another command reusing its com-uuid:
+    the digest of its canonical JSON (key order and spacing do not matter), or of its bytes
+    (when it is not JSON, or longer than ``max_bytes``)."""
+    if max_bytes is not None and len(payload) > max_bytes:
+        return hashlib.sha256(payload).hexdigest()
+    try:
+        canonical = json.dumps(json.loads(payload), sort_keys=True, separators=(",", ":"))
+        data = canonical.encode("utf-8")
+    except (ValueError, UnicodeDecodeError, RecursionError, TypeError):
+        data = payload
+    return hashlib.sha256(data).hexdigest()
 
 
 class CommandState(StrEnum):
@@ -55,6 +96,15 @@ class CommandEntry:
     state: CommandState = CommandState.PENDING
     answer: list[Outgoing] = field(default_factory=list)
     resends: int = 0
+    #: ``payload_digest`` of the command ("" when not recorded): a re-send must match it.
+    digest: str = ""
+    #: Who sent it and where its answer goes ("": anonymous, the shared response topic).
+    caller: str = ""
+    reply_topic: str = ""
+
+    def same_command(self, digest: str) -> bool:
+        """True when ``digest`` is this command's (or either is unknown)."""
+        return not self.digest or not digest or digest == self.digest
 
 
 class CommandArchive(Protocol):
@@ -109,9 +159,9 @@ class CommandLog:
         """The entry of a command, without counting a re-send."""
         return self._entries.get(key)
 
-    def begin(self, key: CommandKey, now: float) -> CommandEntry:
-        """Record a new command as pending."""
-        entry = CommandEntry(key, now)
+    def begin(self, key: CommandKey, now: float, digest: str = "") -> CommandEntry:
+        """Record a new command as pending (``digest``: its ``payload_digest``)."""
+        entry = CommandEntry(key, now, digest=digest)
         self._entries[key] = entry
         if self.archive is not None:
             self.dirty.add(key)

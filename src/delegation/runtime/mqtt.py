@@ -161,7 +161,14 @@ class MqttClient:
         if self.settings.username:
             client.username_pw_set(self.settings.username, self.settings.password or None)
         if self.settings.tls:
-            client.tls_set(ca_certs=self.settings.ca_certs, cert_reqs=ssl.CERT_REQUIRED)
+            s = self.settings
+            # Verification stays on: CERT_REQUIRED and a hostname check against ``host``.
+            client.tls_set(
+                ca_certs=s.ca_certs,
+                certfile=s.certfile,
+                keyfile=s.keyfile,
+                cert_reqs=ssl.CERT_REQUIRED,
+            )
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
         client.on_message = self._on_message

@@ -7,6 +7,7 @@ from typing import Any
 
 from delegation.runtime.core import Identity
 from delegation.topics import DEFAULT_PREFIX, unit_base_topic
+from delegation.tst.validate import Limits
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +50,18 @@ class ServiceConfig:
     #: where they become free (by that mission's plan), ``exclude`` leaves them out, ``share``
     #: ignores commitments (the engine queues the tasks). Said in the plan's notes.
     commitments: str = "wait"
+    #: Who may query, cancel and signal every mission (others: only their own), by the name a
+    #: command carries (its per-client command topic, ``sender``, or ``response-topic``).
+    operators: frozenset[str] = frozenset()
+    #: The largest command or status message read (bytes); a larger one is refused unread.
+    max_payload: int = 256 * 1024
+    #: The highest explicit speed (m/s) a task may ask for.
+    max_speed: float = 100.0
+
+    @property
+    def limits(self) -> Limits:
+        """The physical ranges trees are validated with."""
+        return Limits(max_speed=self.max_speed)
 
     @property
     def base_topic(self) -> str:

@@ -75,15 +75,19 @@ from delegation.messages import (
     TstResponse,
     WireModel,
     decode,
+    parse_command,
 )
+from delegation.messages.errors import json_value
 from delegation.runtime.commands import (
     CommandEntry,
     CommandKey,
     CommandLog,
     CommandState,
     com_uuid_of,
+    payload_digest,
 )
 from delegation.runtime.core import Effects, JobDone, Outgoing, heartbeat
+from delegation.service.access import Caller, caller_of, client_of, may_manage, refusal
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineAnswer, EngineLink
 from delegation.service.faces import Face, failure
@@ -197,11 +201,13 @@ class ServiceCore:
     # ------------------------------------------------------------------ inputs
 
     def subscriptions(self) -> list[str]:
-        """The filters the service listens on."""
+        """The filters the service listens on (the command topics also per client)."""
         p = self.config.prefix
         return [
             self.tst_command_topic,
             self.delegation_command_topic,
+            f"{self.tst_command_topic}/+",
+            f"{self.delegation_command_topic}/+",
             f"{p}/unit/+/+/+/heartbeat",
             f"{p}/unit/+/+/+/direct_execution_info",
             f"{p}/unit/+/+/+/sensor_info",
@@ -210,11 +216,18 @@ class ServiceCore:
         ]
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
-        """One message from the broker."""
-        if topic == self.tst_command_topic:
-            return self._command("tst", topic, payload, now)
-        if topic == self.delegation_command_topic:
-            return self._command("delegation", topic, payload, now)
+        """One message from the broker (a command on a shared or a per-client command topic)."""
+        faces: tuple[tuple[Face, str], ...] = (("tst", self.tst_command_topic),
+                                               ("delegation", self.delegation_command_topic))
+        for face, command_topic in faces:
+            if topic == command_topic:
+                return self._command(face, payload, now)
+            client = client_of(topic, command_topic)
+            if client is not None:
+                return self._command(face, payload, now, client)
+        if len(payload) > self.config.max_payload:
+            log.debug("ignoring %s: %d bytes", topic, len(payload))
+            return Effects()
         parsed = parse_unit_topic(topic)
         if parsed is None or parsed.name == self.config.name:
             return Effects()
@@ -367,22 +380,54 @@ class ServiceCore:
 
     # ------------------------------------------------------------------ commands
 
-    def _command(self, face: Face, topic: str, payload: bytes, now: float) -> Effects:
+    def _read_command(
+        self, face: Face, payload: bytes, client: str | None
+    ) -> tuple[WireModel | None, MessageError | InputError | None, str | None, Caller]:
+        """(command or None, why not, its com-uuid if readable, its caller). Size first, so that
+        nothing of an oversized payload is parsed or kept; the com-uuid is bounded."""
+        where, limit = f"{face}/command", self.config.max_payload
+        response_base = self.tst_response_topic if face == "tst" else self.delegation_response_topic
+        caller = Caller(client or "", f"{response_base}/{client}" if client else "")
+        if len(payload) > limit:
+            return (None, MessageError(Problem(where, "", f"{len(payload)} bytes is more than "
+                                                          f"the {limit} allowed")),
+                    com_uuid_of(payload, max_bytes=limit), caller)
+        data: Any = None
+        cmd: WireModel | None = None
+        error: MessageError | InputError | None = None
         try:
-            cmd: WireModel | None = decode(topic, payload)
+            data = json_value(payload, where)
+            cmd = parse_command(data, face)
         except MessageError as exc:
-            cmd, error = None, exc
+            error = exc
         com_uuid = getattr(cmd, "com_uuid", None) if cmd is not None else com_uuid_of(payload)
+        try:
+            caller = caller_of(where, data if isinstance(data, dict) else None, client,
+                               response_base)
+        except InputError as exc:
+            cmd, error = None, exc
+        return cmd, error, com_uuid, caller
+
+    def _command(self, face: Face, payload: bytes, now: float, client: str | None = None
+                 ) -> Effects:
+        cmd, error, com_uuid, caller = self._read_command(face, payload, client)
         key: CommandKey | None = (face, com_uuid) if com_uuid else None
         if key is not None:
+            digest = payload_digest(payload, self.config.max_payload)
             entry = self.commands.seen(key)
+            if entry is not None and not entry.same_command(digest):
+                log.info("com-uuid %s reused for a different command", key[1])
+                reason = f"{face}/command: com-uuid: {key[1]!r} reused for a different command"
+                return self._respond(face, None, failure(face, key[1], reason),
+                                     caller.reply_topic)
             if entry is not None:
                 return self._resend(entry)
-            self.commands.begin(key, now)
-        if cmd is None:
-            log.info("bad command on %s: %s", topic, error)
-            return self._fail(face, key, com_uuid or "", error.fail_reason)
-        assert key is not None  # a decoded command always has a com-uuid
+            entry = self.commands.begin(key, now, digest)
+            entry.caller, entry.reply_topic = caller.name, caller.reply_topic
+        if cmd is None or key is None:
+            reason = error.fail_reason if error is not None else f"{face}/command: unreadable"
+            log.info("bad command on %s/command: %s", face, reason)
+            return self._fail(face, key, com_uuid or "", reason, caller.reply_topic)
         try:
             if face == "tst":
                 return self._tst_command(cmd, key, now)
@@ -399,17 +444,41 @@ class ServiceCore:
         log.info("re-sent command %s: answering again", entry.key[1])
         return Effects.of(entry.answer)
 
-    def _respond(self, face: Face, key: CommandKey | None, response: WireModel) -> Effects:
-        """Publish the answer to a command once; remember it for re-sends."""
-        topic = self.tst_response_topic if face == "tst" else self.delegation_response_topic
+    def _respond(
+        self, face: Face, key: CommandKey | None, response: WireModel, reply_topic: str = ""
+    ) -> Effects:
+        """Publish the answer to a command once, on its caller's response topic; remember it for
+        re-sends."""
+        entry = self.commands.get(key) if key is not None else None
+        topic = (entry.reply_topic if entry is not None else reply_topic) or (
+            self.tst_response_topic if face == "tst" else self.delegation_response_topic)
         out = Outgoing.of(topic, response)
         if key is not None and not self.commands.finish(key, [out]):
             return Effects()
         return Effects(publish=[out])
 
-    def _fail(self, face: Face, key: CommandKey | None, com_uuid: str, reason: str) -> Effects:
+    def _fail(self, face: Face, key: CommandKey | None, com_uuid: str, reason: str,
+              reply_topic: str = "") -> Effects:
         log.info("command %s on %s refused: %s", com_uuid or "?", face, reason)
-        return self._respond(face, key, failure(face, com_uuid, reason))
+        return self._respond(face, key, failure(face, com_uuid, reason), reply_topic)
+
+    # ---- who may do what (service.access)
+
+    def _caller(self, key: CommandKey) -> str:
+        entry = self.commands.get(key)
+        return entry.caller if entry is not None else ""
+
+    def _may_manage(self, mission: Mission, key: CommandKey) -> bool:
+        return may_manage(mission.owner, self._caller(key), self.config.operators)
+
+    def _authorise(self, command: str, mission: Mission, key: CommandKey) -> Mission:
+        """The mission, if the caller may touch it; else ``InputError`` saying whose it is."""
+        if not self._may_manage(mission, key):
+            caller = self._caller(key)
+            log.warning("refused %s of mission %s (owner %r) to %r", command, mission.root_uuid,
+                        mission.owner, caller)
+            raise refusal(command, mission.root_uuid, mission.owner, caller)
+        return mission
 
     # ---- TST face
 
@@ -423,11 +492,17 @@ class ServiceCore:
                 raise InputError(Problem(
                     cmd.command, "node-uuid",
                     f"{cmd.node_uuid!r} is not a node of any mission of {self.config.name}"))
+            self._authorise(cmd.command, mission, key)
             model: WireModel = type(cmd)(
                 node_uuid=cmd.node_uuid, signal=cmd.signal, sender=self.config.name
             )
             return self._to_engine("signal", key, "tst", model, now, mission.root_uuid)
         if isinstance(cmd, SignalUnit):
+            unit = cmd.unit.strip("/")
+            for mission in self.book:
+                if not mission.ended and any(n.execunit.strip("/") == unit
+                                             for n in mission.nodes.values()):
+                    self._authorise(cmd.command, mission, key)
             model = SignalUnit(unit=cmd.unit, signal=cmd.signal, sender=self.config.name)
             return self._to_engine("signal", key, "tst", model, now)
         if isinstance(cmd, Ping):
@@ -453,9 +528,16 @@ class ServiceCore:
             return self._plan_job("delegation", key, cmd.tst, now, self._options(None, None, None),
                                   start=False, source="bids", kind="bids")
         if isinstance(cmd, QueryMission):
-            return ok(mission=self.book.get(cmd.root_uuid).to_json())
-        if isinstance(cmd, ListMissions):
-            missions, total = self.book.page(cmd.offset, cmd.limit)
+            return ok(mission=self._authorise(cmd.command, self.book.get(cmd.root_uuid),
+                                              key).to_json())
+        if isinstance(cmd, ListMissions):  # a page of the caller's own (an operator: every one)
+            caller = self._caller(key)
+            if caller in self.config.operators:
+                missions, total = self.book.page(cmd.offset, cmd.limit)
+            else:
+                every, _ = self.book.page(0, 1 << 30)
+                mine = [s for s in every if may_manage(str(s.get("owner") or ""), caller, ())]
+                missions, total = mine[cmd.offset:cmd.offset + cmd.limit], len(mine)
             end = cmd.offset + len(missions)
             return ok(missions=missions, total=total, next=end if end < total else None)
         if isinstance(cmd, ListAgents):
@@ -466,7 +548,7 @@ class ServiceCore:
                                  f"{getattr(cmd, 'command', '?')!r} is not supported"))
 
     def _cancel(self, cmd: CancelMission, key: CommandKey, now: float) -> Effects:
-        mission = self.book.get(cmd.root_uuid)
+        mission = self._authorise(cmd.command, self.book.get(cmd.root_uuid), key)
         if mission.ended:
             raise InputError(Problem("cancel-mission", "root-uuid",
                                      f"mission {cmd.root_uuid} already ended "
@@ -515,7 +597,7 @@ class ServiceCore:
     ) -> Effects:
         """Validate the tree (once, here: a bad one is answered at once) and hand it to the
         planner as a job."""
-        tree = with_uuids(parse_and_validate(raw_tree))
+        tree = with_uuids(parse_and_validate(raw_tree, self.config.limits))
         if kind == "plan":
             conflicts = self.book.conflicts(tree)
             if conflicts:
@@ -534,7 +616,8 @@ class ServiceCore:
         job = Job(id=self._job_ids, kind=kind, key=key, face=face, tree=tree,
                   units=units, options=options, engine=self.config.engine,
                   start=start, source=source, received=entry.received if entry else now,
-                  speed_sources=self.speed_sources(units), warnings=warnings, notes=notes)
+                  speed_sources=self.speed_sources(units), warnings=warnings, notes=notes,
+                  limits=self.config.limits)
         return Effects(jobs=[job])
 
     def on_job_done(self, done: JobDone, now: float) -> Effects:
@@ -582,7 +665,8 @@ class ServiceCore:
                                      **node_infos(plan.tst)},
                               operator=(OperatorView.of(plan.source, plan.tst)
                                         if plan.source else None),
-                              received=to_dict(job.tree), command=job.key))
+                              received=to_dict(job.tree), command=job.key,
+                              owner=self._caller(job.key)))
         for _, node in walk(plan.tst):
             cls = speed_class(node)
             if cls and node.node_uuid and isinstance(node.execunit, str):
@@ -620,6 +704,12 @@ class ServiceCore:
     def _from_engine(self, topic: str, payload: bytes, now: float) -> Effects:
         got = self.engine.receive(topic, payload)
         if isinstance(got, TstFeedback):
+            mission = self.book.of_node(got.node_uuid)
+            if mission is not None and not self.engine.sent_from(mission.root_uuid, topic):
+                log.warning("ignoring feedback on %s for %s: mission %s was sent to %s",
+                            topic, got.node_uuid, mission.root_uuid,
+                            self.engine.sent_to.get(mission.root_uuid, "no engine"))
+                return Effects()
             return self._engine_feedback(got, now)
         if isinstance(got, EngineAnswer):
             return self._engine_answer(got, now)

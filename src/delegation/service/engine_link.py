@@ -10,6 +10,7 @@ it and moves the mission on, since the mission book and the command log are the 
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -33,6 +34,9 @@ log = logging.getLogger(__name__)
 
 RequestKind = Literal["start", "signal", "cancel"]
 
+#: How many trees' engine topics are remembered (feedback for older ones is ignored).
+MAX_TREES = 10_000
+
 
 @dataclass(frozen=True, slots=True)
 class EngineRequest:
@@ -44,6 +48,8 @@ class EngineRequest:
     deadline: float
     root_uuid: str = ""
     plan: dict[str, Any] | None = None
+    #: The engine base topic the command went to: only an answer from there counts.
+    base: str = ""
 
     @property
     def caller_com_uuid(self) -> str:
@@ -69,6 +75,8 @@ class EngineLink:
         self.config = config
         self.fleet = fleet
         self.pending: dict[str, EngineRequest] = {}
+        #: Root uuid -> the engine base topic its tree was sent to (bounded, oldest forgotten).
+        self.sent_to: OrderedDict[str, str] = OrderedDict()
 
     def subscriptions(self) -> list[str]:
         """The engine's answers and feedback, wherever its heartbeat says it lives."""
@@ -110,8 +118,19 @@ class EngineLink:
             raise InputError(Problem("engine", "", self.problem(now) or "no engine"))
         com = getattr(model, "com_uuid", "") or new_com_uuid()
         self.pending[com] = EngineRequest(kind, key, face, now + self.config.engine_timeout,
-                                          root_uuid, plan)
+                                          root_uuid, plan, base)
+        if kind == "start" and root_uuid:
+            self.sent_to[root_uuid] = base
+            self.sent_to.move_to_end(root_uuid)
+            while len(self.sent_to) > MAX_TREES:
+                self.sent_to.popitem(last=False)
         return Outgoing.of(f"{base}/tst/command", model)
+
+    def sent_from(self, root_uuid: str, topic: str) -> bool:
+        """True when ``topic`` lies under the engine base the tree ``root_uuid`` was sent to
+        (feedback from any other engine topic is an impostor's)."""
+        base = self.sent_to.get(root_uuid)
+        return base is not None and topic.startswith(base + "/")
 
     def receive(self, topic: str, payload: bytes) -> TstFeedback | EngineAnswer | None:
         """One message from the engine: feedback (for the mission book), the answer to a waiting
@@ -124,8 +143,14 @@ class EngineLink:
         if isinstance(message, TstFeedback):
             return message
         if isinstance(message, TstResponse):
-            req = self.pending.pop(message.response_to, None)
-            return None if req is None else self._answer(req, message)
+            req = self.pending.get(message.response_to)
+            if req is None:
+                return None
+            if req.base and not topic.startswith(req.base + "/"):
+                log.warning("ignoring an answer on %s: the command went to %s", topic, req.base)
+                return None
+            del self.pending[message.response_to]
+            return self._answer(req, message)
         return None
 
     def expire(self, now: float) -> list[EngineAnswer]:

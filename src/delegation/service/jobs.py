@@ -19,6 +19,7 @@ from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
 from delegation.tst.node import TstNode, walk, where
+from delegation.tst.validate import DEFAULT_LIMITS, Limits
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +85,8 @@ class Job:
     speed_sources: Mapping[str, str] = field(default_factory=dict)
     #: Suspicious input (`delegation.learning.input_warnings`), added to the plan's notes.
     warnings: tuple[str, ...] = ()
+    #: The physical ranges the tree was validated with (the planner checks it again).
+    limits: Limits = DEFAULT_LIMITS
 
     @property
     def com_uuid(self) -> str:
@@ -127,6 +130,7 @@ def run_job(job: Job) -> JobResult:
             objective=job.options.objective,
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
+            limits=job.limits,
         )
         used = {a.execunit.strip("/") for a in plan.assignments}
         plan.notes.extend([*job.warnings, *speed_notes(job.units, job.speed_sources, used),

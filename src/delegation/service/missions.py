@@ -61,6 +61,8 @@ class Mission:
     tst: dict[str, Any]  # the fully instantiated tree, as sent to the engine
     plan: dict[str, Any]  # docs/plan.md §1
     nodes: dict[str, NodeInfo]
+    #: Who created it ("" anonymous: anyone may manage it); see ``service.access``.
+    owner: str = ""
     status: MissionStatus = MissionStatus.PLANNED
     fail_reason: str = ""
     started_at: float | None = None
@@ -114,6 +116,7 @@ class Mission:
             "root-uuid": self.root_uuid,
             "name": self.name,
             "source": self.source,
+            "owner": self.owner,
             "status": self.status.value,
             "fail-reason": self.fail_reason,
             "created": self.created,
@@ -182,6 +185,7 @@ def mission_record(m: Mission) -> dict[str, Any]:
         "retries": m.retries,
         "redelegations": m.redelegations,
         "operator-view": m.operator is not None,  # rebuilt from `received` and `tst` on load
+        "owner": m.owner,
     }
 
 
@@ -203,6 +207,7 @@ def mission_from_record(r: dict[str, Any]) -> Mission:
         origin=dict(r.get("origin") or {}),
         retries=dict(r.get("retries") or {}),
         redelegations=int(r.get("redelegations") or 0),
+        owner=str(r.get("owner") or ""),
         # The operator's view is derived again from the tree received and the tree sent.
         operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]))
                   if received and r.get("operator-view") else None),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 from delegation.fleet import UnitState
 from delegation.runtime.settings import BrokerSettings
@@ -27,14 +27,17 @@ class SimFleet:
         speedup: float = 1.0,
         rates: dict[str, float] | None = None,
         example_agent: bool = False,
+        unit_settings: Mapping[str, BrokerSettings] | None = None,
     ) -> None:
+        """``unit_settings``: a unit's own broker login by name (else ``settings``)."""
         rates = rates or {}
+        own = unit_settings or {}
         self.units: dict[str, SimUnit] = {}
         for unit in units:
             if unit.name in self.units:
                 raise ValueError(f"two simulated units are named {unit.name!r}")
             self.units[unit.name] = SimUnit(
-                settings,
+                own.get(unit.name, settings),
                 unit,
                 prefix=prefix,
                 role=role,

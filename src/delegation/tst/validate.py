@@ -8,6 +8,7 @@ kept); everything else wrong is reported with the node and the field.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 from shapely.geometry import LinearRing, Polygon
@@ -20,6 +21,32 @@ from delegation.tst.node import TstNode, classify_execunit, map_tree, parse_tree
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
 
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Physical ranges a task's numbers must lie in (a plan with a 1e308 m/s move-to, a 1e308 m
+    altitude or target size is no plan); ``max_speed`` is configurable (``ServiceConfig``)."""
+
+    #: The highest explicit speed (m/s) a ``move-to`` may ask for.
+    max_speed: float = 100.0
+    #: Altitudes and heights (m): the deepest ocean to far above any aircraft here.
+    altitude: tuple[float, float] = (-12_000.0, 50_000.0)
+    #: Sizes and radii (m).
+    max_size: float = 100_000.0
+    #: The longest duration (s) a task may be given (negative: until ``$enough``).
+    max_duration: int = 7 * 24 * 3600
+    #: Longest name, node-uuid, execunit and string param.
+    max_string: int = 128
+    max_text: int = 4096
+
+
+DEFAULT_LIMITS = Limits()
+
+#: Params measured in metres that must lie in (0, max_size]: (name, may be zero).
+_SIZES: dict[str, bool] = {"target-size": False, "radius": False, "distance": True}
+#: Params that are heights (m), checked against ``Limits.altitude``.
+_HEIGHTS = frozenset({"height", "height-above-takeoff", "z"})
+
+
 def _is_number(v: Any) -> bool:
     """A finite JSON number that fits a float (huge integers do not)."""
     if isinstance(v, bool) or not isinstance(v, int | float):
@@ -30,7 +57,9 @@ def _is_number(v: Any) -> bool:
         return False
 
 
-def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
+def geopoint_problems(
+    value: Any, field: str, limits: Limits = DEFAULT_LIMITS
+) -> list[tuple[str, str]]:
     """(field, message) pairs for a GeoPoint value; empty when it is valid."""
     if isinstance(value, list) and len(value) == 1:
         value = value[0]  # lenient: the seed's observe-position example wraps it in a list
@@ -48,6 +77,9 @@ def geopoint_problems(value: Any, field: str) -> list[tuple[str, str]]:
     alt = value.get("altitude")
     if alt is not None and not _is_number(alt):
         out.append((f"{field}.altitude", f"must be a number, not {short_repr(alt)}"))
+    elif alt is not None and not limits.altitude[0] <= alt <= limits.altitude[1]:
+        lo, hi = limits.altitude
+        out.append((f"{field}.altitude", f"{alt} m is outside [{lo:g}, {hi:g}]"))
     return out
 
 
@@ -58,20 +90,24 @@ def read_geopoint(value: Any) -> GeoPoint:
     return GeoPoint.model_validate(value)
 
 
-def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[str, str]]:
+def _value_problems(
+    spec_type: ParamType, value: Any, field: str, limits: Limits = DEFAULT_LIMITS
+) -> list[tuple[str, str]]:
     if spec_type is ParamType.GEOPOINT:
-        return geopoint_problems(value, field)
+        return geopoint_problems(value, field, limits)
     if spec_type is ParamType.GEOPOINTS:
         if not isinstance(value, list):
             return [(field, f"must be a list of GeoPoints, not {type(value).__name__}")]
-        return [p for i, v in enumerate(value) for p in geopoint_problems(v, f"{field}[{i}]")]
+        return [
+            p for i, v in enumerate(value) for p in geopoint_problems(v, f"{field}[{i}]", limits)
+        ]
     if spec_type is ParamType.GEOPOINTARRAYS:
         if not isinstance(value, list):
             return [(field, f"must be a list of GeoPoint lists, not {type(value).__name__}")]
         return [
             p
             for i, v in enumerate(value)
-            for p in _value_problems(ParamType.GEOPOINTS, v, f"{field}[{i}]")
+            for p in _value_problems(ParamType.GEOPOINTS, v, f"{field}[{i}]", limits)
         ]
     if spec_type is ParamType.FLOAT64:
         return [] if _is_number(value) else [(field, f"must be a number, not {short_repr(value)}")]
@@ -90,12 +126,16 @@ def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[
             else [(field, f"must be true or false, not {short_repr(value)}")]
         )
     if spec_type is ParamType.STRING:
-        if isinstance(value, str):
-            return []
-        return [(field, f"must be a string, not {short_repr(value)}")]
+        if not isinstance(value, str):
+            return [(field, f"must be a string, not {short_repr(value)}")]
+        if len(value) > limits.max_text:
+            return [(field, f"is {len(value)} characters long; at most {limits.max_text}")]
+        return []
     if spec_type is ParamType.STRINGS:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             return [(field, "must be a list of strings")]
+        if any(len(v) > limits.max_text for v in value):
+            return [(field, f"holds a string longer than {limits.max_text} characters")]
         return []
     if spec_type is ParamType.FLOAT64S:
         if not isinstance(value, list) or not all(_is_number(v) for v in value):
@@ -104,15 +144,17 @@ def _value_problems(spec_type: ParamType, value: Any, field: str) -> list[tuple[
     raise AssertionError(spec_type)  # pragma: no cover
 
 
-def _speed_problems(value: Any, field: str) -> list[tuple[str, str]]:
+def _speed_problems(value: Any, field: str, limits: Limits) -> list[tuple[str, str]]:
     if isinstance(value, list) and len(value) == 1:
         value = value[0]
     if isinstance(value, str):
         if value in SPEED_CLASSES:
             return []
         return [(field, f"{short_repr(value)} is not one of {', '.join(SPEED_CLASSES)}")]
-    if _is_number(value) and value > 0:
+    if _is_number(value) and 0 < value <= limits.max_speed:
         return []  # lenient: an explicit m/s, as in the seed's observe-position example
+    if _is_number(value) and value > limits.max_speed:
+        return [(field, f"{value:g} m/s is above the maximum of {limits.max_speed:g} m/s")]
     classes = ", ".join(SPEED_CLASSES)
     return [(field, f"must be one of {classes} (or m/s > 0), not {short_repr(value)}")]
 
@@ -129,9 +171,36 @@ def _polygon_problems(points: list[Any], field: str) -> list[tuple[str, str]]:
     return []
 
 
-def param_problems(spec: TaskSpec, params: dict[str, Any]) -> list[tuple[str, str]]:
-    """(field, message) pairs for a task node's params; unknown params are allowed and kept."""
+def _range_problems(name: str, value: Any, field: str, limits: Limits) -> list[tuple[str, str]]:
+    """Physical ranges of the numeric params (sizes, heights, durations, commanded speeds)."""
+    if name in _SIZES:
+        zero_ok = _SIZES[name]
+        if value < 0 or (value == 0 and not zero_ok):
+            return [(field, f"must be greater than 0, not {value}")]
+        if value > limits.max_size:
+            return [(field, f"{value:g} m is above the maximum of {limits.max_size:g} m")]
+    elif name in _HEIGHTS and not limits.altitude[0] <= value <= limits.altitude[1]:
+        lo, hi = limits.altitude
+        return [(field, f"{value} m is outside [{lo:g}, {hi:g}]")]
+    elif name == "duration" and value > limits.max_duration:
+        return [(field, f"{value} s is above the maximum of {limits.max_duration} s")]
+    elif name == "commanded-speed" and any(not 0 < v <= limits.max_speed for v in value):
+        return [(field, f"every speed must lie in (0, {limits.max_speed:g}] m/s")]
+    return []
+
+
+def param_problems(
+    spec: TaskSpec, params: dict[str, Any], limits: Limits = DEFAULT_LIMITS
+) -> list[tuple[str, str]]:
+    """(field, message) pairs for a task node's params; unknown params are allowed and kept.
+
+    A known param given as ``null`` is refused (leave it out for its default): ``"speed": null``
+    is no speed.
+    """
     out: list[tuple[str, str]] = []
+    for name, value in params.items():
+        if value is None and name in spec.params and name not in spec.required:
+            out.append((f"params.{name}", "must not be null (leave it out for the default)"))
     for name in spec.required:
         if name not in params or params[name] is None:
             out.append((f"params.{name}", f"missing: {spec.name} cannot run without it"))
@@ -146,11 +215,15 @@ def param_problems(spec: TaskSpec, params: dict[str, Any]) -> list[tuple[str, st
             continue
         field = f"params.{name}"
         if name == "speed" and pspec.type is ParamType.STRING:
-            out.extend(_speed_problems(value, field))
+            out.extend(_speed_problems(value, field, limits))
             continue
-        found = _value_problems(pspec.type, value, field)
+        found = _value_problems(pspec.type, value, field, limits)
         out.extend(found)
         if found:
+            continue
+        ranged = _range_problems(name, value, field, limits)
+        out.extend(ranged)
+        if ranged:
             continue
         if spec.name == "search-area" and name == "area":
             out.extend(_polygon_problems(value, field))
@@ -159,16 +232,37 @@ def param_problems(spec: TaskSpec, params: dict[str, Any]) -> list[tuple[str, st
                 out.append((field, "needs at least one area"))
             for i, area in enumerate(value):
                 out.extend(_polygon_problems(area, f"{field}[{i}]"))
-        elif name in ("radius", "target-size") and value <= 0:
-            out.append((field, f"must be greater than 0, not {value}"))
     return out
 
 
-def tree_problems(root: TstNode) -> list[Problem]:
-    """Every catalogue problem in a parsed tree: unknown tasks, params, execunit types."""
+def _string_problems(label: str, node: TstNode, limits: Limits) -> list[Problem]:
+    """Names, node-uuids and execunits are identifiers: bounded, so that a 1 MB name is refused
+    before it is kept anywhere."""
+    out: list[Problem] = []
+    for field, value in (
+        ("name", node.name),
+        (f"{node.common_key}.node-uuid", node.common_params.get("node-uuid")),
+        (f"{node.common_key}.execunit", node.execunit),
+    ):
+        if isinstance(value, str) and len(value) > limits.max_string:
+            out.append(
+                Problem(
+                    label, field, f"is {len(value)} characters long; at most {limits.max_string}"
+                )
+            )
+    return out
+
+
+def tree_problems(root: TstNode, limits: Limits = DEFAULT_LIMITS) -> list[Problem]:
+    """Every catalogue problem in a parsed tree: unknown tasks, params, execunit types, string
+    lengths and physical ranges."""
     problems: list[Problem] = []
     for path, node in walk(root):
         label = where(path, node)
+        strings = _string_problems(label, node, limits)
+        if strings:
+            problems.extend(strings)
+            continue
         try:
             classify_execunit(node.execunit)
         except TypeError as exc:
@@ -181,14 +275,14 @@ def tree_problems(root: TstNode) -> list[Problem]:
                 Problem(label, "name", f"unknown task {node.name!r}: not in the catalogue")
             )
             continue
-        problems.extend(Problem(label, f, m) for f, m in param_problems(spec, node.params))
+        problems.extend(Problem(label, f, m) for f, m in param_problems(spec, node.params, limits))
     return problems
 
 
-def parse_and_validate(data: Any) -> TstNode:
+def parse_and_validate(data: Any, limits: Limits = DEFAULT_LIMITS) -> TstNode:
     """Parse a tree and check it against the catalogue; raise ``InputError`` with every problem."""
     root = parse_tree(data)
-    problems = tree_problems(root)
+    problems = tree_problems(root, limits)
     if problems:
         raise InputError(problems)
     return root
