@@ -199,7 +199,8 @@ def test_cancel_without_a_live_engine_ends_the_mission_at_once() -> None:
     fleet(core, 100.0)
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
     core.fleet.forget("op0")
-    cmd = json.dumps({"com-uuid": "k-1", "command": "cancel-mission", "root-uuid": "root-1"})
+    cmd = json.dumps({"com-uuid": "k-1", "command": "cancel-mission", "root-uuid": "root-1",
+                      "sender": "test"})
     out = core.on_message(f"{BASE}/delegation/command", cmd.encode(), 103.0)
     assert on(out, "delegation/response")[0]["response"] == "ok"
     assert statuses(out) == ["aborted"]
@@ -265,7 +266,8 @@ def test_a_cancel_while_re_delegating_aborts_the_old_tree_and_ends_the_mission()
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
     failed = feedback(core, "n0", "failed", 102.0, reason="motor fault")
     assert len(failed.jobs) == 1
-    cmd = json.dumps({"com-uuid": "k-2", "command": "cancel-mission", "root-uuid": "root-1"})
+    cmd = json.dumps({"com-uuid": "k-2", "command": "cancel-mission", "root-uuid": "root-1",
+                      "sender": "test"})
     out = core.on_message(f"{BASE}/delegation/command", cmd.encode(), 102.1)
     assert on(out, "delegation/response")[0]["response"] == "ok"
     assert [(c["node-uuid"], c["signal"]) for c in on(out, "op0/tst/command")] == [

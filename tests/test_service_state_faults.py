@@ -206,7 +206,8 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
         second = serves(name, state)
         _wait_new_heartbeat(watch, base, {first_uuid}, timeout=30)
 
-        known = _request(watch, base, {"command": "query-mission", "root-uuid": root})
+        known = _request(watch, base, {"command": "query-mission", "root-uuid": root,
+                                       "sender": "test"})  # the owner (restored from the store)
         assert known["response"] == "ok", known
         assert known["mission"]["status"] in ("running", "succeeded"), known
         resent = _request(watch, base, dict(command, **{"com-uuid": "c-1"}), nth=2)
@@ -218,7 +219,8 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
         watch.wait_json(f"{base}/delegation/feedback",
                         lambda d: d.get("root-uuid") == root and d.get("status") == "succeeded",
                         timeout=40, what="the mission succeeded")
-        done = _request(watch, base, {"command": "query-mission", "root-uuid": root})
+        done = _request(watch, base, {"command": "query-mission", "root-uuid": root,
+                                      "sender": "test"})
         assert done["mission"]["status"] == "succeeded"
         assert all(n["status"] == "succeeded" for n in done["mission"]["nodes"]), done
         start_tsts = [d for d in watch.json_on(f"{prefix}/unit/+/+/op0/tst/command")
@@ -229,9 +231,10 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
         assert len({d["task-uuid"] for d in start_tasks}) == 1
         # Past the 1 s retention the mission is read back from the store.
         time.sleep(1.5)  # the retention period itself is what is tested
-        later = _request(watch, base, {"command": "query-mission", "root-uuid": root})
+        later = _request(watch, base, {"command": "query-mission", "root-uuid": root,
+                                       "sender": "test"})
         assert later["mission"] == done["mission"]
-        listed = _request(watch, base, {"command": "list-missions", "limit": 10})
+        listed = _request(watch, base, {"command": "list-missions", "limit": 10, "sender": "test"})
         assert listed["total"] == 1 and listed["missions"][0]["root-uuid"] == root
         second.stop()
         assert second.proc.returncode == 0, second.output()[-2000:]
@@ -271,7 +274,8 @@ def test_postgres_standby_takes_over_within_10_s(
         logging.getLogger(__name__).info("standby's first heartbeat %.2f s after kill -9", took)
         assert took < 10.0, took
         standby.wait_output("taking over", 5)
-        known = _request(watch, base, {"command": "query-mission", "root-uuid": root})
+        known = _request(watch, base, {"command": "query-mission", "root-uuid": root,
+                                       "sender": "test"})  # the owner (restored from the store)
         assert known["response"] == "ok" and known["mission"]["status"] == "planned"
         again = _request(watch, base, {"command": "ping", "com-uuid": "p-1"}, nth=2)
         assert again == pong and len(_answers(watch, base, "p-1")) == 2

@@ -7,7 +7,9 @@ links; the service answers a re-send with the same answer and never runs it twic
 
 from __future__ import annotations
 
+import getpass
 import json
+import os
 import queue
 import threading
 import time
@@ -28,6 +30,17 @@ from delegation.topics import (
     base_from_heartbeat,
     parse_unit_topic,
 )
+
+
+def default_sender() -> str:
+    """``WARAPS_SENDER``, else the login name (``delegation`` when there is none)."""
+    name = os.environ.get("WARAPS_SENDER", "").strip()
+    if name:
+        return name
+    try:
+        return getpass.getuser() or "delegation"
+    except (KeyError, OSError):  # no passwd entry (containers)
+        return "delegation"
 
 
 class ServiceUnavailable(DelegationError):
@@ -56,8 +69,13 @@ class ServiceClient:
         track_positions: bool = False,
         clock: Callable[[], float] = time.time,
         service_timeout: float = 10.0,
+        sender: str | None = None,
     ) -> None:
         self.prefix = prefix
+        #: Who this client is to the service (``sender`` of its commands): the owner of the
+        #: missions it starts, so the same operator can cancel or signal them from another
+        #: process. ``WARAPS_SENDER``, else the login name.
+        self.sender = sender or default_sender()
         self.service_timeout = service_timeout
         self.service = service
         self.clock = clock
@@ -164,7 +182,7 @@ class ServiceClient:
         base = self.wait_service(min(timeout, self.service_timeout))
         body = dict(command)
         body.setdefault("com-uuid", new_com_uuid())
-        body.setdefault("sender", self.client.client_id)
+        body.setdefault("sender", self.sender)
         com = body["com-uuid"]
         payload = json.dumps(body).encode("utf-8")
         topic = f"{base}/{api}/command"

@@ -705,7 +705,8 @@ class ServiceCore:
         got = self.engine.receive(topic, payload)
         if isinstance(got, TstFeedback):
             mission = self.book.of_node(got.node_uuid)
-            if mission is not None and not self.engine.sent_from(mission.root_uuid, topic):
+            bound = self.fleet.base_topic(self.config.engine)
+            if mission is not None and not self.engine.sent_from(mission.root_uuid, topic, bound):
                 log.warning("ignoring feedback on %s for %s: mission %s was sent to %s",
                             topic, got.node_uuid, mission.root_uuid,
                             self.engine.sent_to.get(mission.root_uuid, "no engine"))

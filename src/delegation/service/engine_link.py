@@ -126,10 +126,12 @@ class EngineLink:
                 self.sent_to.popitem(last=False)
         return Outgoing.of(f"{base}/tst/command", model)
 
-    def sent_from(self, root_uuid: str, topic: str) -> bool:
+    def sent_from(self, root_uuid: str, topic: str, bound: str | None = None) -> bool:
         """True when ``topic`` lies under the engine base the tree ``root_uuid`` was sent to
-        (feedback from any other engine topic is an impostor's)."""
-        base = self.sent_to.get(root_uuid)
+        (feedback from any other engine topic is an impostor's). A tree sent before a restart
+        has no record here: then the engine's base as the fleet registry bound it (``bound``)
+        is the one to trust."""
+        base = self.sent_to.get(root_uuid) or bound
         return base is not None and topic.startswith(base + "/")
 
     def receive(self, topic: str, payload: bytes) -> TstFeedback | EngineAnswer | None:
