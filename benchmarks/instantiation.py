@@ -1,4 +1,4 @@
-"""Series-parallel instantiation vs the old wrap rule (issue 9, DESIGN 3.4): prints the figures.
+"""Series-parallel instantiation vs the old wrap rule (docs/protocol.md §8): prints the figures.
 
 On generated mixed (conc-of-seq) scenarios, the auction's plan as sent today (planned on the
 precedence graph, sent as the series-parallel tree or the old rule's tree, whichever simulates

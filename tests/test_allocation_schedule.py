@@ -1,7 +1,7 @@
 """The schedule simulator against hand-computed numbers (hand-made cost tables, no cost model).
 
 Everything else (strategies, the brute force in the exactness tests) relies on this evaluator, so
-these cases pin its timing semantics (DESIGN 3.6) with numbers worked out by hand.
+these cases pin its timing semantics (docs/plan.md §3) with numbers worked out by hand.
 """
 
 from __future__ import annotations

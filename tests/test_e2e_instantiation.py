@@ -1,4 +1,4 @@
-"""End to end on a real broker: a tree the plan must regroup (DESIGN 3.4 revised).
+"""End to end on a real broker: a tree the plan must regroup (docs/protocol.md §8).
 
 conc(seq(a, b), seq(c, d)) with a and d fixed to dji0, b and c to dji1: with the units' orders the
 precedence graph is not the caller's tree, so the sent tree regroups the control nodes. The

@@ -1,4 +1,4 @@
-"""The engine binds each unit to the base topic of its first heartbeat (issue 11, DESIGN 3.10):
+"""The engine binds each unit to the base topic of its first heartbeat (issue 11, docs/security.md):
 an impostor's heartbeat and answers from another topic are logged and ignored."""
 
 from __future__ import annotations

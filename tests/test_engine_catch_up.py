@@ -1,5 +1,6 @@
-"""The engine catching up after a broker outage (DESIGN 3.9): ``query-status`` to the units on
-reconnect and when a unit's heartbeat comes back after a gap; the answers applied as feedback."""
+"""The engine catching up after a broker outage (docs/protocol.md §11): ``query-status`` to the
+units on reconnect and when a unit's heartbeat comes back after a gap; the answers applied as
+feedback."""
 
 from __future__ import annotations
 

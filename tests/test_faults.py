@@ -1,4 +1,4 @@
-"""Fault tests on a real broker with real processes (DESIGN 3.9, issue 10 item 6).
+"""Fault tests on a real broker with real processes (docs/protocol.md §11, issue 10 item 6).
 
 Each test runs a private mosquitto, one ``delegation sim`` process per unit (so one unit can be
 killed), the reference engine and the service, then breaks something: a unit killed -9, a unit

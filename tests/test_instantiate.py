@@ -1,5 +1,5 @@
-"""The fully instantiated tree (DESIGN 3.4): units filled in, uuids and unknown fields kept,
-catalogue defaults filled, conc children on one unit wrapped in a seq in planned order."""
+"""The fully instantiated tree (docs/protocol.md §8): units filled in, uuids and unknown fields
+kept, catalogue defaults filled, conc children on one unit wrapped in a seq in planned order."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Series-parallel instantiation (DESIGN 3.4 revised), as properties over random allocations.
+"""Series-parallel instantiation (docs/protocol.md §8), as properties over random allocations.
 
 Whatever the tree's shape and whatever runnable allocation a strategy might return, the tree sent
 contains every precedence of the plan (the caller's seq order and each unit's order), never lets

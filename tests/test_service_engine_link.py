@@ -185,7 +185,7 @@ def test_plan_done_records_the_mission_and_answers_the_plan(core: ServiceCore) -
     effects = core.on_job_done(JobDone(job, result, 0.25), 101.5)
     assert [f["status"] for f in on(effects, "delegation/feedback")] == ["planned"]
     answer = answer_of(effects)
-    # the plan of DESIGN 3.5, and its notes (here: the units are planned with default speeds)
+    # the plan of docs/plan.md §1, and its notes (here: the units are planned with default speeds)
     assert answer["response"] == "ok"
     assert answer["plan"] == {**result.plan.to_json(), "notes": result.plan.notes}
     assert any("defaults" in note for note in answer["plan"]["notes"])

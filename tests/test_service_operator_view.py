@@ -1,4 +1,4 @@
-"""The operator's own tree during execution (DESIGN 3.4 revised): control nodes derived."""
+"""The operator's own tree during execution (docs/protocol.md §8): control nodes derived."""
 
 from __future__ import annotations
 

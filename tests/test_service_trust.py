@@ -1,4 +1,4 @@
-"""Trust (issue 11, DESIGN 3.10), message by message against the service core: strict input,
+"""Trust (issue 11, docs/security.md), message by message against the service core: strict input,
 owners and operators, per-client answers, bound identities of units and the engine."""
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ advertising a very low rate is still declared lost within a bounded time). A hea
 ``agent-uuid`` means the unit rebooted: everything it reported executing is forgotten. `check`
 reports each unit whose heartbeat stopped as a ``lost`` event, once per loss.
 
-Bound identities (DESIGN 3.10): a name is bound to the base topic of its first heartbeat. A
+Bound identities (docs/security.md): a name is bound to the base topic of its first heartbeat. A
 heartbeat (or any message) for the same name from another base topic is an impostor's: logged
 once per topic and ignored, so that neither the service's trees nor the engine's tasks follow it.
 Only `forget` unbinds a name.

@@ -1,4 +1,4 @@
-"""The fully instantiated tree (DESIGN 3.4), built as a new tree from the plan.
+"""The fully instantiated tree (docs/protocol.md §8), built as a new tree from the plan.
 
 Every leaf gets its unit, control nodes the engine's unit unless fixed; uuids, unknown fields and
 the caller's key order are kept. A unit runs one vehicle task at a time, so where the plan gives one

@@ -123,7 +123,7 @@ def check_invariants(plan: Plan, tree: TstNode, units: Sequence[UnitState]) -> l
 
 def _tasks_kept(x: _Subject) -> list[str]:
     """The instantiated tree keeps the caller's tasks and their uuids (control nodes may be
-    regrouped, DESIGN 3.4 revised)."""
+    regrouped, docs/protocol.md §8)."""
     out = []
     original = leaves(x.tree)
     if len(original) != len(x.inst_leaves):

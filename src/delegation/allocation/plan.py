@@ -1,4 +1,4 @@
-"""The plan (DESIGN 3.5): who does what when, the totals, the instantiated tree."""
+"""The plan (docs/plan.md §1): who does what when, the totals, the instantiated tree."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ class Unassigned:
 
 @dataclass
 class Plan:
-    """A plan: DESIGN 3.5. ``routes`` (per unit, in execution order) is for maps, not JSON."""
+    """A plan: docs/plan.md §1. ``routes`` (per unit, in execution order) is for maps, not JSON."""
 
     strategy: str
     objective: str
@@ -67,7 +67,7 @@ class Plan:
     #: The caller's tree with uuids and defaults, before units were filled in (not in JSON).
     source: TstNode | None = None
     #: The makespan of the plan's precedence graph (the tree's order + each unit's order), which
-    #: the strategies plan for; ``makespan`` is the sent tree's (DESIGN 3.4 revised).
+    #: the strategies plan for; ``makespan`` is the sent tree's (docs/protocol.md §8).
     precedence_makespan: float | None = None
     #: The strategy whose plan this is when the strategy fell back to it (``optimal`` keeping
     #: the auction's plan), else None.
@@ -88,7 +88,7 @@ class Plan:
         return f"{self.strategy} (= {self.fallback})" if self.fallback else self.strategy
 
     def to_json(self) -> dict[str, Any]:
-        """Exactly DESIGN 3.5, hyphenated keys; ``bound``/``gap`` null unless proven."""
+        """Exactly docs/plan.md §1, hyphenated keys; ``bound``/``gap`` null unless proven."""
         return {
             "strategy": self.strategy,
             "objective": self.objective,

@@ -1,9 +1,9 @@
 """The allocation problem: which tasks, which units may take them, what it costs, what must wait.
 
 Built once from (tree, fleet snapshot, cost tables) and shared by every strategy and by the schedule
-evaluator, so that all of them mean the same thing (DESIGN 3.6). Tasks are the tree's leaves in tree
-order; ``allowed[u, t]`` already folds in capability, fixed units (``/dji0``) and aliases (every
-unit of an alias group must be able to take every task of the group).
+evaluator, so that all of them mean the same thing (docs/plan.md §2). Tasks are the tree's leaves in
+tree order; ``allowed[u, t]`` already folds in capability, fixed units (``/dji0``) and aliases
+(every unit of an alias group must be able to take every task of the group).
 """
 
 from __future__ import annotations

@@ -1,13 +1,14 @@
 """Schedule evaluation: given who does what in which order, when does everything happen.
 
 The one place that turns (assignment, per-unit order) into times, so that every strategy, the
-invariants and the tests agree (DESIGN 3.6): a task is executed when the tree activates it (seq:
-after its predecessor ended; conc: with its siblings) and its unit is free; travel starts then, from
-where the unit is at that time. Non-vehicle tasks (``look-at-*``) do not occupy the unit and do not
-travel. A unit with a ``home`` flies back after its last task; that counts for makespan and totals.
+invariants and the tests agree (docs/plan.md §3): a task is executed when the tree activates it
+(seq: after its predecessor ended; conc: with its siblings) and its unit is free; travel starts
+then, from where the unit is at that time. Non-vehicle tasks (``look-at-*``) do not occupy the unit
+and do not travel. A unit with a ``home`` flies back after its last task; that counts for makespan
+and totals.
 
 By default the graph simulated is the plan's precedence graph (the tree's order plus the units'
-orders, DESIGN 3.4 revised), what the strategies plan for; the plan's own times come from
+orders, docs/protocol.md §8), what the strategies plan for; the plan's own times come from
 simulating the tree actually sent on its own structure (``sent_tree``). ``wrapped=True`` simulates
 the old rule's tree (children of a conc that share a unit wrapped whole in a seq, ``serialise``).
 """
@@ -175,7 +176,7 @@ def evaluate(
 ) -> Schedule:
     """Simulate the tree with this allocation (earliest start everywhere) and measure it.
 
-    By default the precedence graph (the tree's order plus each unit's order, DESIGN 3.4 revised):
+    By default the precedence graph (the tree's order plus each unit's order, docs/protocol.md §8):
     what every strategy plans for; the tree sent is built from it (``series_parallel``) and
     simulated on its own structure. ``wrapped`` adds the old rule's whole-subtree wrappers
     (``serialise``): the times of the tree ``instantiate`` builds (default: the problem's

@@ -1,4 +1,4 @@
-"""Which tree the plan sends, and its times (DESIGN 3.4 revised; truthful plans).
+"""Which tree the plan sends, and its times (docs/protocol.md §8; truthful plans).
 
 The strategies plan on the precedence graph (``schedule.evaluate``). Two trees can carry it: the
 series-parallel tree (``series_parallel``) and the old rule's (``instantiate``: conc children that

@@ -1,4 +1,4 @@
-"""The tree as it will run: children of a ``conc`` that share a unit, serialised (DESIGN 3.4).
+"""The old wrap rule (docs/protocol.md §8): children of a ``conc`` that share a unit, serialised.
 
 A unit runs one vehicle task at a time, so where an allocation gives one unit tasks under several
 children of a ``conc``, the instantiated tree wraps those children (whole subtrees, grouped into

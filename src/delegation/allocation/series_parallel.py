@@ -1,4 +1,4 @@
-"""Series-parallel instantiation (DESIGN 3.4, revised): the tree whose order holds the plan.
+"""Series-parallel instantiation (docs/protocol.md §8): the tree whose order holds the plan.
 
 The execution a plan means is its precedence graph: the tree's order (a ``seq``'s children one
 after another) plus each unit's order of its own tasks. A TST can only say series-parallel orders,

@@ -79,7 +79,7 @@ class EngineCore:
         self.bases: dict[str, str] = {}
         """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes).
 
-        Bound at the first heartbeat (DESIGN 3.10): the same name from another base topic is an
+        Bound at the first heartbeat (docs/security.md): the same name from another base topic is an
         impostor's, logged once per topic and ignored, as are its exec answers."""
         self._impostors: set[tuple[str, str]] = set()
         self._command_topic = identity.topic("tst/command")

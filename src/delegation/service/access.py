@@ -1,4 +1,4 @@
-"""Who is asking, where the answer goes, and who may touch a mission (DESIGN 3.10; pure).
+"""Who is asking, where the answer goes, and who may touch a mission (docs/security.md; pure).
 
 A caller is named, most trusted first, by the per-client command topic it published on
 (``<base>/delegation/command/<client>``: with the shipped mosquitto ACL, ``<client>`` is the

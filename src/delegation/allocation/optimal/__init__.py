@@ -1,6 +1,6 @@
 """The ``optimal`` strategy: OR-Tools, warm-started from the auction, under a time limit.
 
-Which solver (DESIGN 4):
+Which solver:
 - the **routing solver** for larger trees where every task is activated at mission start (a
   ``conc`` of tasks: an mTSP with per-unit speeds, capabilities, aliases, homes and battery);
   guided local search from the auction's routes; it proves no bound;
@@ -8,7 +8,7 @@ Which solver (DESIGN 4):
   subtrees, and for small flat trees (it proves optimality there, so the plan carries a ``bound``):
   per-unit circuits over optional arcs, activation times from the tree, makespan and battery as
   linear constraints: the precedence graph (the tree's order plus each unit's), what every
-  strategy plans for (DESIGN 3.4 revised), so its bound is a lower bound for any tree sent. Only
+  strategy plans for (docs/protocol.md §8), so its bound is a lower bound for any tree sent. Only
   for a problem with ``wrap_subtrees`` (the old rule, for benchmarks) does it add the whole-subtree
   serialisation sub-model (``cpsat_subtrees``);
 - a **large neighbourhood search** (``lns``: ruin and recreate on the precedence-graph schedule,

@@ -160,7 +160,7 @@ class _CpSatModel:
         }
         self.scale, self.horizon = self._ticks()
         # Whole-subtree wrapping is the old instantiation rule's; on the precedence graph (what
-        # plans mean, DESIGN 3.4 revised) a unit's order and the tree's order are all there is.
+        # plans mean, docs/protocol.md §8) a unit's order and the tree's order are all there is.
         self.wrapping = problem.wrap_subtrees
         self.paths = ([dict(path) for path in conc_paths(problem, every_conc=False)]
                       if self.wrapping else [{} for _ in problem.tasks])

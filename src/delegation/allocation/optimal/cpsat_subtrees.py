@@ -1,7 +1,7 @@
 """CP-SAT sub-model: conc children that share a unit run one after another as whole subtrees.
 
-One total order per component of children that share units, as ``serialise`` derives it (DESIGN
-3.4). Exact for concs with at most ``CP_EXACT_CHILDREN`` children holding tasks:
+One total order per component of children that share units, as ``serialise`` derives it
+(docs/protocol.md §8). Exact for concs with at most ``CP_EXACT_CHILDREN`` children holding tasks:
 
 - ``has``: a unit has a task under a child;
 - ``share``: two children have a unit in common;
