@@ -123,6 +123,18 @@ def pairwise_xy_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(np.hypot(diff[..., 0], diff[..., 1]))
 
 
+def great_circle_matrix_m(a: Sequence[GeoPoint], b: Sequence[GeoPoint]) -> np.ndarray:
+    """Spherical (haversine) distances (m) between every point of ``a`` and of ``b``: an
+    (len(a), len(b)) array, vectorised. Within 0.5 % of the geodesic: for plausibility checks
+    ("thousands of km away"), where a Vincenty call per pair cost tens of ms per mission."""
+    la = np.radians(np.array([[p.latitude, p.longitude] for p in a], dtype=float).reshape(-1, 2))
+    lb = np.radians(np.array([[p.latitude, p.longitude] for p in b], dtype=float).reshape(-1, 2))
+    p1, p2 = la[:, None, 0], lb[None, :, 0]
+    dp, dl = p2 - p1, lb[None, :, 1] - la[:, None, 1]
+    h = np.sin(dp / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dl / 2) ** 2
+    return np.asarray(2 * EARTH_RADIUS_M * np.arcsin(np.minimum(1.0, np.sqrt(h))))
+
+
 def haversine_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     """Spherical distance; a cheap cross-check for tests, not used for plans."""
     p1, p2 = math.radians(lat1), math.radians(lat2)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 from delegation.errors import InputError
 from delegation.fleet import SPEED_KEYS, UnitState
-from delegation.geo import GeoPoint, distance_m
+from delegation.geo import GeoPoint, great_circle_matrix_m
 from delegation.tst.node import TstNode, walk, where
 
 #: A task this far (m) from every unit is flagged as implausible geometry.
@@ -141,6 +141,7 @@ def input_warnings(tree: TstNode, units: Sequence[UnitState],
     from delegation.costs import task_geometry
 
     names = {u.name for u in units} | set(known)
+    positions = [u.position for u in units]
     warnings = []
     for path, node in walk(tree):
         unit = node.execunit
@@ -159,7 +160,7 @@ def input_warnings(tree: TstNode, units: Sequence[UnitState],
         points: list[GeoPoint] = [*geometry.points, *(p for a in geometry.areas for p in a)]
         if not points:
             continue
-        nearest = min(distance_m(p, u.position) for p in points for u in units)
+        nearest = float(great_circle_matrix_m(points, positions).min())
         if nearest > FAR_M:
             warnings.append(
                 f"{where(path, node)}: {nearest / 1000:,.0f} km from the nearest unit; "

@@ -11,7 +11,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from delegation.fleet import UnitState
-from delegation.geo import GeoPoint, distance_m
+from delegation.geo import GeoPoint, great_circle_matrix_m
 from delegation.tst.node import TstNode, walk, where
 
 #: A task farther than this from every unit is called implausible.
@@ -56,6 +56,7 @@ def plausibility_notes(
     first point), saying when swapping latitude and longitude would bring it near one."""
     if not units:
         return []
+    positions = [u.position for u in units]
     notes: list[str] = []
     for path, node in walk(tree):
         if node.is_control:
@@ -64,17 +65,18 @@ def plausibility_notes(
         if found is None:
             continue
         param, point = found
-        nearest = min(units, key=lambda u: distance_m(point, u.position))
-        far = distance_m(point, nearest.position)
+        distances = great_circle_matrix_m([point], positions)[0]
+        far = float(distances.min())
         if far <= max_distance_m:
             continue
+        nearest = units[int(distances.argmin())]
         note = (
             f"{where(path, node)}: params.{param} is {far / 1000:,.0f} km from the nearest unit "
             f"({nearest.name})"
         )
         if abs(point.longitude) <= 90.0:
             swapped = GeoPoint(latitude=point.longitude, longitude=point.latitude)
-            if min(distance_m(swapped, u.position) for u in units) <= max_distance_m:
+            if float(great_circle_matrix_m([swapped], positions).min()) <= max_distance_m:
                 note += "; latitude and longitude look swapped"
         notes.append(note)
     return notes
