@@ -12,9 +12,10 @@ def abort(problem: Any, objective: Any, time_limit: float, /) -> Any:
 
 
 def sleepy(problem: Any, objective: Any, time_limit: float, /) -> Any:
-    """Touch ``$BENCH_TEST_MARKER`` and sleep (a run still going when the test presses Ctrl-C)."""
-    import pathlib
+    """Say "started" on ``$BENCH_TEST_MARKER`` (a FIFO the test reads) and sleep: a run still
+    going when the test presses Ctrl-C."""
     import time
 
-    pathlib.Path(os.environ["BENCH_TEST_MARKER"]).touch()
+    with open(os.environ["BENCH_TEST_MARKER"], "w") as marker:
+        marker.write("started\n")
     time.sleep(120)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -20,6 +21,24 @@ from delegation.errors import InputError
 from delegation.scenario import read_tsplib, tsplib_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def wait_started(fifo: Path, process: subprocess.Popen[str], timeout: float) -> bool:
+    """Wait (bounded) for the sleepy strategy to write to ``fifo``; False when the child exits
+    first or the deadline passes."""
+    fd = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        deadline = time.monotonic() + timeout
+        while process.poll() is None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            readable, _, _ = select.select([fd], [], [], min(left, 1.0))
+            if readable and os.read(fd, 64):
+                return True
+        return False
+    finally:
+        os.close(fd)
 BERLIN = ROOT / "benchmarks" / "data" / "berlin52.tsp"
 
 SMALL = """NAME : tiny5
@@ -103,6 +122,7 @@ def test_a_missing_or_bad_file_is_one_error_and_nothing_written(
 
 def test_ctrl_c_writes_the_finished_runs_and_exits_130(tmp_path: Path) -> None:
     marker, out = tmp_path / "started", tmp_path / "out"
+    os.mkfifo(marker)
     env = {**os.environ, "BENCH_TEST_MARKER": str(marker),
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])}
     process = subprocess.Popen(
@@ -113,10 +133,7 @@ def test_ctrl_c_writes_the_finished_runs_and_exits_130(tmp_path: Path) -> None:
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert marker.exists(), "the sleepy run never started"
+        assert wait_started(marker, process, 60.0), "the sleepy run never started"
         os.killpg(process.pid, signal.SIGINT)  # Ctrl-C in a terminal: the whole group
         _, stderr = process.communicate(timeout=60)
     finally:
@@ -133,6 +150,7 @@ def test_ctrl_c_writes_the_finished_runs_and_exits_130(tmp_path: Path) -> None:
 
 def test_ctrl_c_in_the_scale_sweep_writes_the_finished_runs(tmp_path: Path) -> None:
     marker, out = tmp_path / "started", tmp_path / "out"
+    os.mkfifo(marker)
     env = {**os.environ, "BENCH_TEST_MARKER": str(marker),
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])}
     process = subprocess.Popen(
@@ -143,10 +161,7 @@ def test_ctrl_c_in_the_scale_sweep_writes_the_finished_runs(tmp_path: Path) -> N
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert marker.exists(), "the sleepy run never started"
+        assert wait_started(marker, process, 60.0), "the sleepy run never started"
         os.killpg(process.pid, signal.SIGINT)
         _, stderr = process.communicate(timeout=60)
     finally:
