@@ -13,6 +13,7 @@ import logging
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -70,35 +71,60 @@ def state(request: pytest.FixtureRequest, tmp_path: Path) -> str:
 
 
 class Serve:
-    """One ``delegation serve`` subprocess, its output in a file."""
+    """One ``delegation serve`` subprocess; a reader thread collects its output so that tests
+    wait on it (a condition with a deadline), and keeps a copy in ``log``."""
 
     def __init__(self, settings: BrokerSettings, prefix: str, name: str, state: str,
                  log: Path) -> None:
         self.log = log
-        self._out = log.open("w")
+        self._lines: list[str] = []
+        self._ended = False
+        self._cond = threading.Condition()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "delegation", "-v", "serve", "--broker", settings.host,
              "--port", str(settings.port), "--prefix", prefix, "--name", name,
              "--state", state, "--retention", "1"],
-            stdout=self._out, stderr=subprocess.STDOUT, text=True,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )
+        self._reader = threading.Thread(target=self._read, name=f"serve-{name}", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        with self.log.open("w") as copy:
+            for line in self.proc.stdout:
+                copy.write(line)
+                with self._cond:
+                    self._lines.append(line)
+                    self._cond.notify_all()
+        with self._cond:
+            self._ended = True
+            self._cond.notify_all()
 
     def output(self) -> str:
-        return self.log.read_text()
+        """What it printed so far (all of it once it has exited)."""
+        if self.proc.poll() is not None:
+            self._reader.join(10)
+        with self._cond:
+            return "".join(self._lines)
 
     def wait_output(self, text: str, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while text not in self.output():
-            if time.monotonic() > deadline or self.proc.poll() is not None:
-                raise AssertionError(f"no {text!r} from serve within {timeout} s:\n"
-                                     + self.output()[-3000:])
-            time.sleep(0.1)  # polling a file the subprocess writes: no event to wait on
+        with self._cond:
+            self._cond.wait_for(lambda: text in "".join(self._lines) or self._ended, timeout)
+        if text not in self.output():
+            raise AssertionError(f"no {text!r} from serve within {timeout} s:\n"
+                                 + self.output()[-3000:])
+
+    def _join(self) -> None:
+        self._reader.join(10)
+        assert self.proc.stdout is not None
+        self.proc.stdout.close()
 
     def kill(self) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(10)
-        self._out.close()
+        self._join()
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -108,7 +134,7 @@ class Serve:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
-        self._out.close()
+        self._join()
 
 
 @pytest.fixture
