@@ -50,6 +50,16 @@ def register(subparsers: Any) -> None:
         metavar="SCENARIO",
         help="scenario files (YAML/JSON) or folders of them",
     )
+    _strategy_options(parser)
+    _output_options(parser)
+    _runner_options(parser)
+    _generator_options_group(parser)
+    _scale_options(parser)
+    parser.set_defaults(func=run)
+
+
+def _strategy_options(parser: argparse.ArgumentParser) -> None:
+    """Which strategies and objectives run, how often, against which baseline."""
     parser.add_argument(
         "--strategies",
         type=_words,
@@ -77,6 +87,10 @@ def register(subparsers: Any) -> None:
         default=5.0,
         help="seconds for strategies that search (optimal); default 5",
     )
+
+
+def _output_options(parser: argparse.ArgumentParser) -> None:
+    """Where results go and which plots are drawn."""
     parser.add_argument(
         "--out",
         type=Path,
@@ -96,6 +110,10 @@ def register(subparsers: Any) -> None:
         help="also write a markdown results page here (e.g. docs/results.md); it embeds "
         "scale.png/scale.md found next to it (from --scale --out that folder)",
     )
+
+
+def _runner_options(parser: argparse.ArgumentParser) -> None:
+    """How runs are isolated and where they execute (child processes, Dask), TSPLIB input."""
     parser.add_argument(
         "--in-process",
         action="store_true",
@@ -145,6 +163,10 @@ def register(subparsers: Any) -> None:
         help="draw route maps only for scenarios with at most this many tasks",
     )
 
+
+
+def _generator_options_group(parser: argparse.ArgumentParser) -> None:
+    """Generated scenarios (--generate, and the --scale grid)."""
     gen = parser.add_argument_group("generated scenarios (--generate, and the --scale grid)")
     gen.add_argument("--generate", action="store_true", help="benchmark random scenarios")
     gen.add_argument(
@@ -183,6 +205,10 @@ def register(subparsers: Any) -> None:
         "--save", type=Path, default=None, help="write the generated scenarios as YAML here"
     )
 
+
+
+def _scale_options(parser: argparse.ArgumentParser) -> None:
+    """The units x tasks sweep (--scale)."""
     scale = parser.add_argument_group("scale sweep (--scale)")
     scale.add_argument("--scale", action="store_true", help="sweep a grid of units x tasks")
     scale.add_argument(
@@ -191,7 +217,6 @@ def register(subparsers: Any) -> None:
         default=None,
         help="seconds per plan; a strategy that exceeds it skips larger sizes (default 20)",
     )
-    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
