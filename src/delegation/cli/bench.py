@@ -53,7 +53,7 @@ def register(subparsers: Any) -> None:
     _strategy_options(parser)
     _output_options(parser)
     _runner_options(parser)
-    _generator_options_group(parser)
+    _generated_scenario_options(parser)
     _scale_options(parser)
     parser.set_defaults(func=run)
 
@@ -165,7 +165,7 @@ def _runner_options(parser: argparse.ArgumentParser) -> None:
 
 
 
-def _generator_options_group(parser: argparse.ArgumentParser) -> None:
+def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
     """Generated scenarios (--generate, and the --scale grid)."""
     gen = parser.add_argument_group("generated scenarios (--generate, and the --scale grid)")
     gen.add_argument("--generate", action="store_true", help="benchmark random scenarios")
