@@ -322,7 +322,6 @@ def scale_plot(
     Over-budget runs are ringed in red (on the budget line when they were stopped there);
     skipped cells are an x on the budget line."""
     import matplotlib
-    from matplotlib.lines import Line2D
 
     from delegation.bench.plots import new_figure
 
@@ -333,116 +332,111 @@ def scale_plot(
     objectives = list(dict.fromkeys(r.objective for r in records))
     unit_counts = sorted({r.units for r in records})
     markers = dict(zip(unit_counts, "osD^vP*Xph", strict=False))
-    styles = ["-", "--", ":", "-."]
     for si, strategy in enumerate(strategies):
-        colour = cmap(si % 10)
         for oi, objective in enumerate(objectives):
-            style = styles[oi % len(styles)]
             for n_units in unit_counts:
                 mine = sorted(
-                    (
-                        r
-                        for r in records
-                        if r.strategy == strategy
-                        and r.objective == objective
-                        and r.units == n_units
-                    ),
+                    (r for r in records if r.strategy == strategy and r.objective == objective
+                     and r.units == n_units),
                     key=lambda r: r.tasks,
                 )
-                marker = markers.get(n_units, "o")
-                ran = [r for r in mine if r.wall_time is not None]
-                ax_time.plot(
-                    [r.tasks for r in ran],
-                    [r.wall_time for r in ran],
-                    style,
-                    marker=marker,
-                    ms=5,
-                    color=colour,
-                    alpha=0.85,
-                )
-                over = [r for r in mine if r.status == OVER_BUDGET]
-                ax_time.plot(
-                    [r.tasks for r in over],
-                    [r.wall_time if r.wall_time is not None else budget for r in over],
-                    "o",
-                    ms=12,
-                    mfc="none",
-                    mec="red",
-                )
-                skipped = [r for r in mine if r.status == SKIPPED]
-                if skipped and budget:
-                    ax_time.plot(
-                        [r.tasks for r in skipped],
-                        [budget] * len(skipped),
-                        "x",
-                        color=colour,
-                        ms=7,
-                    )
-                copied = [r for r in mine if r.same_plan_as and r.relative_to_best is not None]
-                ax_rel.plot(
-                    [r.tasks for r in copied],
-                    [r.relative_to_best for r in copied],
-                    "s",
-                    ms=11,
-                    mfc="none",
-                    mec="black",
-                )
-                rel = [r for r in mine if r.relative_to_best is not None]
-                ax_rel.plot(
-                    [r.tasks for r in rel],
-                    [r.relative_to_best for r in rel],
-                    style,
-                    marker=marker,
-                    ms=5,
-                    color=colour,
-                    alpha=0.85,
-                )
-    if budget:
-        ax_time.axhline(budget, color="red", lw=0.8, ls="--")
+                look = {"ls": _STYLES[oi % len(_STYLES)], "marker": markers.get(n_units, "o"),
+                        "color": cmap(si % 10)}
+                _plot_cell_series(ax_time, ax_rel, mine, look, budget)
+    handles = _legend_handles(cmap, strategies, objectives, unit_counts, markers)
+    _style_time_axis(ax_time, records, handles, budget)
+    _style_relative_axis(ax_rel, records, handles)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png")
+    return out
+
+
+_STYLES = ["-", "--", ":", "-."]
+
+
+def _plot_cell_series(ax_time: Any, ax_rel: Any, mine: Sequence[ScaleRecord],
+                      look: dict[str, Any], budget: float | None) -> None:
+    """One strategy x objective x unit count: its times (with over-budget rings and skipped
+    crosses) and its relative objective (with squares around copied plans)."""
+    ls, marker, colour = look["ls"], look["marker"], look["color"]
+    ran = [r for r in mine if r.wall_time is not None]
+    ax_time.plot([r.tasks for r in ran], [r.wall_time for r in ran], ls, marker=marker, ms=5,
+                 color=colour, alpha=0.85)
+    over = [r for r in mine if r.status == OVER_BUDGET]
+    ax_time.plot([r.tasks for r in over],
+                 [r.wall_time if r.wall_time is not None else budget for r in over],
+                 "o", ms=12, mfc="none", mec="red")
+    skipped = [r for r in mine if r.status == SKIPPED]
+    if skipped and budget:
+        ax_time.plot([r.tasks for r in skipped], [budget] * len(skipped), "x", color=colour,
+                     ms=7)
+    copied = [r for r in mine if r.same_plan_as and r.relative_to_best is not None]
+    ax_rel.plot([r.tasks for r in copied], [r.relative_to_best for r in copied], "s", ms=11,
+                mfc="none", mec="black")
+    rel = [r for r in mine if r.relative_to_best is not None]
+    ax_rel.plot([r.tasks for r in rel], [r.relative_to_best for r in rel], ls, marker=marker,
+                ms=5, color=colour, alpha=0.85)
+
+
+def _legend_handles(cmap: Any, strategies: Sequence[str], objectives: Sequence[str],
+                    unit_counts: Sequence[int], markers: dict[int, str]) -> list[Any]:
+    """A legend entry per strategy (colour), objective (line style) and unit count (marker)."""
+    from matplotlib.lines import Line2D
+
     handles = [Line2D([], [], color=cmap(i % 10), lw=2, label=s) for i, s in enumerate(strategies)]
     if len(objectives) > 1:
         handles += [
-            Line2D([], [], color="grey", ls=styles[i % len(styles)], label=o)
+            Line2D([], [], color="grey", ls=_STYLES[i % len(_STYLES)], label=o)
             for i, o in enumerate(objectives)
         ]
     handles += [
         Line2D([], [], color="grey", ls="", marker=markers.get(u, "o"), label=f"{u} units")
         for u in unit_counts
     ]
+    return handles
+
+
+def _style_time_axis(ax: Any, records: Sequence[ScaleRecord], handles: list[Any],
+                     budget: float | None) -> None:
+    from matplotlib.lines import Line2D
+
     time_handles = list(handles)
     if budget:
+        ax.axhline(budget, color="red", lw=0.8, ls="--")
         time_handles += [
             Line2D([], [], color="red", ls="--", lw=0.8, label=f"budget {budget:g} s"),
             Line2D([], [], color="red", ls="", marker="o", mfc="none", ms=10, label="over budget"),
             Line2D([], [], color="grey", ls="", marker="x", label="skipped"),
         ]
-    ax_time.set_xscale("log")
+    ax.set_xscale("log")
     times = [r.wall_time for r in records if r.wall_time is not None] + ([budget] if budget else [])
     if times and min(times) > 0:
-        ax_time.set_ylim(min(times) / 2.0, max(times) * 2.0)
-    ax_time.set_yscale("log")
-    ax_time.set_xlabel("tasks")
-    ax_time.set_ylabel("wall time per plan (s)")
-    ax_time.set_title("planning time", fontsize=10)
-    ax_time.grid(True, which="both", alpha=0.3)
-    ax_time.legend(handles=time_handles, fontsize=7, loc="upper left", ncol=2)
-    ax_rel.set_xscale("log")
+        ax.set_ylim(min(times) / 2.0, max(times) * 2.0)
+    ax.set_yscale("log")
+    ax.set_xlabel("tasks")
+    ax.set_ylabel("wall time per plan (s)")
+    ax.set_title("planning time", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(handles=time_handles, fontsize=7, loc="upper left", ncol=2)
+
+
+def _style_relative_axis(ax: Any, records: Sequence[ScaleRecord], handles: list[Any]) -> None:
+    from matplotlib.lines import Line2D
+
+    ax.set_xscale("log")
     values = [r.relative_to_best for r in records if r.relative_to_best is not None]
     if values and max(values) / max(min(values), 1e-9) > 10:
-        ax_rel.set_yscale("log")
-    ax_rel.axhline(1.0, color="black", lw=0.8)
-    ax_rel.set_xlabel("tasks")
-    ax_rel.set_ylabel("objective / best strategy's on the same scenario")
-    ax_rel.set_title("plan quality (1 = best; plans with the fewest unassigned)", fontsize=10)
-    ax_rel.grid(True, which="both", alpha=0.3)
+        ax.set_yscale("log")
+    ax.axhline(1.0, color="black", lw=0.8)
+    ax.set_xlabel("tasks")
+    ax.set_ylabel("objective / best strategy's on the same scenario")
+    ax.set_title("plan quality (1 = best; plans with the fewest unassigned)", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
     rel_handles = [*handles, Line2D([], [], color="black", ls="", marker="s", mfc="none", ms=9,
                                     label="returned an earlier strategy's plan")]
-    ax_rel.legend(handles=rel_handles, fontsize=7, loc="upper left")
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png")
-    return out
+    ax.legend(handles=rel_handles, fontsize=7, loc="upper left")
 
 
 def _strictly_best(records: Sequence[ScaleRecord], record: ScaleRecord) -> bool:
