@@ -789,7 +789,7 @@ def _agents(args: argparse.Namespace) -> int:
         "sensor/battery_state",
     ):
         client.subscribe(f"{args.prefix}/unit/+/+/+/{rest}")
-    client.connect()
+    client.connect(timeout=max(args.wait, 1.0))  # --wait bounds the connect too
     try:
         threading.Event().wait(args.wait)
     finally:

@@ -180,6 +180,8 @@ class MqttClient:
         self._connack.clear()
         self._connack_code = None
         self._connack_reason = ""
+        # The TCP connect (DNS, SYN to an unreachable host) is bounded by the same deadline.
+        client.connect_timeout = max(0.1, deadline - time.monotonic())
         try:
             s = self.settings
             if protocol == paho.MQTTv5:

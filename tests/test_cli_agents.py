@@ -1,0 +1,30 @@
+"""``delegation agents`` ends within its ``--wait`` even when the broker never answers."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+
+
+def test_agents_against_a_silent_broker_is_bounded_by_wait() -> None:
+    # A loopback socket that completes TCP handshakes (the kernel's backlog) and never speaks
+    # MQTT: the client waits for a CONNACK that never comes.
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        port = silent.getsockname()[1]
+        started = time.monotonic()
+        done = subprocess.run(
+            [sys.executable, "-m", "delegation", "agents", "--broker", "127.0.0.1",
+             "--port", str(port), "--wait", "1"],
+            capture_output=True, text=True, timeout=30,
+        )
+        took = time.monotonic() - started
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip().startswith("error: cannot connect to mqtt://127.0.0.1"), done.stderr
+    assert "Traceback" not in done.stderr
+    # The bound is the point (the default connect timeout is 10 s): well under it, with slack
+    # for interpreter start-up on a loaded machine.
+    assert took < 8.0, f"agents --wait 1 took {took:.1f} s"
