@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 STRATEGIES = ("nearest", "auction", "optimal")
 OBJECTIVES = ("makespan", "total")
 _BATTERY = ("battery_state", "battery", "battery_level")
+_loads = json.JSONDecoder().decode  # str in: no encoding detection per message
 #: Unit topics the view reads (everything else a unit sends is not subscribed to).
 _UNIT_TOPICS = ("heartbeat", "direct_execution_info", "sensor/position", "sensor/heading",
                 "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
@@ -99,6 +100,7 @@ class Bridge:
         self.view = LiveView(scale=time_scale)
         self.lock = threading.Lock()
         self._levels = len(prefix.split("/"))
+        self._routes: dict[str, tuple[str, str, str, str]] = {}
         self.client = _Client(self._take, settings, prefix=prefix, service=service,
                               sender=sender, service_timeout=5.0)
         self.sender = self.client.sender
@@ -141,43 +143,51 @@ class Bridge:
 
     # ------------------------------------------------------------------ paho's thread
 
+    def _route(self, topic: str) -> tuple[str, str, str, str] | None:
+        """(what, base, name, agent type) for a topic, cached (a fleet has a few topics per
+        unit): ``what`` is the suffix after the base, or ``""`` for the service client."""
+        route = self._routes.get(topic)
+        if route is not None:
+            return route
+        levels = topic.split("/")
+        p = self._levels
+        if len(levels) < p + 5 or levels[p] != "unit":
+            return None
+        name, rest = levels[p + 3], "/".join(levels[p + 4 :])
+        if name == self.service and rest not in ("tst/feedback", "delegation/feedback"):
+            rest = ""
+        route = (rest, "/".join(levels[: p + 4]), name, levels[p + 1])
+        if len(self._routes) < 20_000:
+            self._routes[topic] = route
+        return route
+
     def _take(self, msg: Message) -> bool:
         """Apply one message to the view; False hands it to the service client (answers, the
         service's heartbeat)."""
-        levels = msg.topic.split("/")
-        p = self._levels
-        if len(levels) < p + 5 or levels[p] != "unit":
+        route = self._route(msg.topic)
+        if route is None or not route[0]:
             return False
-        name = levels[p + 3]
-        rest = "/".join(levels[p + 4 :])
+        rest, base, name, kind = route
         if name == self.service:
-            if rest == "tst/feedback":
-                return self._feedback(msg, node=True)
-            if rest == "delegation/feedback":
-                return self._feedback(msg, node=False)
-            return False
+            return self._feedback(msg, node=rest == "tst/feedback")
         try:
-            data = json.loads(msg.payload)
+            data = _loads(msg.payload.decode("utf-8", "replace"))
         except ValueError:
             return True
-        if not isinstance(data, dict) and not rest.startswith("sensor/"):
-            return True
-        base = "/".join(levels[: p + 4])
-        kind = levels[p + 1]
         now = self.clock()
         self.messages += 1
         with self.lock:
             view = self.view
             if rest == "sensor/position":
                 view.position(base, name, kind, data, now)
-            elif rest == "heartbeat":
-                assert isinstance(data, dict)
-                view.heartbeat(base, name, kind, data, now)
-            elif rest == "direct_execution_info":
-                assert isinstance(data, dict)
-                view.execution_info(base, name, kind, data, now)
             elif rest.startswith("sensor/"):
                 view.sensor(base, name, kind, rest[7:], data, now)
+            elif not isinstance(data, dict):
+                pass
+            elif rest == "heartbeat":
+                view.heartbeat(base, name, kind, data, now)
+            elif rest == "direct_execution_info":
+                view.execution_info(base, name, kind, data, now)
         return True
 
     def _feedback(self, msg: Message, *, node: bool) -> bool:
