@@ -8,6 +8,11 @@ Events are read from /api/events by a thread and waited on with deadlines.
 from __future__ import annotations
 
 import json
+import re
+import select
+import signal
+import subprocess
+import sys
 import threading
 import time
 import uuid
@@ -238,8 +243,8 @@ def test_signals_and_cancel_with_the_owners_rights(page: Page) -> None:
     page.mission_status(root, "running")
     bad = page.post(f"/api/missions/{root}/signal", {"signal": "$stop"})
     assert bad.status_code == 400 and "signal" in bad.json()["fail-reason"]
-    for signal in ("$pause", "$continue"):
-        sent = page.post(f"/api/missions/{root}/signal", {"signal": signal})
+    for name in ("$pause", "$continue"):
+        sent = page.post(f"/api/missions/{root}/signal", {"signal": name})
         assert sent.status_code == 200, sent.text
         assert sent.json() == {"response": "ok"}
     # bob is not the owner: the service refuses him, as over MQTT
@@ -306,3 +311,50 @@ def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> N
     finally:
         bridge.stop()
     assert config["user"] == "ops"
+
+
+def _run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "delegation", *args], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (("ui", "--http", "0.0.0.0:8765"), "a non-loopback host needs --users"),
+    (("ui", "--http", "localhost"), "expected HOST:PORT"),
+    (("ui", "--users", "/nonexistent/users"), "cannot read the users file"),
+    (("serve", "--http", "10.0.0.1:80", "--state", ":memory:"), "needs --users"),
+    (("demo", "--hold"), "--hold needs --http"),
+])
+def test_cli_usage_errors_are_one_line_and_exit_2(args: tuple[str, ...], says: str) -> None:
+    done = _run(*args)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0]
+
+
+def test_cli_ui_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "delegation", "ui", "--http", "127.0.0.1:0", "--broker",
+         page.settings.host, "--port", str(page.settings.port), "--prefix", page.prefix],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        assert ready, "no 'operator page on' line within 30 s"
+        line = proc.stdout.readline()
+        match = re.search(r"operator page on (http://\S+)", line)
+        assert match, line
+        url = match.group(1)
+        assert httpx.get(f"{url}/api/config", timeout=10.0).json()["strategies"]
+        assert httpx.get(f"{url}/", timeout=10.0).status_code == 200
+        asked = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10.0) == 0
+        assert time.monotonic() - asked < 5.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()

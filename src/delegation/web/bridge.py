@@ -76,6 +76,15 @@ class _Client(ServiceClient):
         if not self._take(msg):
             super()._sink(msg)
 
+    def abort(self) -> None:
+        """Answer every request still waiting with ``failed`` (the page is stopping), so that
+        no thread waits out its deadline."""
+        with self._cond:
+            for com in self._waiting:
+                self._responses.setdefault(com, {"response": "failed",
+                                                 "fail-reason": "the page is stopping"})
+            self._cond.notify_all()
+
 
 class Bridge:
     """Live view + commands. `start`/`stop`, or a context manager."""
@@ -128,6 +137,7 @@ class Bridge:
     def stop(self) -> None:
         self._stop.set()
         self._fetch.put(None)
+        self.client.abort()
         self.client.stop()
         for t in self._threads:
             t.join(timeout=5.0)
@@ -221,7 +231,7 @@ class Bridge:
     def _fetcher(self) -> None:
         while True:
             root = self._fetch.get()
-            if root is None or self._stop.is_set():
+            if root is None or not self._service_seen():
                 return
             try:
                 if root == "":
@@ -231,6 +241,16 @@ class Bridge:
             except (DelegationError, OSError) as exc:
                 log.info("ui: could not fetch %s: %s", root or "the missions", exc)
             self.wake()
+
+    def _service_seen(self) -> bool:
+        """Wait for the service's heartbeat in short slices; False once stopping."""
+        while not self._stop.is_set():
+            try:
+                self.client.wait_service(0.5)
+                return True
+            except ServiceUnavailable:
+                continue
+        return False
 
     def _list_missions(self) -> None:
         answer = self.client.request({"command": "list-missions", "limit": 100},
