@@ -29,6 +29,7 @@ from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker
 from delegation.runtime.client import ServiceClient
+from delegation.runtime.mqtt import Message, MqttClient
 from delegation.sim import SimFleet
 from delegation.web.app import create_app
 from delegation.web.auth import read_users
@@ -358,3 +359,39 @@ def test_cli_ui_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page) -
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()
+
+
+def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: Any,
+                                                                 prefix: str) -> None:
+    """The page's connection reads the socket in chunks (runtime.mqtt._BufferedReadClient):
+    thousands of small messages and one spanning several reads all arrive, whole, in order."""
+    got: dict[str, list[bytes]] = {"probe": [], "t": []}
+    cond = threading.Condition()
+
+    def sink(message: Message) -> None:
+        with cond:
+            got[message.topic.rsplit("/", 1)[-1]].append(message.payload)
+            cond.notify_all()
+
+    payloads = [str(k).encode() for k in range(3000)] + [bytes(range(256)) * 800, b"last"]
+    rx = MqttClient(mqtt_settings, sink=sink)
+    rx.buffered_reads = True
+    rx.subscribe(f"{prefix}/#", 1)
+    tx = MqttClient(mqtt_settings)
+    rx.connect()
+    try:
+        tx.connect()
+        deadline = time.monotonic() + 20.0
+        with cond:  # the subscription is live once a probe comes through
+            while not got["probe"]:
+                tx.publish(f"{prefix}/probe", b"probe", qos=1)
+                assert time.monotonic() < deadline, "the subscription never became live"
+                cond.wait(0.2)
+        for payload in payloads:
+            tx.publish(f"{prefix}/t", payload, qos=1)
+        with cond:
+            assert cond.wait_for(lambda: len(got["t"]) >= len(payloads), 60.0), len(got["t"])
+    finally:
+        tx.disconnect()
+        rx.disconnect()
+    assert got["t"] == payloads

@@ -71,6 +71,7 @@ class _Client(ServiceClient):
                  **kw: Any) -> None:
         self._take = take  # set before the client exists: its sink is this object's _sink
         super().__init__(settings, **kw)
+        self.client.buffered_reads = True  # many small messages: one recv serves many
 
     def _sink(self, msg: Message) -> None:
         if not self._take(msg):
