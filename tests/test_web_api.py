@@ -309,6 +309,10 @@ def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> N
     try:
         with WebServer(create_app(bridge), "127.0.0.1", 0) as server:
             config = httpx.get(f"{server.url}/api/config", timeout=10.0).json()
+            # no service heard (this bridge is not even connected): 503
+            nobody = httpx.post(f"{server.url}/api/missions", json={"mission": near_mission()},
+                                timeout=30.0)
+            assert nobody.status_code == 503 and "no heartbeat" in nobody.json()["fail-reason"]
     finally:
         bridge.stop()
     assert config["user"] == "ops"

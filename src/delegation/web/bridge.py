@@ -429,8 +429,10 @@ class Bridge:
         with self.lock:
             view = self.view
             view.mission_answer(mission, now)
-            out = view.mission_json(root, now) or {}
+            out = view.mission_json(root, now)
             rec = view.mission_record(root)
+            if out is None:  # one of the page's own dry-run plans
+                raise ApiError(404, f"root-uuid: {root!r} is a preview, not a mission")
             tree = view.node_tree(root)
             plan = dict(rec.plan) if rec is not None and rec.plan is not None else None
             starts = dict(rec.starts) if rec is not None else {}
