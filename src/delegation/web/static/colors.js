@@ -18,6 +18,7 @@ export const STATUS_COLORS = {
   planned: "#6b7b8c",
   started: "#2f6fb3",
   running: "#2f6fb3",
+  active: "#2f6fb3",
   succeeded: "#2e8b57",
   finished: "#2e8b57",
   failed: "#c0392b",

@@ -51,9 +51,10 @@ export function metricGrid(origin) {
         ctx.moveTo(Math.round(p.x) + 0.5, 0);
         ctx.lineTo(Math.round(p.x) + 0.5, size.y);
         ctx.stroke();
-        if (labelled) {
+        const xText = `${label(x)} E`;
+        if (labelled && p.x + 3 + ctx.measureText(xText).width < size.x) {
           ctx.fillStyle = "#7a8ba0";
-          ctx.fillText(`${label(x)} E`, Math.round(p.x) + 3, 11);
+          ctx.fillText(xText, Math.round(p.x) + 3, 11);
         }
       }
       for (let y = Math.ceil(y0 / step) * step; y <= y1; y += step) {
@@ -65,7 +66,7 @@ export function metricGrid(origin) {
         ctx.moveTo(0, Math.round(p.y) + 0.5);
         ctx.lineTo(size.x, Math.round(p.y) + 0.5);
         ctx.stroke();
-        if (labelled) {
+        if (labelled && p.y > 14) {
           ctx.fillStyle = "#7a8ba0";
           ctx.fillText(`${label(y)} N`, 3, Math.round(p.y) - 3);
         }
@@ -73,5 +74,6 @@ export function metricGrid(origin) {
       return tile;
     },
   });
-  return new Grid({ maxZoom: 24, minZoom: 3, className: "metric-grid" });
+  // no minZoom/maxZoom: a layer's zoom limits become the map's and would move the view
+  return new Grid({ className: "metric-grid" });
 }

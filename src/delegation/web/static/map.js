@@ -29,6 +29,7 @@ const UnitMarker = L.CircleMarker.extend({
     const lost = u.status === "lost";
     const color = lost ? "#8a8a8a" : unitColor(u.name);
     ctx.save();
+    ctx.globalAlpha = 1; // Leaflet leaves the last path's opacity on the shared context
     ctx.translate(p.x, p.y);
     ctx.lineWidth = 1.5;
     ctx.strokeStyle = lost ? "#444" : "#fff";
@@ -59,6 +60,7 @@ const UnitMarker = L.CircleMarker.extend({
     ctx.restore();
     if (lost) {
       ctx.save();
+      ctx.globalAlpha = 1;
       ctx.strokeStyle = "#c0392b";
       ctx.lineWidth = 2;
       ctx.beginPath();
@@ -71,7 +73,9 @@ const UnitMarker = L.CircleMarker.extend({
     }
     if (this.showLabel) {
       ctx.save();
-      ctx.font = "11px sans-serif";
+      ctx.globalAlpha = 1;
+      ctx.font = "600 11px sans-serif";
+      ctx.lineJoin = "round";
       ctx.lineWidth = 3;
       ctx.strokeStyle = "rgba(255,255,255,0.9)";
       ctx.fillStyle = lost ? "#777" : "#222";
@@ -104,12 +108,20 @@ function tooltip(u) {
 }
 
 export class MapView {
-  constructor(el, config) {
+  /** `onTracks(ms)` is told how long each track append took (a figure for the benchmark). */
+  constructor(el, config, onTracks = () => {}) {
+    this.onTracks = onTracks;
     this.el = el;
-    this.map = L.map(el, { preferCanvas: true, zoomSnap: 0.25, maxZoom: 22 }).setView([0, 0], 2);
+    this.map = L.map(el, { preferCanvas: true, zoomSnap: 0.25, maxZoom: 22, fadeAnimation: false });
+    this.map.setView([0, 0], 2);
+    // Tracks on their own canvas under the rest (history, never hovered); units and mission
+    // geometry share one canvas so that both answer the mouse (tooltips), units drawn on top.
+    const tracksPane = this.map.createPane("tracks");
+    tracksPane.style.zIndex = "390";
+    tracksPane.style.pointerEvents = "none";
+    this.trackRenderer = L.canvas({ padding: 0.2, pane: "tracks" });
     this.unitRenderer = L.canvas({ padding: 0.2 });
-    this.trackRenderer = L.canvas({ padding: 0.2 });
-    this.geoRenderer = L.canvas({ padding: 0.2 });
+    this.geoRenderer = this.unitRenderer;
     this.tileUrl = config["tile-url"] || null;
     if (this.tileUrl) {
       L.tileLayer(this.tileUrl, {
@@ -135,8 +147,8 @@ export class MapView {
     if (this.placed || points.length === 0) return;
     this.placed = true;
     const b = L.latLngBounds(points);
+    this.map.fitBounds(b.pad(0.4), { maxZoom: 17, animate: false });
     if (!this.tileUrl) metricGrid([b.getCenter().lat, b.getCenter().lng]).addTo(this.map);
-    this.map.fitBounds(b.pad(0.4), { maxZoom: 17 });
   }
 
   /** Replace every unit (a snapshot). */
@@ -179,7 +191,7 @@ export class MapView {
       for (let i = 0; i < track.length; i += TRACK_CHUNK - 1) {
         e.chunks.push(this._chunk(u.name, track.slice(i, i + TRACK_CHUNK)));
       }
-    } else if (point) {
+    } else if (point && !samePoint(point, e.pending[e.pending.length - 1] || lastPoint(e.chunks))) {
       e.pending.push(point);
       this._scheduleTracks();
     }
@@ -191,8 +203,8 @@ export class MapView {
     return L.polyline(points, {
       renderer: this.trackRenderer,
       color: unitColor(name),
-      weight: 1.5,
-      opacity: 0.7,
+      weight: 3,
+      opacity: 0.8,
       interactive: false,
     }).addTo(this.tracksLayer);
   }
@@ -212,6 +224,7 @@ export class MapView {
   }
 
   _flushTracks() {
+    const t0 = performance.now();
     for (const [name, e] of this.units) {
       if (!e.pending.length) continue;
       let head = e.chunks[e.chunks.length - 1];
@@ -233,14 +246,14 @@ export class MapView {
         this.tracksLayer.removeLayer(e.chunks.shift());
       }
     }
+    this.onTracks(performance.now() - t0);
   }
 
   /** Draw a mission's tasks and planned routes (detail = GET /api/missions/{id}). */
   setMission(id, detail, { dim = false } = {}) {
     this.clearMission(id);
-    const g = L.layerGroup();
+    const g = L.layerGroup().addTo(this.map);
     drawPlan(g, detail.tasks || [], detail.routes || {}, this.geoRenderer, dim ? 0.35 : 0.9, "route");
-    g.addTo(this.map);
     this.missionLayers.set(id, g);
     this._placeOnce(boundsOf(detail));
   }
@@ -264,7 +277,7 @@ export class MapView {
     drawPlan(this.previewLayer, plan.tasks || [], plan.routes || {}, this.geoRenderer, 0.9, "preview");
     const pts = boundsOf(plan);
     this._placeOnce(pts);
-    if (pts.length) this.map.fitBounds(L.latLngBounds(pts).pad(0.25), { maxZoom: 18 });
+    if (pts.length) this.map.fitBounds(L.latLngBounds(pts).pad(0.25), { maxZoom: 18, animate: false });
   }
 
   /** What is drawn, for tests and the benchmark: names, positions and statuses of the markers. */
@@ -287,6 +300,16 @@ export class MapView {
   }
 }
 
+function lastPoint(chunks) {
+  const c = chunks[chunks.length - 1];
+  const ll = c ? c.getLatLngs() : [];
+  return ll.length ? [ll[ll.length - 1].lat, ll[ll.length - 1].lng] : null;
+}
+
+function samePoint(a, b) {
+  return Boolean(a && b) && a[0] === b[0] && a[1] === b[1];
+}
+
 function boundsOf(detail) {
   const pts = [];
   for (const t of detail.tasks || []) pts.push(...t.coordinates);
@@ -294,18 +317,19 @@ function boundsOf(detail) {
   return pts;
 }
 
+/** Tasks and routes into `group` (on the map already: each layer goes under the markers). */
 function drawPlan(group, tasks, routes, renderer, opacity, kind) {
-  const dash = kind === "preview" ? "2 6" : "6 5";
+  const dash = kind === "preview" ? "2 6" : "5 7";
   for (const [unit, pts] of Object.entries(routes)) {
     if (pts.length < 2) continue;
     L.polyline(pts, {
       renderer,
       color: kind === "preview" ? "#7b2cbf" : unitColor(unit),
-      weight: 2.5,
-      opacity,
+      weight: 2,
+      opacity: opacity * 0.8,
       dashArray: dash,
       interactive: false,
-    }).addTo(group);
+    }).addTo(group).bringToBack();
   }
   for (const t of tasks) {
     const color = t.unit ? unitColor(t.unit) : "#555";
@@ -326,6 +350,6 @@ function drawPlan(group, tasks, routes, renderer, opacity, kind) {
         fillOpacity: 0.8 * opacity,
       });
     }
-    if (layer) layer.bindTooltip(tip).addTo(group);
+    if (layer) layer.bindTooltip(tip).addTo(group).bringToBack(); // under the unit markers
   }
 }
