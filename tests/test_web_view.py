@@ -196,11 +196,12 @@ def test_stream_items_since_and_falling_behind() -> None:
     view = LiveView()
     view.mission_feedback({"root-uuid": "r1", "status": "planned"}, 1.0)
     seq = view.seq
+    live_unit(view, 1.5)  # unit changes take seqs too, without stream items
     view.mission_feedback({"root-uuid": "r1", "status": "started"}, 2.0)
     items = view.items_since(seq)
     assert items is not None
-    assert [k for _, k, _ in items] == ["mission", "log"]
-    assert items[0][2]["status"] == "started"
+    assert [(k, d.get("kind") or d.get("status")) for _, k, d in items] == [
+        ("log", "unit-new"), ("mission", "started"), ("log", "started")]
     for k in range(5000):
         view.mission_feedback({"root-uuid": f"m{k}", "status": "planned"}, 3.0)
     assert view.items_since(seq) is None

@@ -255,6 +255,7 @@ class LiveView:
         self.missions: OrderedDict[str, MissionRecord] = OrderedDict()
         self.log: deque[dict[str, Any]] = deque(maxlen=LOG_MAX)
         self.items: deque[tuple[int, str, dict[str, Any]]] = deque(maxlen=STREAM_MAX)
+        self._dropped = 0  # seq of the newest item dropped from ``items``
         self.hidden: set[str] = set()
         self._node_mission: dict[str, str] = {}
         self._alias: dict[str, str] = {}  # a re-delegated task's new node -> the operator's node
@@ -424,7 +425,7 @@ class LiveView:
 
     def _changed(self, m: MissionRecord, now: float) -> None:
         self.seq += 1
-        self.items.append((self.seq, "mission", m.to_json(now)))
+        self._item("mission", m.to_json(now))
 
     def _advance(self, m: MissionRecord, status: str, now: float, at: float | None = None) -> bool:
         """Move a mission's status forward only; True when it changed."""
@@ -503,7 +504,7 @@ class LiveView:
             m.started_at = now
             self._changed(m, now)
         self.seq += 1
-        self.items.append((self.seq, "node", self._node_item(m, uid)))
+        self._item("node", self._node_item(m, uid))
 
     def _node_item(self, m: MissionRecord, uid: str) -> dict[str, Any]:
         return {"mission": m.id, "uuid": uid, "status": m.node_status.get(uid),
@@ -639,12 +640,18 @@ class LiveView:
         event = {"seq": self.seq, "at": round(now, 3), "kind": kind, "mission": mission,
                  "unit": unit, "text": text}
         self.log.append(event)
-        self.items.append((self.seq, "log", event))
+        self._item("log", event)
+
+    def _item(self, kind: str, data: dict[str, Any]) -> None:
+        """Queue a stream item at the current ``seq``, remembering the newest one dropped."""
+        if len(self.items) == self.items.maxlen:
+            self._dropped = self.items[0][0]
+        self.items.append((self.seq, kind, data))
 
     def items_since(self, seq: int) -> list[tuple[int, str, dict[str, Any]]] | None:
         """Mission, node and log items after ``seq``; None when some were already dropped (the
         stream must start again from a snapshot)."""
-        if self.items and self.items[0][0] > seq + 1 and len(self.items) == self.items.maxlen:
+        if self._dropped > seq:
             return None
         return [item for item in self.items if item[0] > seq]
 
