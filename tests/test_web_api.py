@@ -399,3 +399,34 @@ def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: 
         tx.disconnect()
         rx.disconnect()
     assert got["t"] == payloads
+
+
+def test_cli_demo_serves_the_page_while_its_mission_runs(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "20",
+         "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        url = None
+        deadline = time.monotonic() + 60.0
+        while url is None:
+            left = max(0.0, deadline - time.monotonic())
+            ready, _, _ = select.select([proc.stdout], [], [], left)
+            assert ready, "no 'operator page on' line within 60 s"
+            line = proc.stdout.readline()
+            assert line, "the demo ended before serving the page"
+            match = re.search(r"operator page on (http://\S+)", line)
+            url = match.group(1) if match else None
+        events = Events(url, "no users: any token").start()
+        try:
+            events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]}
+                        >= {"dji0", "dji1", "usv0"}, 20.0, "the demo's units")
+        finally:
+            events.close()
+        out, err = proc.communicate(timeout=120.0)
+        assert proc.returncode == 0, err[-2000:]
+        assert "mission succeeded" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
