@@ -337,10 +337,14 @@ def test_cli_usage_errors_are_one_line_and_exit_2(args: tuple[str, ...], says: s
     assert len(lines) == 1 and says in lines[0]
 
 
-def test_cli_ui_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page) -> None:
+@pytest.mark.parametrize("command", [("ui",), ("serve", "--state", ":memory:")])
+def test_cli_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page,
+                                                                command: tuple[str, ...]) -> None:
+    # serve runs a second service: under a prefix of its own
+    prefix = page.prefix if command[0] == "ui" else f"{page.prefix}-serve"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "ui", "--http", "127.0.0.1:0", "--broker",
-         page.settings.host, "--port", str(page.settings.port), "--prefix", page.prefix],
+        [sys.executable, "-m", "delegation", *command, "--http", "127.0.0.1:0", "--broker",
+         page.settings.host, "--port", str(page.settings.port), "--prefix", prefix],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
