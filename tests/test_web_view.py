@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from delegation.errors import InputError
+from delegation.web.auth import bearer, read_users, user_of
 from delegation.web.geometry import plan_geometry, task_shapes
 from delegation.web.mission_input import mission_tree, with_node_uuids, without_node_uuids
+from delegation.web.server import is_loopback, parse_http
 from delegation.web.view import TRACK_MAX, LiveView, node_uuid_of
 
 BASE = "waraps/unit/air/simulation/dji0"
@@ -182,7 +185,9 @@ def test_re_delegated_nodes_report_on_the_operators_node() -> None:
     view.node_feedback({"node-uuid": "t1b", "status": "running"}, 3.0)
     tree = view.node_tree("r1")
     assert tree is not None and tree["children"][0]["status"] == "running"
+    assert tree["children"][0]["execunit"] == "dji1"
     assert view.state(3.0)["events"][-1]["kind"] == "re-delegated"
+    assert view.state(3.0)["missions"][0]["units"] == ["dji0", "dji1"]
 
 
 def test_hidden_missions_never_show() -> None:
@@ -247,3 +252,31 @@ def test_mission_input_reads_yaml_json_scenarios_and_commands() -> None:
     full = with_node_uuids(tree)
     assert node_uuid_of(full)
     assert node_uuid_of(without_node_uuids(full)) is None
+
+
+def test_users_file_tokens_and_bearer_headers(tmp_path: Path) -> None:
+    users = tmp_path / "users"
+    users.write_text("# token name\nalice-token-1 alice  # the lead\n\nbob-token-22 bob\n")
+    table = read_users(users)
+    assert table == {"alice-token-1": "alice", "bob-token-22": "bob"}
+    assert user_of(table, "bob-token-22") == "bob"
+    assert user_of(table, "bob-token-2") is None and user_of(table, None) is None
+    assert bearer("Bearer abc") == "abc" and bearer("bearer  abc ") == "abc"
+    assert bearer("Basic abc") is None and bearer(None) is None and bearer("Bearer ") is None
+    for text, says in (("short alice\n", "8 characters"), ("alice-token-1\n", "TOKEN NAME"),
+                       ("alice-token-1 a\nalice-token-1 b\n", "twice"), ("# none\n", "no users")):
+        users.write_text(text)
+        with pytest.raises(InputError, match=says):
+            read_users(users)
+
+
+def test_http_addresses() -> None:
+    assert parse_http("127.0.0.1:8765") == ("127.0.0.1", 8765)
+    assert parse_http("8765") == ("127.0.0.1", 8765)
+    assert parse_http("[::1]:0") == ("::1", 0)
+    assert parse_http("0.0.0.0:80") == ("0.0.0.0", 80)
+    for bad in ("localhost", ":80", "host:99999", "[::1]", "host:x"):
+        with pytest.raises(ValueError):
+            parse_http(bad)
+    assert is_loopback("127.0.0.2") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("example.org")

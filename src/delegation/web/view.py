@@ -171,6 +171,8 @@ class MissionRecord:
     #: Where each unit was when the plan arrived (the planned routes start there).
     starts: dict[str, list[float]] = field(default_factory=dict)
     detailed: bool = False
+    #: The operator's task uuid -> the unit a re-delegation moved it to.
+    reassigned: dict[str, str] = field(default_factory=dict)
     #: Mission seconds per wall second (the demo's simulation speed-up; 1 in the field).
     scale: float = 1.0
 
@@ -458,10 +460,16 @@ class LiveView:
                 if not isinstance(t, dict):
                     continue
                 new, old = t.get("node-uuid"), t.get("replaces")
+                unit = str(t.get("unit") or "").strip("/")
                 if isinstance(new, str) and isinstance(old, str):
                     self._alias[new] = self._alias.get(old, old)
                     self._node_mission[new] = root
-                moved.append(f"{t.get('name')} -> {str(t.get('unit') or '').strip('/')}")
+                    if unit:
+                        m.reassigned[self._alias[new]] = unit
+                if unit and unit not in m.units:
+                    m.units = sorted([*m.units, unit])
+                moved.append(f"{t.get('name')} -> {unit}")
+            self._changed(m, now)
             self._log(now, "re-delegated", root, None,
                       f"{m.name or root[:8]} re-delegated: {', '.join(moved) or '-'}"
                       + (f" ({reason})" if reason else ""))
@@ -630,6 +638,7 @@ class LiveView:
                  ((a.get("node-uuid"), str(a.get("execunit", "")).strip("/"))
                   for a in (m.plan or {}).get("assignments") or [] if isinstance(a, dict))
                  if isinstance(uid, str)}
+        units.update(m.reassigned)
         return _node_json(m.tree, m, planned, units)
 
     # ------------------------------------------------------------------ log and reads
