@@ -29,7 +29,7 @@ from starlette.responses import (
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from delegation.errors import InputError
+from delegation.errors import DelegationError, InputError
 from delegation.web.auth import COOKIE, bearer, user_of
 from delegation.web.bridge import OBJECTIVES, STRATEGIES, ApiError, Bridge
 from delegation.web.mission_input import mission_tree
@@ -98,6 +98,9 @@ class Page:
                 return _error(exc.status, exc.reason)
             except InputError as exc:
                 return _error(400, exc.fail_reason)
+            except DelegationError as exc:  # the broker connection is down
+                log.warning("ui: %s %s: %s", request.method, request.url.path, exc)
+                return _error(503, str(exc))
 
         return endpoint
 
