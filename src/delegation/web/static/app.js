@@ -26,8 +26,8 @@ class Store {
     this.dirty = { units: new Set(), unitsAll: false, missions: false, detail: false, events: [], eventsAll: false };
     this.pendingUnits = []; // [{u, point, at}] from `units` events, applied in the next frame
     this.frame = null;
-    // for benchmarks/ui_load.py: event lag (s), and the ms of each frame's DOM work and track append
-    this.stats = { lags: [], flushMs: [], trackMs: [], unitEvents: 0, unitsApplied: 0 };
+    // for benchmarks/ui_load.py: event lag (s); ms of each frame's DOM work and canvas redraws
+    this.stats = { lags: [], flushMs: [], trackMs: [], canvasMs: [], unitEvents: 0, unitsApplied: 0 };
   }
 
   schedule() {
@@ -156,6 +156,7 @@ class Store {
       }
       this.stats.unitsApplied += this.pendingUnits.length;
       this.pendingUnits = [];
+      this.map.placeOnUnits();
     }
     if (d.units.size) {
       this.unitsTable.update(this.units, d.units);
@@ -261,28 +262,37 @@ class UnitsTable {
   }
 
   update(units, names) {
+    let added = false;
     for (const name of names) {
       const u = units.get(name);
       let tr = this.rows.get(name);
       if (!tr) {
         tr = h("tr", { id: `unit-${name}`, "data-unit": name });
         this.rows.set(name, tr);
-        this.body.append(tr);
+        added = true;
       }
       const key = `${u.status}|${pct(u.battery)}|${u.type}|${(u.executing || []).map((t) => t.name).join(",")}`;
-      tr.dataset.status = u.status;
+      if (tr.dataset.status !== u.status) tr.dataset.status = u.status; // no style work when same
       if (tr._key !== key) {
         tr._key = key;
         tr.replaceChildren(...this.row(u));
       }
     }
+    if (added) {
+      // rows by name (re-appending moves them): new units are rare, updates are not
+      const sorted = [...this.rows.keys()].sort((a, b) => a.localeCompare(b, undefined, { numeric: true }));
+      this.body.append(...sorted.map((n) => this.rows.get(n)));
+    }
     let alive = 0;
     for (const u of units.values()) if (u.status === "alive") alive++;
     const lost = units.size - alive;
-    this.count.textContent = `(${units.size})`;
-    this.summary.textContent = `${units.size} units: ${alive} alive, ${lost} lost`;
-    this.summary.dataset.alive = String(alive);
-    this.summary.dataset.lost = String(lost);
+    const text = `${units.size} units: ${alive} alive, ${lost} lost`;
+    if (this.summary.textContent !== text) {
+      this.count.textContent = `(${units.size})`;
+      this.summary.textContent = text;
+      this.summary.dataset.alive = String(alive);
+      this.summary.dataset.lost = String(lost);
+    }
   }
 }
 
@@ -344,13 +354,16 @@ async function main() {
   try {
     config = await api.getConfig();
   } catch (err) {
-    document.getElementById("conn").textContent = `no server: ${err.failReason || err.message}`;
+    document.getElementById("conn").textContent = err.failReason || err.message;
     document.getElementById("conn").dataset.state = "error";
     return;
   }
   document.getElementById("user").textContent = config.user ? `as ${config.user}` : "";
   const store = new Store(config);
-  store.map = new MapView(document.getElementById("map"), config, (ms) => record(store.stats.trackMs, ms));
+  store.map = new MapView(document.getElementById("map"), config, {
+    tracks: (ms) => record(store.stats.trackMs, ms),
+    units: (ms) => record(store.stats.canvasMs, ms),
+  });
   store.drawn = new Map();
   store.drawnDim = new Map();
   store.unitsTable = new UnitsTable();

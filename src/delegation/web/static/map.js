@@ -6,9 +6,8 @@
 
 import { metricGrid } from "./grid.js";
 import { unitColor } from "./colors.js";
+import { TrackLayer } from "./tracks.js";
 
-const TRACK_CHUNK = 60; // points per track polyline: an append reprojects one chunk, not the track
-const TRACK_MAX = 300; // as the server keeps
 const LABEL_LIMIT = 40; // names drawn beside markers up to this many units
 
 /** A unit marker: an arrow along the heading (a disc without one), grey and crossed when lost. */
@@ -108,9 +107,10 @@ function tooltip(u) {
 }
 
 export class MapView {
-  /** `onTracks(ms)` is told how long each track append took (a figure for the benchmark). */
-  constructor(el, config, onTracks = () => {}) {
-    this.onTracks = onTracks;
+  /** `timings.tracks(ms)` / `timings.units(ms)`: how long each redraw of the track canvas / of
+   * the units-and-geometry canvas took (figures for benchmarks/ui_load.py). */
+  constructor(el, config, timings = {}) {
+    this.onTracks = timings.tracks || (() => {});
     this.el = el;
     this.map = L.map(el, { preferCanvas: true, zoomSnap: 0.25, maxZoom: 22, fadeAnimation: false });
     this.map.setView([0, 0], 2);
@@ -119,9 +119,18 @@ export class MapView {
     const tracksPane = this.map.createPane("tracks");
     tracksPane.style.zIndex = "390";
     tracksPane.style.pointerEvents = "none";
-    this.trackRenderer = L.canvas({ padding: 0.2, pane: "tracks" });
     this.unitRenderer = L.canvas({ padding: 0.2 });
     this.geoRenderer = this.unitRenderer;
+    if (timings.units) {
+      // Leaflet redraws a canvas in its own animation frame; time it where it happens
+      const r = this.unitRenderer;
+      const redraw = r._redraw;
+      r._redraw = function timedRedraw() {
+        const t0 = performance.now();
+        redraw.call(this);
+        timings.units(performance.now() - t0);
+      };
+    }
     this.tileUrl = config["tile-url"] || null;
     if (this.tileUrl) {
       L.tileLayer(this.tileUrl, {
@@ -135,11 +144,11 @@ export class MapView {
     L.control.scale({ metric: true, imperial: false, maxWidth: 160 }).addTo(this.map);
     this.missionLayers = new Map(); // mission id -> L.LayerGroup
     this.previewLayer = L.layerGroup().addTo(this.map);
-    this.tracksLayer = L.layerGroup().addTo(this.map);
+    this.tracks = new TrackLayer(unitColor).addTo(this.map);
+    this.tracks.on("drawn", (e) => this.onTracks(e.ms));
     this.unitsLayer = L.layerGroup().addTo(this.map);
-    this.units = new Map(); // name -> {marker, chunks: [L.Polyline], pending: [[lat, lon]]}
+    this.units = new Map(); // name -> {marker}
     this.placed = false;
-    this.trackTimer = null;
   }
 
   /** Centre on the units once, and lay the grid about them when there is no tile server. */
@@ -149,6 +158,12 @@ export class MapView {
     const b = L.latLngBounds(points);
     this.map.fitBounds(b.pad(0.4), { maxZoom: 17, animate: false });
     if (!this.tileUrl) metricGrid([b.getCenter().lat, b.getCenter().lng]).addTo(this.map);
+  }
+
+  /** Centre on the units once they are known (a snapshot may come before any unit). */
+  placeOnUnits() {
+    if (this.placed) return;
+    this._placeOnce([...this.units.values()].map((e) => e.marker.getLatLng()));
   }
 
   /** Replace every unit (a snapshot). */
@@ -164,7 +179,7 @@ export class MapView {
     const e = this.units.get(name);
     if (!e) return;
     this.unitsLayer.removeLayer(e.marker);
-    for (const c of e.chunks) this.tracksLayer.removeLayer(c);
+    this.tracks.remove(name);
     this.units.delete(name);
   }
 
@@ -177,76 +192,22 @@ export class MapView {
       marker.unit = u;
       marker.bindTooltip(() => tooltip(marker.unit), { direction: "top", offset: [0, -8] });
       marker.addTo(this.unitsLayer);
-      e = { marker, chunks: [], pending: [] };
+      e = { marker };
       this.units.set(u.name, e);
       this._relabel();
     } else {
       e.marker.unit = u;
       e.marker.setLatLng(ll); // requests a redraw of the unit canvas (batched by Leaflet per frame)
     }
-    if (track && track.length) {
-      for (const c of e.chunks) this.tracksLayer.removeLayer(c);
-      e.chunks = [];
-      e.pending = [];
-      for (let i = 0; i < track.length; i += TRACK_CHUNK - 1) {
-        e.chunks.push(this._chunk(u.name, track.slice(i, i + TRACK_CHUNK)));
-      }
-    } else if (point && !samePoint(point, e.pending[e.pending.length - 1] || lastPoint(e.chunks))) {
-      e.pending.push(point);
-      this._scheduleTracks();
-    }
+    if (track && track.length) this.tracks.set(u.name, track);
+    else if (point) this.tracks.append(u.name, point);
     if (e.marker.isTooltipOpen()) e.marker.setTooltipContent(tooltip(u));
     this.el.dataset.unitsDrawn = String(this.units.size);
-  }
-
-  _chunk(name, points) {
-    return L.polyline(points, {
-      renderer: this.trackRenderer,
-      color: unitColor(name),
-      weight: 3,
-      opacity: 0.8,
-      interactive: false,
-    }).addTo(this.tracksLayer);
   }
 
   _relabel() {
     const show = this.units.size <= LABEL_LIMIT;
     for (const e of this.units.values()) e.marker.showLabel = show;
-  }
-
-  /** Tracks are appended at most once a second: a track is history, the marker is live. */
-  _scheduleTracks() {
-    if (this.trackTimer !== null) return;
-    this.trackTimer = setTimeout(() => {
-      this.trackTimer = null;
-      this._flushTracks();
-    }, 1000);
-  }
-
-  _flushTracks() {
-    const t0 = performance.now();
-    for (const [name, e] of this.units) {
-      if (!e.pending.length) continue;
-      let head = e.chunks[e.chunks.length - 1];
-      let pts = head ? head.getLatLngs().slice() : [];
-      for (const p of e.pending) {
-        if (!head || pts.length >= TRACK_CHUNK) {
-          if (head) head.setLatLngs(pts);
-          pts = pts.slice(-1);
-          head = this._chunk(name, pts);
-          e.chunks.push(head);
-        }
-        pts.push(L.latLng(p[0], p[1]));
-      }
-      head.setLatLngs(pts);
-      e.pending = [];
-      let total = e.chunks.reduce((n, c) => n + c.getLatLngs().length, 0);
-      while (e.chunks.length > 1 && total - e.chunks[0].getLatLngs().length >= TRACK_MAX) {
-        total -= e.chunks[0].getLatLngs().length;
-        this.tracksLayer.removeLayer(e.chunks.shift());
-      }
-    }
-    this.onTracks(performance.now() - t0);
   }
 
   /** Draw a mission's tasks and planned routes (detail = GET /api/missions/{id}). */
@@ -290,7 +251,7 @@ export class MapView {
         lon: ll.lng,
         status: e.marker.unit.status,
         onMap: this.map.hasLayer(e.marker),
-        trackPoints: e.chunks.reduce((n, c) => n + c.getLatLngs().length, 0),
+        trackPoints: this.tracks.count(name),
       };
     }
     const count = (g) => (g ? g.getLayers().length : 0);
@@ -298,16 +259,6 @@ export class MapView {
     for (const [id, g] of this.missionLayers) missions[id] = count(g);
     return { units, missions, preview: count(this.previewLayer) };
   }
-}
-
-function lastPoint(chunks) {
-  const c = chunks[chunks.length - 1];
-  const ll = c ? c.getLatLngs() : [];
-  return ll.length ? [ll[ll.length - 1].lat, ll[ll.length - 1].lng] : null;
-}
-
-function samePoint(a, b) {
-  return Boolean(a && b) && a[0] === b[0] && a[1] === b[1];
 }
 
 function boundsOf(detail) {

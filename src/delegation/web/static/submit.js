@@ -137,7 +137,7 @@ export class SubmitPanel {
 
   start() {
     return this.run("start", async () => {
-      const strategy = this.chosen || this.strategies()[0];
+      const strategy = this.chosen; // none previewed: the service's default strategy
       const res = await api.start(this.request(strategy ? { strategy } : {}));
       say(this.result, `started ${res.id}${strategy ? ` with ${strategy}` : ""}`);
       this.result.dataset.missionId = res.id;
