@@ -62,6 +62,7 @@ class Served:
     url: str
     prefix: str
     settings: Any
+    bridge: Any
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +82,7 @@ def served() -> Iterator[Served]:
             try:
                 server = WebServer(create_app(bridge), "127.0.0.1", 0).start()
                 try:
-                    yield Served(system, server.url, prefix, settings)
+                    yield Served(system, server.url, prefix, settings, bridge)
                 finally:
                     server.stop()
             finally:
@@ -290,3 +291,37 @@ def test_a_unit_that_stops_is_shown_lost(page: Any, served: Served) -> None:
     assert drawn(page)["units"]["spare0"]["onMap"], "a lost unit stays on the map, marked lost"
     expect(page.locator("#events li[data-kind='unit-lost'][data-unit='spare0']")).to_have_count(1)
     expect(page.locator("#fleet-summary")).to_have_attribute("data-lost", re.compile(r"[1-9]"))
+
+
+def test_tiles_and_tokens(browser: Any, served: Served) -> None:
+    """With a tile URL the map uses it and its attribution instead of the grid; with users, the
+    page needs its token once (as /?token=...) and then acts as that user."""
+    from delegation.web.app import create_app
+    from delegation.web.server import WebServer
+
+    tiles = "/static/vendor/leaflet/images/layers.png?z={z}&x={x}&y={y}"  # any image will do
+    app = create_app(served.bridge, users={"tok-alice": "alice"}, tile_url=tiles,
+                     tile_attribution="Test tiles")
+    with WebServer(app, "127.0.0.1", 0) as server:
+        context = browser.new_context(viewport={"width": 1200, "height": 800})
+        requests: list[str] = []
+        try:
+            p = context.new_page()
+            p.on("request", lambda r: requests.append(r.url))
+            p.goto(server.url + "/")
+            conn = p.locator("#conn")
+            expect(conn).to_have_attribute("data-state", "error")
+            expect(conn).to_contain_text("401")
+            p.goto(server.url + "/?token=tok-alice")
+            p.wait_for_selector("body[data-ready]", timeout=15_000)
+            assert p.url == server.url + "/", "the token is swapped for a cookie"
+            expect(p.locator("#user")).to_have_text("as alice")
+            expect(p.locator("#units tr[data-unit='dji0']")).to_have_count(1)
+            tile = p.locator(".leaflet-tile-pane img.leaflet-tile").first
+            expect(tile).to_have_attribute("src", re.compile(r"layers\.png\?z=\d+&x=\d+&y=\d+"))
+            expect(p.locator(".leaflet-control-attribution")).to_contain_text("Test tiles")
+            expect(p.locator(".metric-grid")).to_have_count(0)
+        finally:
+            context.close()
+        outside = [u for u in requests if not u.startswith(server.url)]
+        assert outside == [], outside
