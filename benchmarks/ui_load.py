@@ -7,8 +7,11 @@ onto the broker from a few publisher threads (no simulator: only the load the pa
 Chromium (Playwright, /usr/bin/chromium or $CHROMIUM) opens the page. In the page: every
 requestAnimationFrame delta (p50/p95/max), long tasks (> 50 ms, PerformanceObserver), and the
 event lag of each `units` event (the page's wall clock when the frame that applied it ran, minus
-the event's ``at``). The server's CPU is measured once idle (the units not yet publishing) and once
-over the loaded window, as % of one core.
+the event's ``at``); and Chromium's own CPU over the window (/proc: the renderers, and all its
+processes), which tells page work from a page merely starved by a busy machine: a frame or a long
+task is wall time, and on a loaded 2-core machine much of it can be waiting for a core. The
+server's CPU is measured once idle (the units not yet publishing) and once over the loaded window,
+as % of one core.
 
     python benchmarks/ui_load.py                      # 200 units, 2 Hz, 30 s loaded window
     python benchmarks/ui_load.py --units 50 --duration 10
@@ -25,13 +28,14 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.error
 import urllib.request
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from delegation.runtime.broker import PrivateMosquitto, free_port
 from delegation.runtime.core import Identity, heartbeat
@@ -145,10 +149,48 @@ def cpu_seconds(pid: int) -> float:
     return ticks / os.sysconf("SC_CLK_TCK")
 
 
-def wait_http(url: str, proc: subprocess.Popen[bytes], deadline: float) -> dict[str, Any]:
+def descendants(root: int) -> list[int]:
+    """Every process below ``root`` (Playwright's driver, Chromium's browser, GPU, renderers)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [root]
+    while todo:
+        for kid in children.get(todo.pop(), []):
+            out.append(kid)
+            todo.append(kid)
+    return out
+
+
+def chromium_cpu() -> dict[str, float]:
+    """CPU seconds so far of this script's Chromium processes: all of them, and the renderers."""
+    total = renderer = 0.0
+    for pid in descendants(os.getpid()):
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+            if b"chrom" not in cmdline.split(b"\0")[0]:
+                continue
+            secs = cpu_seconds(pid)
+        except OSError:
+            continue  # gone meanwhile
+        total += secs
+        if b"--type=renderer" in cmdline:
+            renderer += secs
+    return {"all": total, "renderer": renderer}
+
+
+def wait_http(url: str, proc: subprocess.Popen[bytes], errors: IO[bytes],
+              deadline: float) -> dict[str, Any]:
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise SystemExit(f"delegation ui exited with {proc.returncode}")
+            errors.seek(0)
+            tail = errors.read().decode(errors="replace")[-2000:]
+            raise SystemExit(f"delegation ui exited with {proc.returncode}:\n{tail}")
         try:
             with urllib.request.urlopen(url + "/api/config", timeout=2) as r:
                 return dict(json.load(r))
@@ -180,6 +222,7 @@ def main() -> int:
     ap.add_argument("--idle", type=float, default=5.0, help="idle window measured first (s)")
     ap.add_argument("--threads", type=int, default=4, help="publisher threads")
     ap.add_argument("--chromium", default=os.environ.get("CHROMIUM", "/usr/bin/chromium"))
+    ap.add_argument("--screenshot", metavar="PNG", help="save the page at the end of the run")
     args = ap.parse_args()
 
     from playwright.sync_api import sync_playwright
@@ -192,10 +235,11 @@ def main() -> int:
         "--broker", "127.0.0.1", "--port", str(broker.port),
         "--http", f"127.0.0.1:{http_port}",
     ]
-    server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    errors = tempfile.TemporaryFile()  # noqa: SIM115 (closed in the finally below)
+    server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=errors)
     pubs = Publishers(broker.settings(), args.units, args.rate, args.threads)
     try:
-        wait_http(url, server, time.monotonic() + 30)
+        wait_http(url, server, errors, time.monotonic() + 30)
         with sync_playwright() as pw:
             browser = pw.chromium.launch(
                 executable_path=args.chromium, headless=True, args=CHROMIUM_ARGS
@@ -218,14 +262,16 @@ def main() -> int:
             page.evaluate(
                 "() => { const b = window.__bench; b.frames = []; b.longtasks = []; b.on = true;"
                 " const s = window.delegationUI.stats; s.lags.length = 0; s.flushMs.length = 0;"
-                " s.trackMs.length = 0;"
+                " s.trackMs.length = 0; s.canvasMs.length = 0;"
                 " b.events0 = s.unitEvents; b.applied0 = s.unitsApplied; }"
             )
             sent0 = pubs.sent
+            b0 = chromium_cpu()
             c0, t0 = cpu_seconds(server.pid), time.monotonic()
             load0 = Path("/proc/loadavg").read_text().split()[:3]
             time.sleep(args.duration)
             c1, t1 = cpu_seconds(server.pid), time.monotonic()
+            b1 = chromium_cpu()
             load1 = Path("/proc/loadavg").read_text().split()[:3]
             sent = pubs.sent - sent0
             res = page.evaluate(
@@ -233,10 +279,13 @@ def main() -> int:
                 " const s = window.delegationUI.stats;"
                 " return {frames: b.frames, longtasks: b.longtasks, lags: s.lags.slice(),"
                 " flush: s.flushMs.slice(), tracks: s.trackMs.slice(),"
+                " canvas: s.canvasMs.slice(),"
                 " events: s.unitEvents - b.events0, applied: s.unitsApplied - b.applied0,"
                 " drawn: Number(document.getElementById('map').dataset.unitsDrawn),"
                 " noLongtasks: b.noLongtasks || null}; }"
             )
+            if args.screenshot:
+                page.screenshot(path=args.screenshot)
             browser.close()
     finally:
         pubs.stop()
@@ -246,6 +295,7 @@ def main() -> int:
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+        errors.close()
         broker.stop()
 
     wall = t1 - t0
@@ -267,9 +317,13 @@ def main() -> int:
          f"{len(longtasks)}, {sum(longtasks):.0f}" if res["noLongtasks"] is None
          else f"n/a ({res['noLongtasks']})"),
         ("page's DOM work per frame p50 / p95 / max (ms)", three(res["flush"], 1)),
-        ("track appends (1 Hz) p50 / p95 / max (ms)", three(res["tracks"], 1)),
+        ("units canvas redraws p50 / p95 / max (ms)", three(res["canvas"], 1)),
+        ("track canvas redraws p50 / p95 / max (ms)", three(res["tracks"], 1)),
         ("event lag p50 / p95 / max (ms)",
          three(lags)),
+        ("Chromium CPU: renderers / all (% of one core)",
+         f"{(b1['renderer'] - b0['renderer']) / wall * 100:.1f} / "
+         f"{(b1['all'] - b0['all']) / wall * 100:.1f}"),
         ("server CPU idle (% of one core)", f"{idle_cpu:.1f}"),
         ("server CPU loaded (% of one core)", f"{load_cpu:.1f}"),
         ("server CPU added by the load", f"{load_cpu - idle_cpu:.1f}"),
