@@ -6,7 +6,7 @@ import * as api from "./api.js";
 import { ENDED } from "./colors.js";
 import { badge, h } from "./dom.js";
 import { MapView } from "./map.js";
-import { MissionDetail, MissionsPanel } from "./missions.js";
+import { MissionDetail, MissionsPanel, setTimeScale } from "./missions.js";
 import { SubmitPanel } from "./submit.js";
 
 const EVENTS_MAX = 200;
@@ -359,6 +359,7 @@ async function main() {
     return;
   }
   document.getElementById("user").textContent = config.user ? `as ${config.user}` : "";
+  setTimeScale(Number(config["time-scale"]) || 1); // optional: not in every server's config
   const store = new Store(config);
   store.map = new MapView(document.getElementById("map"), config, {
     tracks: (ms) => record(store.stats.trackMs, ms),

@@ -6,11 +6,18 @@ import { ENDED } from "./colors.js";
 import { badge, h, say, secs } from "./dom.js";
 import { renderGantt } from "./gantt.js";
 
+/** Mission seconds per wall second: a simulated fleet's speed-up, when the server says one. */
+let timeScale = 1;
+
+export function setTimeScale(scale) {
+  timeScale = scale > 0 ? scale : 1;
+}
+
 /** Seconds since the mission started, counted on from the server's last figure. */
 export function elapsedNow(m) {
   if (m.elapsed === null || m.elapsed === undefined) return null;
   if (ENDED.has(m.status) || m["ended-at"]) return m.elapsed;
-  return m.elapsed + (performance.now() - m._receivedAt) / 1000;
+  return m.elapsed + ((performance.now() - m._receivedAt) / 1000) * timeScale;
 }
 
 function makespanCell(m) {
