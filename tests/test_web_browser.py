@@ -78,7 +78,7 @@ def served() -> Iterator[Served]:
         with LocalSystem.from_scenario(load_scenario(DEMO), settings=settings, prefix=prefix,
                                        speedup=SPEEDUP) as system:
             bridge = Bridge(settings, prefix=prefix, service=system.config.name,
-                            sender="ui-tester").start()
+                            sender="ui-tester", time_scale=SPEEDUP).start()
             try:
                 server = WebServer(create_app(bridge), "127.0.0.1", 0).start()
                 try:
