@@ -14,6 +14,7 @@ Commands go to the service with the caller's ``sender``, so the service's own au
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import queue
@@ -304,7 +305,7 @@ class Bridge:
         with self._wake_lock:
             wakers = list(self._wakers.values())
         for loop, event in wakers:
-            if not loop.is_closed():
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                 loop.call_soon_threadsafe(event.set)
 
     @property
