@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import re
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -27,7 +28,7 @@ import pytest
 from delegation.fleet import make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
-from delegation.runtime.broker import LocalBroker
+from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
 from delegation.runtime.client import ServiceClient
 from delegation.runtime.mqtt import Message, MqttClient
 from delegation.sim import SimFleet
@@ -369,10 +370,9 @@ def test_cli_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page,
                 stream.close()
 
 
-def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: Any,
-                                                                 prefix: str) -> None:
-    """The page's connection reads the socket in chunks (runtime.mqtt._BufferedReadClient):
-    thousands of small messages and one spanning several reads all arrive, whole, in order."""
+def _buffered_round_trip(settings: Any, prefix: str) -> None:
+    """Thousands of small messages and one spanning several reads arrive, whole, in order, on a
+    client that reads the socket in chunks (runtime.mqtt._BufferedReadClient)."""
     got: dict[str, list[bytes]] = {"probe": [], "t": []}
     cond = threading.Condition()
 
@@ -382,10 +382,10 @@ def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: 
             cond.notify_all()
 
     payloads = [str(k).encode() for k in range(3000)] + [bytes(range(256)) * 800, b"last"]
-    rx = MqttClient(mqtt_settings, sink=sink)
+    rx = MqttClient(settings, sink=sink)
     rx.buffered_reads = True
     rx.subscribe(f"{prefix}/#", 1)
-    tx = MqttClient(mqtt_settings)
+    tx = MqttClient(settings)
     rx.connect()
     try:
         tx.connect()
@@ -403,6 +403,23 @@ def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: 
         tx.disconnect()
         rx.disconnect()
     assert got["t"] == payloads
+
+
+def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: Any,
+                                                                 prefix: str) -> None:
+    _buffered_round_trip(mqtt_settings, prefix)
+
+
+@pytest.mark.skipif(mosquitto_binary() is None or shutil.which("openssl") is None,
+                    reason="needs mosquitto and openssl")
+def test_buffered_reads_over_tls(tmp_path: Path, prefix: str) -> None:
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
+                    "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+                    "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True)
+    with PrivateMosquitto(certfile=str(cert), keyfile=str(key)) as broker:
+        settings = broker.settings().model_copy(update={"ca_certs": str(cert)})
+        _buffered_round_trip(settings, prefix)
 
 
 def test_cli_demo_serves_the_page_while_its_mission_runs(tmp_path: Path) -> None:
