@@ -169,6 +169,7 @@ def test_state_and_the_snapshot_show_the_units(page: Page) -> None:
     config = page.get("/api/config").json()
     assert config["user"] == "alice" and config["tile-url"] is None
     assert config["strategies"] == ["nearest", "auction", "optimal"]
+    assert config["objectives"] == ["makespan", "total"] and config["time-scale"] == 1.0
     snapshot = page.events.wait(lambda k, d: k == "snapshot", 10.0, "snapshot")
     assert "units" in snapshot and "missions" in snapshot
     page.events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]}

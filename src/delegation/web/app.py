@@ -126,7 +126,8 @@ class Page:
         return JSONResponse({"user": user, "tile-url": self.tile_url,
                              "tile-attribution": self.tile_attribution,
                              "strategies": list(self.strategies),
-                             "objectives": list(OBJECTIVES)})
+                             "objectives": list(OBJECTIVES),
+                             "time-scale": self.bridge.view.scale})
 
     async def state(self, request: Request, user: str) -> Response:
         return JSONResponse(self.bridge.state())
