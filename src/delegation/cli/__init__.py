@@ -37,6 +37,7 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "runtime",
     "units",
     "missions",
+    "ui",
 )
 
 

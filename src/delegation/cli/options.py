@@ -29,7 +29,7 @@ EXIT_SIGINT = 130
 EXIT_SIGTERM = 0
 
 #: Commands that run until stopped: they log at INFO unless told otherwise.
-DAEMONS: frozenset[str] = frozenset({"serve", "engine", "sim"})
+DAEMONS: frozenset[str] = frozenset({"serve", "engine", "sim", "ui"})
 
 LOG_LEVELS: tuple[str, ...] = ("debug", "info", "warning", "error")
 
@@ -67,7 +67,7 @@ def add_logging_args(parser: argparse.ArgumentParser, *, top: bool) -> None:
     g.add_argument("-q", "--quiet", action="store_true", help="errors only",
                    **({"default": False} if top else d))
     g.add_argument("--log-level", choices=LOG_LEVELS, type=str.lower,
-                   help="log level (default: info for serve/engine/sim, else warning)",
+                   help="log level (default: info for serve/engine/sim/ui, else warning)",
                    **({"default": None} if top else d))
     g.add_argument("--log-json", action="store_true", help="log one JSON object per line",
                    **({"default": False} if top else d))

@@ -19,12 +19,14 @@ from typing import TYPE_CHECKING, Any
 
 from delegation.cli.options import (
     Stopped,
+    UsageError,
     env_flag,
     env_port,
     port_number,
     positive_float,
 )
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
+from delegation.cli.ui import add_http_args
 from delegation.errors import DelegationError, InputError, Problem
 from delegation.topics import AGENT_TYPES, ROLES
 
@@ -173,6 +175,11 @@ def register(subparsers: Any) -> None:
         default=50.0,
         help="give up after this many wall seconds of execution",
     )
+    demo.add_argument(
+        "--hold", action="store_true",
+        help="with --http: keep the system and the page up after the missions until Ctrl-C",
+    )
+    add_http_args(demo, default=None)
     add_broker_args(demo)
     demo.set_defaults(func=_demo)
 
@@ -207,6 +214,7 @@ def register(subparsers: Any) -> None:
         metavar="M/S",
         help="the highest explicit speed a task may ask for (default 100)",
     )
+    add_http_args(serve, default=None)
     add_broker_args(serve)
     serve.set_defaults(func=_serve)
 
@@ -548,6 +556,12 @@ def _demo(args: argparse.Namespace) -> int:
 
     console = Console()
     t0 = time.monotonic()
+    if args.http:
+        from delegation.cli.ui import page_options
+
+        page_options(args)  # usage errors before anything starts
+    elif args.hold:
+        raise UsageError("--hold needs --http HOST:PORT")
     scenario = load_scenario(find_scenario(args.scenario))
     units = scenario.units()
     speedup = args.speedup
@@ -577,8 +591,15 @@ def _demo(args: argparse.Namespace) -> int:
         assert settings is not None
         if system.broker is not None:
             console.print(f"embedded broker on {settings.describe()}")
+        if args.http:
+            from delegation.cli.ui import start_page
+
+            server = start_page(stack, args, settings, prefix=config.prefix, service=config.name,
+                                time_scale=speedup)
+            console.print(f"operator page on {server.url}", soft_wrap=True)
         client = ServiceClient(
-            settings, prefix=config.prefix, service=config.name, track_positions=True
+            settings, prefix=config.prefix, service=config.name, track_positions=True,
+            sender=args.sender,
         ).start()
         stack.callback(client.stop)
 
@@ -634,6 +655,9 @@ def _demo(args: argparse.Namespace) -> int:
             f"map: {path}   gantt: {gantt}   plan: {out / 'plan.json'}   "
             f"({time.monotonic() - t0:.1f} s wall in all)"
         )
+        if args.http and args.hold:
+            console.print(f"still serving the page on {server.url}; Ctrl-C stops", soft_wrap=True)
+            threading.Event().wait()
         return 0 if progress.succeeded else 1
 
 
@@ -661,7 +685,22 @@ def _serve(args: argparse.Namespace) -> int:
         operators=frozenset(args.operator),
         max_speed=args.max_speed,
     )
+    if args.http:
+        from delegation.cli.ui import page_options
+
+        page_options(args)  # usage errors before the store is opened
     store = open_store(args.state or str(default_state_path(config.name)))
+    page = ExitStack()
+    if args.http:
+        from delegation.cli.ui import start_page
+
+        try:
+            server = start_page(page, args, settings, prefix=config.prefix, service=config.name)
+        except BaseException:
+            page.close()
+            store.close()
+            raise
+        print(f"operator page on {server.url}", flush=True)
     print(
         f"{config.name} serving on {settings.describe()} at {config.base_topic} "
         f"(engine {config.engine}, state {store.where}); Ctrl-C stops",
@@ -673,6 +712,7 @@ def _serve(args: argparse.Namespace) -> int:
         code = run_active(settings, config, store, threading.Event(), retention=args.retention,
                           announce=lambda text: print(text, flush=True))
     finally:
+        page.close()
         store.close()
         print(f"{config.name} stopped", flush=True)
     return code

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as paho
-from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
+from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode, MQTTProtocolVersion
 
 from delegation.errors import DelegationError
 from delegation.runtime.settings import BrokerSettings
@@ -85,6 +85,44 @@ def _set_nodelay(sock: Any) -> None:
 
 MessageSink = Callable[[Message], None]
 
+#: Bytes a buffered client reads from the socket at once.
+_READ_CHUNK = 65536
+
+
+class _BufferedReadClient(paho.Client):
+    """paho, reading the socket in chunks: paho asks for 1 byte (the command), 1 byte per
+    remaining-length byte, then the rest, each a ``recv`` after a ``select`` per packet. With a
+    buffer, one ``recv`` serves many small packets; `loop_read` goes on while whole packets are
+    buffered (nothing in the kernel would wake ``select`` for them). For a subscriber of many
+    small periodic messages (the operator page: 200 units x 2 Hz)."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self._rbuf = bytearray()
+
+    def _sock_recv(self, bufsize: int) -> bytes:
+        if not self._rbuf:
+            chunk = super()._sock_recv(max(bufsize, _READ_CHUNK))  # BlockingIOError when empty
+            if len(chunk) <= bufsize:
+                return chunk  # also b"": connection closed
+            self._rbuf += chunk
+        data = bytes(self._rbuf[:bufsize])
+        del self._rbuf[:bufsize]
+        return data
+
+    def loop_read(self, max_packets: int = 1) -> MQTTErrorCode:
+        rc = super().loop_read(max_packets)
+        while rc == paho.MQTT_ERR_SUCCESS and self._rbuf and self._sock is not None:
+            before = len(self._rbuf)
+            rc = super().loop_read(max_packets)
+            if len(self._rbuf) >= before:  # nothing consumed: a partial packet waits
+                break
+        return rc
+
+    def _sock_close(self) -> None:
+        self._rbuf.clear()
+        super()._sock_close()
+
 _UNSUPPORTED_PROTOCOL = 132  # CONNACK reason "Unsupported protocol version" (v3 rc 1 maps here)
 
 
@@ -119,6 +157,8 @@ class MqttClient:
         self.protocol_version: MQTTProtocolVersion | None = None
         self.connect_count = 0
         self.nodelay_sockets = 0
+        #: Read the socket in chunks (`_BufferedReadClient`); set before `connect`.
+        self.buffered_reads = False
 
     # ---- lifecycle
 
@@ -150,7 +190,8 @@ class MqttClient:
         raise MqttConnectError(f"cannot connect to {self.settings.describe()}: {last}")
 
     def _make_client(self, protocol: MQTTProtocolVersion) -> paho.Client:
-        client = paho.Client(
+        kind = _BufferedReadClient if self.buffered_reads else paho.Client
+        client = kind(
             CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
             protocol=protocol,

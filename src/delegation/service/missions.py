@@ -151,10 +151,13 @@ class Mission:
             "unassigned": list(self.plan.get("unassigned", [])),
             "makespan": self.plan.get("makespan"),
             "strategy": self.plan.get("strategy"),
+            "objective": self.plan.get("objective"),
             "current-root": self.current_root,
             "re-delegations": self.redelegations,
             "notes": list(self.plan.get("notes", [])),
             "tst": self.tst,
+            # The operator's own tree (uuids completed): what node feedback is about (§8).
+            "received": self.received,
         }
 
 

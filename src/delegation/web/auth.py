@@ -1,0 +1,60 @@
+"""Who is asking the page: a users file of ``TOKEN NAME`` lines (docs/ui.md, "Auth").
+
+The name is the ``sender`` of the caller's commands, so the service decides what each may do
+(owners, ``--operator``) as it does over MQTT. Without a users file every request acts as the
+server's own sender.
+"""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Mapping
+from pathlib import Path
+
+from delegation.errors import InputError, Problem
+
+COOKIE = "delegation-token"
+
+
+def read_users(path: str | Path) -> dict[str, str]:
+    """token -> name from a users file (``#`` comments and blank lines ignored)."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(Problem(str(path), "", f"cannot read the users file: {exc}")) from None
+    users: dict[str, str] = {}
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        if len(parts) != 2:
+            raise InputError(Problem(f"{path}:{number}", "", "expected 'TOKEN NAME'"))
+        token, name = parts
+        if len(token) < 8:
+            raise InputError(Problem(f"{path}:{number}", "", "a token needs 8 characters or more"))
+        if token in users:
+            raise InputError(Problem(f"{path}:{number}", "", "the same token twice"))
+        users[token] = name
+    if not users:
+        raise InputError(Problem(str(path), "", "no users (lines 'TOKEN NAME')"))
+    return users
+
+
+def user_of(users: Mapping[str, str], token: str | None) -> str | None:
+    """The name for a token (compared in constant time), or None."""
+    if not token:
+        return None
+    found = None
+    for known, name in users.items():
+        if hmac.compare_digest(known.encode(), token.encode()):
+            found = name
+    return found
+
+
+def bearer(header: str | None) -> str | None:
+    """The token of an ``Authorization: Bearer TOKEN`` header."""
+    if not header:
+        return None
+    scheme, _, value = header.partition(" ")
+    return value.strip() or None if scheme.lower() == "bearer" else None

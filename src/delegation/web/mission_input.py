@@ -1,0 +1,71 @@
+"""A mission as the page sends it: JSON or YAML text, or an object (pure).
+
+Reads exactly what ``delegation submit`` reads: a TST, a scenario (its ``mission``) or a
+start-tst/delegate command (its ``tst``). The tree is validated here so that bad input is a 400
+naming the node and field before anything reaches the service.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import yaml
+
+from delegation.errors import InputError, Problem
+from delegation.tst.node import parse_tree, to_dict, with_uuids
+from delegation.tst.validate import parse_and_validate
+
+#: Characters of mission text accepted (the service's own limits are stricter on trees).
+MAX_TEXT = 2_000_000
+
+
+def _document(text: str) -> Any:
+    if len(text) > MAX_TEXT:
+        raise InputError(Problem("mission", "", f"longer than {MAX_TEXT} characters"))
+    try:
+        return json.loads(text)
+    except ValueError:
+        pass
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(Problem("mission", "", f"neither JSON nor YAML: {line}")) from None
+
+
+def mission_tree(value: Any) -> dict[str, Any]:
+    """The validated TST (JSON form) in mission text or an object; `InputError` otherwise."""
+    data = _document(value) if isinstance(value, str) else value
+    if not isinstance(data, dict):
+        raise InputError(Problem("mission", "", "must be a JSON/YAML object (a TST, a scenario "
+                                 "or a start-tst/delegate command)"))
+    if "mission" in data and "agents" in data:
+        data = data["mission"]
+    elif "tst" in data and "command" in data:
+        data = data["tst"]
+    if not isinstance(data, dict) or "name" not in data:
+        raise InputError(Problem("mission", "", "no TST found (expected a tree, a scenario or a "
+                                 "start-tst/delegate command)"))
+    parse_and_validate(data)
+    return data
+
+
+def with_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
+    """The tree with a uuid on every node (the caller's kept), so the page knows the operator's
+    tree by uuid before the service answers."""
+    return to_dict(with_uuids(parse_tree(tree)))
+
+
+def without_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
+    """A copy without node uuids: each dry-run plan gets fresh ones (a planned mission holds its
+    uuids, and a second plan of the same uuids would be refused)."""
+    out = {k: v for k, v in tree.items() if k not in ("children", "common_params",
+                                                       "common-params")}
+    for key in ("common_params", "common-params"):
+        if isinstance(tree.get(key), dict):
+            out[key] = {k: v for k, v in tree[key].items() if k != "node-uuid"}
+    if isinstance(tree.get("children"), list):
+        out["children"] = [without_node_uuids(c) if isinstance(c, dict) else c
+                           for c in tree["children"]]
+    return out

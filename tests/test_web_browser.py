@@ -1,0 +1,342 @@
+"""The operator page in a real browser: Debian's Chromium, headless, driven by Playwright, against
+the demo's fleet, engine and service on a private mosquitto with the page's server in a thread.
+
+What an operator relies on: the units appear on the map; a mission pasted into the page shows its
+plan per strategy, starts, and reaches ``succeeded`` on the page (after ``$enough`` for its
+open-ended look-at-position); Cancel aborts a running mission (dropped on the page as a file);
+a unit whose heartbeat stops is shown as lost. The page loads nothing from outside the server.
+
+``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png and mission.png there (the
+README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs it);
+Playwright's own browser download is never used.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from delegation.local import LocalSystem
+from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
+from delegation.scenario import load_scenario, scenario_from_dict
+from delegation.sim import SimFleet
+
+playwright_api = pytest.importorskip("playwright.sync_api")
+expect = playwright_api.expect
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "scenarios" / "demo.yaml"
+CHROMIUM = os.environ.get("CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]
+SHOTS = os.environ.get("DELEGATION_UI_SCREENSHOTS")
+#: Simulated time runs this much faster: the demo mission (about 60-80 s planned) takes seconds.
+#: Slower for screenshots, so that the timeline's actual bars can be compared with the plan's.
+SPEEDUP = 2.0 if SHOTS else 10.0
+
+pytestmark = [
+    pytest.mark.mqtt,
+    pytest.mark.slow,
+    pytest.mark.skipif(mosquitto_binary() is None, reason="no mosquitto binary"),
+    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"no Chromium at {CHROMIUM} "
+                       "(apt-get install chromium; .ci/run does)"),
+]
+
+
+@dataclass
+class Served:
+    """The running system and the page's address."""
+
+    system: LocalSystem
+    url: str
+    prefix: str
+    settings: Any
+    bridge: Any
+
+
+@pytest.fixture(scope="module")
+def served() -> Iterator[Served]:
+    """Broker, the demo's fleet + engine + service, and the page's server (bridge + uvicorn)."""
+    from delegation.web.app import create_app
+    from delegation.web.bridge import Bridge
+    from delegation.web.server import WebServer
+
+    prefix = f"ui-{uuid.uuid4().hex[:8]}"
+    with PrivateMosquitto() as broker:
+        settings = broker.settings()
+        with LocalSystem.from_scenario(load_scenario(DEMO), settings=settings, prefix=prefix,
+                                       speedup=SPEEDUP) as system:
+            bridge = Bridge(settings, prefix=prefix, service=system.config.name,
+                            sender="ui-tester", time_scale=SPEEDUP).start()
+            try:
+                server = WebServer(create_app(bridge), "127.0.0.1", 0).start()
+                try:
+                    yield Served(system, server.url, prefix, settings, bridge)
+                finally:
+                    server.stop()
+            finally:
+                bridge.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    with playwright_api.sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser: Any, served: Served) -> Iterator[Any]:
+    """A fresh page on the operator page, live (its first snapshot applied). It records every
+    request and every script error; the test fails on an error or a request off the server."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    p = context.new_page()
+    requests: list[str] = []
+    errors: list[str] = []
+    p.on("request", lambda r: requests.append(r.url))
+    p.on("pageerror", lambda e: errors.append(str(e)))
+    p.goto(served.url + "/")
+    p.wait_for_selector("body[data-ready]", timeout=15_000)
+    expect(p.locator("#conn")).to_have_attribute("data-state", "live")
+    try:
+        yield p
+    finally:
+        context.close()
+    assert errors == [], f"script errors on the page: {errors}"
+    outside = [u for u in requests if not (u.startswith(served.url) or u.startswith("data:"))]
+    assert outside == [], f"the page fetched from outside its server: {outside}"
+
+
+def shot(page: Any, name: str) -> None:
+    if SHOTS:
+        Path(SHOTS).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(SHOTS) / name))
+
+
+def drawn(page: Any) -> dict[str, Any]:
+    """What the map has drawn (names, positions, statuses; mission and preview layers)."""
+    return dict(page.evaluate("window.delegationUI.describe()"))
+
+
+def drop_file(page: Any, name: str, text: str) -> None:
+    """Drop a file on the submit box, as from a file manager."""
+    transfer = page.evaluate_handle(
+        "([name, text]) => { const dt = new DataTransfer();"
+        " dt.items.add(new File([text], name, {type: 'application/json'})); return dt; }",
+        [name, text],
+    )
+    page.dispatch_event("#drop-zone", "drop", {"dataTransfer": transfer})
+    expect(page.locator("#mission-text")).to_have_value(text)
+    expect(page.locator("#mission-text")).to_have_attribute("data-file", name)
+
+
+def start_from_page(page: Any, mission_text: str) -> str:
+    """Drop a mission file on the page, press Start, and return the id the page reports."""
+    drop_file(page, "mission.json", mission_text)
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    mission_id = str(result.get_attribute("data-mission-id"))
+    expect(page.locator("#mission-detail")).to_have_attribute("data-mission-id", mission_id)
+    return mission_id
+
+
+def test_units_appear_on_the_map(page: Any, served: Served) -> None:
+    scenario = load_scenario(DEMO)
+    for agent in scenario.agents:
+        row = page.locator(f'#units tr[data-unit="{agent.name}"]')
+        expect(row).to_have_attribute("data-status", "alive", timeout=15_000)
+        expect(row).to_contain_text(agent.name)
+    expect(page.locator("#map")).to_have_attribute("data-units-drawn", str(len(scenario.agents)))
+    units = drawn(page)["units"]
+    # units without a task hold still: each marker is where the server says the unit is (the
+    # scenario's start, unless another test of this module flew it elsewhere first)
+    state = page.evaluate("fetch('/api/state').then((r) => r.json())")
+    where = {u["name"]: (u["latitude"], u["longitude"]) for u in state["units"]}
+    for agent in scenario.agents:
+        u = units[agent.name]
+        assert u["onMap"] and u["status"] == "alive"
+        assert abs(u["lat"] - where[agent.name][0]) < 1e-4
+        assert abs(u["lon"] - where[agent.name][1]) < 1e-4
+    # the map's vector layers are canvas (not one DOM node per unit) and there is a scale
+    assert page.locator("#map canvas").count() >= 2
+    expect(page.locator("#map .leaflet-control-scale-line")).to_be_visible()
+    expect(page.locator("#events li[data-kind='unit-new']").first).to_be_visible()
+
+
+def test_a_submitted_mission_shows_its_plan_and_succeeds(page: Any, served: Served) -> None:
+    page.fill("#mission-text", DEMO.read_text())
+    page.click("#btn-preview")
+    rows = page.locator("#preview tbody tr")
+    expect(rows).to_have_count(3, timeout=60_000)  # nearest, auction, optimal
+    makespans = {}
+    for i in range(3):
+        row = rows.nth(i)
+        name = str(row.get_attribute("data-strategy"))
+        makespans[name] = float(str(row.get_attribute("data-makespan")))
+    assert set(makespans) == {"nearest", "auction", "optimal"}
+    assert all(m > 0 for m in makespans.values())
+    assert makespans["optimal"] <= makespans["auction"] + 1e-6
+    best = min(makespans, key=lambda k: makespans[k])
+    expect(page.locator(f'#preview tr[data-strategy="{best}"] input[type=radio]')).to_be_checked()
+    assert drawn(page)["preview"] > 0, "the chosen plan's routes and tasks are drawn"
+    expect(page.locator("#missions tbody tr")).to_have_count(0)  # a dry run starts nothing
+    shot(page, "preview.png")
+
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    mission_id = str(result.get_attribute("data-mission-id"))
+    expect(result).to_contain_text(f"with {best}")
+    detail = page.locator("#mission-detail")
+    expect(detail).to_have_attribute("data-mission-id", mission_id)
+    row = page.locator(f'#missions tr[data-mission-id="{mission_id}"]')
+    expect(row).to_contain_text(best)
+    # the plan: every task of the tree is on the timeline with its planned interval
+    expect(page.locator("#gantt g[data-node-uuid] rect.plan")).to_have_count(6, timeout=15_000)
+    expect(page.locator("#tree li[data-node-uuid]").first).to_be_visible()
+    assert drawn(page)["missions"].get(mission_id, 0) > 0, "its tasks and routes are on the map"
+
+    if SHOTS:  # the overview mid-flight: tracks beside the routes
+        page.wait_for_function(
+            "document.querySelectorAll(\"#gantt g[data-status='succeeded']\").length >= 2",
+            timeout=90_000)
+        shot(page, "overview.png")
+
+    # look-at-position is open-ended: once the five other tasks are done, the operator says
+    # $enough, as `delegation submit --enough` would
+    tasks = page.locator("#gantt g[data-node-uuid]")
+    expect(page.locator("#gantt g[data-status='succeeded']")).to_have_count(5, timeout=90_000)
+    expect(page.locator("#tree li[data-status='running'] > .node-name").filter(
+        has_text="look-at-position")).to_have_count(1)
+    page.click("#btn-enough")
+    expect(page.locator("#detail-response")).to_have_text("$enough: ok", timeout=30_000)
+    expect(detail).to_have_attribute("data-status", "succeeded", timeout=30_000)
+    expect(row).to_have_attribute("data-status", "succeeded")
+    # every task finished, and the timeline shows when each ran
+    expect(tasks.locator("rect.actual")).to_have_count(6, timeout=15_000)
+    statuses = [str(tasks.nth(i).get_attribute("data-status")) for i in range(tasks.count())]
+    assert statuses and all(s in ("succeeded", "finished") for s in statuses), statuses
+    expect(page.locator(f"#events li[data-kind='succeeded'][data-mission='{mission_id}']")
+           ).to_have_count(1)
+    for b in ("#btn-enough", "#btn-pause", "#btn-continue", "#btn-cancel"):
+        expect(page.locator(b)).to_be_disabled()
+    shot(page, "mission.png")
+    page.click("#detail-close")
+    expect(detail).to_be_hidden()
+
+
+FAR_MOVE = {
+    "name": "conc",
+    "children": [{
+        "name": "move-to",
+        "common_params": {"execunit": "*"},
+        "params": {"speed": "slow",
+                   "waypoint": {"latitude": 57.785, "longitude": 16.68, "altitude": 40.0}},
+    }],
+}
+
+
+def test_cancel_from_the_page_aborts_the_mission(page: Any, served: Served) -> None:
+    mission_id = start_from_page(page, json.dumps(FAR_MOVE, indent=1))
+    detail = page.locator("#mission-detail")
+    # ~2.8 km at 4 m/s: minutes of simulated flight, so it is still running when cancelled
+    expect(detail).to_have_attribute("data-status", re.compile("started|running"),
+                                     timeout=30_000)
+    page.click("#btn-cancel")
+    expect(page.locator("#detail-response")).to_have_text(re.compile(r"^cancel: (ok|pending)$"),
+                                                          timeout=30_000)
+    expect(page.locator("#detail-error")).to_be_hidden()
+    expect(detail).to_have_attribute("data-status", "aborted", timeout=30_000)
+    expect(page.locator(f'#missions tr[data-mission-id="{mission_id}"]')
+           ).to_have_attribute("data-status", "aborted")
+
+
+def test_a_bad_mission_shows_the_servers_fail_reason(page: Any) -> None:
+    page.fill("#mission-text", '{"name": "conc", "children": [{"name": "no-such-task"}]}')
+    page.click("#btn-preview")
+    error = page.locator("#submit-error")
+    expect(error).to_be_visible(timeout=30_000)
+    expect(error).to_contain_text("preview failed: 400")
+    expect(error).to_contain_text("no-such-task")
+    expect(page.locator("#preview")).to_be_hidden()
+
+
+SPARE = {
+    "name": "spare",
+    "agents": [{
+        "name": "spare0", "type": "air", "rate": 2.0,
+        "position": {"latitude": 57.7598, "longitude": 16.6790, "altitude": 40.0},
+        "speeds": {"slow": 4.0, "standard": 8.0, "fast": 14.0},
+        # offers nothing the other tests' missions ask for, so the service never plans it
+        "tasks": ["land"],
+    }],
+    "mission": {"name": "land", "common_params": {"execunit": "*"}, "params": {}},
+}
+
+
+def test_a_unit_that_stops_is_shown_lost(page: Any, served: Served) -> None:
+    spare = scenario_from_dict(SPARE)
+    fleet = SimFleet(served.settings, spare.units(), prefix=served.prefix, rates={"spare0": 2.0})
+    fleet.start()
+    try:
+        row = page.locator('#units tr[data-unit="spare0"]')
+        expect(row).to_have_attribute("data-status", "alive", timeout=15_000)
+        page.wait_for_function("window.delegationUI.describe().units.spare0 !== undefined")
+    finally:
+        fleet.stop()
+    # heartbeats stop: lost after 3 periods, at least 5 s (docs/protocol.md §11)
+    expect(row).to_have_attribute("data-status", "lost", timeout=30_000)
+    expect(row.locator(".badge")).to_have_text("lost")
+    page.wait_for_function("window.delegationUI.describe().units.spare0.status === 'lost'")
+    assert drawn(page)["units"]["spare0"]["onMap"], "a lost unit stays on the map, marked lost"
+    expect(page.locator("#events li[data-kind='unit-lost'][data-unit='spare0']")).to_have_count(1)
+    expect(page.locator("#fleet-summary")).to_have_attribute("data-lost", re.compile(r"[1-9]"))
+
+
+def test_tiles_and_tokens(browser: Any, served: Served) -> None:
+    """With a tile URL the map uses it and its attribution instead of the grid; with users, the
+    page needs its token once (as /?token=...) and then acts as that user."""
+    from delegation.web.app import create_app
+    from delegation.web.server import WebServer
+
+    tiles = "/static/vendor/leaflet/images/layers.png?z={z}&x={x}&y={y}"  # any image will do
+    app = create_app(served.bridge, users={"tok-alice": "alice"}, tile_url=tiles,
+                     tile_attribution="Test tiles")
+    with WebServer(app, "127.0.0.1", 0) as server:
+        context = browser.new_context(viewport={"width": 1200, "height": 800})
+        requests: list[str] = []
+        try:
+            p = context.new_page()
+            p.on("request", lambda r: requests.append(r.url))
+            p.goto(server.url + "/")
+            conn = p.locator("#conn")
+            expect(conn).to_have_attribute("data-state", "error")
+            expect(conn).to_contain_text("401")
+            p.goto(server.url + "/?token=tok-alice")
+            p.wait_for_selector("body[data-ready]", timeout=15_000)
+            assert p.url == server.url + "/", "the token is swapped for a cookie"
+            expect(p.locator("#user")).to_have_text("as alice")
+            expect(p.locator("#units tr[data-unit='dji0']")).to_have_count(1)
+            tile = p.locator(".leaflet-tile-pane img.leaflet-tile").first
+            expect(tile).to_have_attribute("src", re.compile(r"layers\.png\?z=\d+&x=\d+&y=\d+"))
+            expect(p.locator(".leaflet-control-attribution")).to_contain_text("Test tiles")
+            expect(p.locator(".metric-grid")).to_have_count(0)
+        finally:
+            context.close()
+        outside = [u for u in requests if not u.startswith(server.url)]
+        assert outside == [], outside

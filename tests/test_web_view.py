@@ -1,0 +1,282 @@
+"""The operator page's live state (web/view.py), plan geometry and mission input: pure, fast."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from delegation.errors import InputError
+from delegation.web.auth import bearer, read_users, user_of
+from delegation.web.geometry import plan_geometry, task_shapes
+from delegation.web.mission_input import mission_tree, with_node_uuids, without_node_uuids
+from delegation.web.server import is_loopback, parse_http
+from delegation.web.view import TRACK_MAX, LiveView, node_uuid_of
+
+BASE = "waraps/unit/air/simulation/dji0"
+
+
+def hb(uuid: str = "a1", rate: float = 1.0) -> dict[str, Any]:
+    return {"agent-type": "air", "agent-uuid": uuid, "levels": ["sensor", "direct execution"],
+            "name": "dji0", "rate": rate, "type": "HeartBeat"}
+
+
+def pos(lat: float, lon: float = 16.68) -> dict[str, Any]:
+    return {"latitude": lat, "longitude": lon, "altitude": 40.0, "type": "GeoPoint"}
+
+
+def live_unit(view: LiveView, now: float = 100.0, base: str = BASE) -> None:
+    view.heartbeat(base, "dji0", "air", hb(), now)
+    view.position(base, "dji0", "air", pos(57.76), now)
+
+
+def test_a_unit_appears_with_its_sensors_and_is_lost_after_the_services_timeout() -> None:
+    view = LiveView()
+    live_unit(view)
+    view.sensor(BASE, "dji0", "air", "heading", {"value": 90.0}, 100.0)
+    view.sensor(BASE, "dji0", "air", "speed", 3.0, 100.0)
+    view.sensor(BASE, "dji0", "air", "battery_state", {"percentage": 0.5, "charging": False},
+                100.0)
+    view.execution_info(BASE, "dji0", "air", {
+        "tasks-available": [{"name": "move-to", "signals": []}, "land"],
+        "tasks-executing": [{"task-name": "move-to", "task-uuid": "t1"}]}, 100.0)
+    (unit,) = view.state(100.0)["units"]
+    assert unit["name"] == "dji0" and unit["type"] == "air" and unit["base"] == BASE
+    assert (unit["latitude"], unit["heading"], unit["speed"], unit["battery"]) == (
+        57.76, 90.0, 3.0, 0.5)
+    assert unit["status"] == "alive"
+    assert unit["tasks-available"] == ["land", "move-to"]
+    assert unit["executing"] == [{"name": "move-to", "uuid": "t1"}]
+    assert unit["track"] == [[57.76, 16.68]]
+    # 1 Hz heartbeat: lost after 3 periods, at least 5 s (FleetRegistry.timeout)
+    assert view.tick(104.9) == 0
+    assert view.tick(105.0) == 1
+    assert view.state(105.0)["units"][0]["status"] == "lost"
+    kinds = [e["kind"] for e in view.state(105.0)["events"]]
+    assert kinds == ["unit-new", "unit-lost"]
+    view.heartbeat(BASE, "dji0", "air", hb(), 106.0)
+    assert view.state(106.0)["units"][0]["status"] == "alive"
+    assert view.state(106.0)["events"][-1]["kind"] == "unit-back"
+
+
+def test_engines_and_units_without_a_position_are_not_shown() -> None:
+    view = LiveView()
+    engine = {"agent-type": "ground", "agent-uuid": "e", "levels": ["tst execution"],
+              "name": "op0", "rate": 1.0}
+    view.heartbeat("waraps/unit/ground/simulation/op0", "op0", "ground", engine, 1.0)
+    view.heartbeat(BASE, "dji0", "air", hb(), 1.0)
+    assert view.state(1.0)["units"] == []
+
+
+def test_a_name_is_bound_to_its_first_base_topic() -> None:
+    view = LiveView()
+    live_unit(view)
+    other = "waraps/unit/air/real/dji0"
+    view.heartbeat(other, "dji0", "air", hb("evil"), 101.0)
+    view.position(other, "dji0", "air", pos(10.0), 101.0)
+    (unit,) = view.state(101.0)["units"]
+    assert unit["base"] == BASE and unit["latitude"] == 57.76
+
+
+def test_the_track_is_thinned_and_bounded() -> None:
+    view = LiveView()
+    view.heartbeat(BASE, "dji0", "air", hb(), 0.0)
+    for k in range(1000):
+        view.position(BASE, "dji0", "air", pos(57.0 + k * 1e-4), float(k))  # ~11 m apart
+    view.position(BASE, "dji0", "air", pos(57.0 + 999 * 1e-4 + 1e-6), 1000.0)  # 0.1 m: dropped
+    track = view.state(1000.0)["units"][0]["track"]
+    assert len(track) <= TRACK_MAX
+    assert track[0] == [57.0, 16.68]
+    assert track[-1][0] == pytest.approx(57.0 + 999 * 1e-4)
+    lats = [p[0] for p in track]
+    assert lats == sorted(lats)
+
+
+def test_units_since_returns_only_changed_units_without_tracks() -> None:
+    view = LiveView()
+    live_unit(view)
+    view.heartbeat("waraps/unit/air/simulation/dji1", "dji1", "air", hb("b"), 100.0)
+    view.position("waraps/unit/air/simulation/dji1", "dji1", "air", pos(57.7), 100.0)
+    seq = view.seq
+    assert view.units_since(seq) == []
+    view.position(BASE, "dji0", "air", pos(57.761), 101.0)
+    (changed,) = view.units_since(seq)
+    assert changed["name"] == "dji0" and changed["point"] == [57.761, 16.68]
+    assert "track" not in changed
+
+
+def plan_json(root: str = "r1") -> dict[str, Any]:
+    tree = {"name": "seq", "common_params": {"node-uuid": root, "execunit": "/op0"},
+            "children": [
+                {"name": "move-to", "common_params": {"node-uuid": "t1", "execunit": "/dji0"},
+                 "params": {"waypoint": pos(57.77), "speed": "standard"}},
+                {"name": "search-area", "common_params": {"node-uuid": "t2",
+                                                          "execunit": "/dji0"},
+                 "params": {"area": [pos(57.78, 16.6), pos(57.78, 16.7), pos(57.79, 16.7)]}},
+                {"name": "look-at-position", "common_params": {"node-uuid": "t3",
+                                                               "execunit": "/dji0"},
+                 "params": {"geopoint": pos(57.0)}},
+            ]}
+    return {"strategy": "auction", "objective": "makespan", "makespan": 120.0,
+            "assignments": [
+                {"node-uuid": "t1", "name": "move-to", "execunit": "/dji0", "start": 0.0,
+                 "end": 50.0},
+                {"node-uuid": "t2", "name": "search-area", "execunit": "/dji0", "start": 50.0,
+                 "end": 120.0},
+                {"node-uuid": "t3", "name": "look-at-position", "execunit": "/dji0",
+                 "start": 120.0, "end": 120.0},
+            ], "unassigned": [], "tst": tree}
+
+
+def test_a_mission_follows_feedback_forward_only_with_elapsed_frozen_at_the_end() -> None:
+    view = LiveView(scale=2.0)
+    live_unit(view)
+    plan = plan_json()
+    view.mission_planned("r1", plan, plan["tst"], "alice", 100.0)
+    (m,) = view.state(100.0)["missions"]
+    assert (m["id"], m["owner"], m["strategy"], m["objective"]) == ("r1", "alice", "auction",
+                                                                    "makespan")
+    assert m["status"] == "planned" and m["units"] == ["dji0"] and m["elapsed"] is None
+    view.mission_feedback({"root-uuid": "r1", "status": "started"}, 101.0)
+    view.mission_feedback({"root-uuid": "r1", "status": "running"}, 102.0)
+    view.mission_feedback({"root-uuid": "r1", "status": "started"}, 103.0)  # late: ignored
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 102.0)
+    view.node_feedback({"node-uuid": "t1", "status": "succeeded"}, 110.0)
+    view.mission_feedback({"root-uuid": "r1", "status": "succeeded"}, 121.0)
+    view.mission_feedback({"root-uuid": "r1", "status": "failed"}, 122.0)  # ended: ignored
+    (m,) = view.state(200.0)["missions"]
+    assert m["status"] == "succeeded"
+    assert m["elapsed"] == pytest.approx(40.0)  # 20 wall s at a speed-up of 2
+    kinds = [e["kind"] for e in view.state(200.0)["events"] if e["mission"] == "r1"]
+    assert kinds == ["started", "running", "succeeded"]
+    tree = view.node_tree("r1")
+    assert tree is not None
+    t1 = tree["children"][0]
+    assert (t1["uuid"], t1["execunit"], t1["status"]) == ("t1", "dji0", "succeeded")
+    assert (t1["plan-start"], t1["plan-end"]) == (0.0, 50.0)
+    assert (t1["actual-start"], t1["actual-end"]) == (pytest.approx(2.0), pytest.approx(18.0))
+    assert tree["children"][1]["status"] is None
+
+
+def test_feedback_before_the_tree_is_applied_when_the_mission_is_known() -> None:
+    view = LiveView()
+    view.mission_feedback({"root-uuid": "r1", "status": "planned"}, 1.0)
+    assert view.drain_fetch() == ["r1"]
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 2.0)
+    answer = {"root-uuid": "r1", "name": "seq", "owner": "bob", "status": "running",
+              "started": 1.5, "ended": None, "nodes": [], **{k: v for k, v in plan_json().items()
+                                                             if k != "objective"},
+              "received": plan_json()["tst"]}
+    view.mission_answer(answer, 3.0)
+    tree = view.node_tree("r1")
+    assert tree is not None and tree["children"][0]["status"] == "running"
+    assert tree["children"][0]["actual-start"] == pytest.approx(0.5)
+    assert view.state(3.0)["missions"][0]["owner"] == "bob"
+
+
+def test_re_delegated_nodes_report_on_the_operators_node() -> None:
+    view = LiveView()
+    plan = plan_json()
+    view.mission_planned("r1", plan, plan["tst"], "", 1.0)
+    view.mission_feedback({"root-uuid": "r1", "status": "re-delegated", "fail-reason": "lost",
+                           "tasks": [{"node-uuid": "t1b", "replaces": "t1", "name": "move-to",
+                                      "unit": "/dji1"}]}, 2.0)
+    view.node_feedback({"node-uuid": "t1b", "status": "running"}, 3.0)
+    tree = view.node_tree("r1")
+    assert tree is not None and tree["children"][0]["status"] == "running"
+    assert tree["children"][0]["execunit"] == "dji1"
+    assert view.state(3.0)["events"][-1]["kind"] == "re-delegated"
+    assert view.state(3.0)["missions"][0]["units"] == ["dji0", "dji1"]
+
+
+def test_hidden_missions_never_show() -> None:
+    view = LiveView()
+    view.hide("dry")
+    view.mission_feedback({"root-uuid": "dry", "status": "planned"}, 1.0)
+    assert view.state(1.0)["missions"] == [] and view.drain_fetch() == []
+
+
+def test_stream_items_since_and_falling_behind() -> None:
+    view = LiveView()
+    view.mission_feedback({"root-uuid": "r1", "status": "planned"}, 1.0)
+    seq = view.seq
+    live_unit(view, 1.5)  # unit changes take seqs too, without stream items
+    view.mission_feedback({"root-uuid": "r1", "status": "started"}, 2.0)
+    items = view.items_since(seq)
+    assert items is not None
+    assert [(k, d.get("kind") or d.get("status")) for _, k, d in items] == [
+        ("log", "unit-new"), ("mission", "started"), ("log", "started")]
+    for k in range(5000):
+        view.mission_feedback({"root-uuid": f"m{k}", "status": "planned"}, 3.0)
+    assert view.items_since(seq) is None
+
+
+def test_plan_geometry_routes_vehicle_tasks_from_the_start_position() -> None:
+    routes, tasks = plan_geometry(plan_json(), {"dji0": [57.76, 16.68]})
+    assert routes == {"dji0": [[57.76, 16.68], [57.77, 16.68], [57.78, 16.6], [57.78, 16.7],
+                               [57.79, 16.7]]}
+    assert [(t["uuid"], t["kind"], t["unit"]) for t in tasks] == [
+        ("t1", "point", "dji0"), ("t2", "area", "dji0"), ("t3", "point", "dji0")]
+
+
+def test_task_shapes() -> None:
+    assert task_shapes("move-path", {"waypoints": [pos(1.0), pos(2.0)]})[0] == (
+        "path", [[1.0, 16.68], [2.0, 16.68]])
+    (kind, circle), = task_shapes("search-around-position", {"geopoint": pos(57.0),
+                                                            "radius": 100.0})
+    assert kind == "area" and len(circle) == 24
+    assert max(p[0] for p in circle) - 57.0 == pytest.approx(100.0 / 111_320.0)
+    assert len(task_shapes("search-areas", {"areas": [[pos(1.0)], [pos(2.0)]]})) == 2
+    assert task_shapes("look-at-bearing", {"bearing": 10.0}) == []
+
+
+TREE_YAML = """
+name: move-to
+params:
+  waypoint: {latitude: 57.76, longitude: 16.68, altitude: 40}
+"""
+
+
+def test_mission_input_reads_yaml_json_scenarios_and_commands() -> None:
+    tree = mission_tree(TREE_YAML)
+    assert tree["name"] == "move-to"
+    assert mission_tree({"command": "start-tst", "tst": tree})["name"] == "move-to"
+    assert mission_tree({"agents": [], "mission": tree})["name"] == "move-to"
+    with pytest.raises(InputError, match=r"params\.waypoint"):
+        mission_tree('{"name": "move-to", "params": {}}')
+    with pytest.raises(InputError, match="no TST found"):
+        mission_tree({"x": 1})
+    with pytest.raises(InputError, match="neither JSON nor YAML"):
+        mission_tree("{a: [")
+    full = with_node_uuids(tree)
+    assert node_uuid_of(full)
+    assert node_uuid_of(without_node_uuids(full)) is None
+
+
+def test_users_file_tokens_and_bearer_headers(tmp_path: Path) -> None:
+    users = tmp_path / "users"
+    users.write_text("# token name\nalice-token-1 alice  # the lead\n\nbob-token-22 bob\n")
+    table = read_users(users)
+    assert table == {"alice-token-1": "alice", "bob-token-22": "bob"}
+    assert user_of(table, "bob-token-22") == "bob"
+    assert user_of(table, "bob-token-2") is None and user_of(table, None) is None
+    assert bearer("Bearer abc") == "abc" and bearer("bearer  abc ") == "abc"
+    assert bearer("Basic abc") is None and bearer(None) is None and bearer("Bearer ") is None
+    for text, says in (("short alice\n", "8 characters"), ("alice-token-1\n", "TOKEN NAME"),
+                       ("alice-token-1 a\nalice-token-1 b\n", "twice"), ("# none\n", "no users")):
+        users.write_text(text)
+        with pytest.raises(InputError, match=says):
+            read_users(users)
+
+
+def test_http_addresses() -> None:
+    assert parse_http("127.0.0.1:8765") == ("127.0.0.1", 8765)
+    assert parse_http("8765") == ("127.0.0.1", 8765)
+    assert parse_http("[::1]:0") == ("::1", 0)
+    assert parse_http("0.0.0.0:80") == ("0.0.0.0", 80)
+    for bad in ("localhost", ":80", "host:99999", "[::1]", "host:x"):
+        with pytest.raises(ValueError):
+            parse_http(bad)
+    assert is_loopback("127.0.0.2") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("example.org")
