@@ -8,9 +8,10 @@ from typing import Any
 import pytest
 
 from delegation.errors import InputError
+from delegation.tst import without_node_uuids
 from delegation.web.auth import bearer, read_users, user_of
 from delegation.web.geometry import plan_geometry, task_shapes
-from delegation.web.mission_input import mission_tree, with_node_uuids, without_node_uuids
+from delegation.web.mission_input import mission_tree, with_node_uuids
 from delegation.web.server import is_loopback, parse_http
 from delegation.web.view import TRACK_MAX, LiveView, node_uuid_of
 

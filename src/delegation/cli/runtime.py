@@ -29,6 +29,7 @@ from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.cli.ui import add_http_args
 from delegation.errors import DelegationError, InputError, Problem
 from delegation.topics import AGENT_TYPES, ROLES
+from delegation.tst import without_node_uuids
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -516,20 +517,6 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _without_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a mission tree without node uuids (the service gives it fresh ones), so the same
-    mission can run again."""
-    out = {k: v for k, v in tree.items() if k not in ("children", "common_params",
-                                                       "common-params")}
-    for key in ("common_params", "common-params"):
-        if isinstance(tree.get(key), dict):
-            out[key] = {k: v for k, v in tree[key].items() if k != "node-uuid"}
-    if isinstance(tree.get("children"), list):
-        out["children"] = [_without_node_uuids(c) if isinstance(c, dict) else c
-                           for c in tree["children"]]
-    return out
-
-
 def _print_plan_vs_flown(console: Console, flown: list[MissionProgress]) -> None:
     """Per mission: the plan's makespan against the flown one (the service learns speeds from
     the flight, so with a wrong profile the first is off and the next close)."""
@@ -612,7 +599,7 @@ def _demo(args: argparse.Namespace) -> int:
         }
         flown: list[MissionProgress] = []
         for number in range(args.missions):
-            tree = scenario.mission if number == 0 else _without_node_uuids(scenario.mission)
+            tree = scenario.mission if number == 0 else without_node_uuids(scenario.mission)
             progress = run_mission(
                 client,
                 {**command, "tst": tree},

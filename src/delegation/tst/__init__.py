@@ -26,6 +26,7 @@ from delegation.tst.node import (
     walk,
     where,
     with_uuids,
+    without_node_uuids,
 )
 from delegation.tst.validate import (
     parse_and_validate,
@@ -62,4 +63,5 @@ __all__ = [
     "where",
     "with_defaults",
     "with_uuids",
+    "without_node_uuids",
 ]

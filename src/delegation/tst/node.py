@@ -346,3 +346,18 @@ def make_node(
     if node_uuid is not None:
         common["node-uuid"] = node_uuid
     return TstNode(name=name, children=tuple(children), common_params=common, params=params or {})
+
+
+def without_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a tree's JSON without node uuids (everything else kept as it is), so the same
+    mission can be planned or run again: a planned mission holds its uuids and the service refuses
+    a second one with the same."""
+    out = {k: v for k, v in tree.items() if k not in ("children", "common_params",
+                                                       "common-params")}
+    for key in ("common_params", "common-params"):
+        if isinstance(tree.get(key), dict):
+            out[key] = {k: v for k, v in tree[key].items() if k != "node-uuid"}
+    if isinstance(tree.get("children"), list):
+        out["children"] = [without_node_uuids(c) if isinstance(c, dict) else c
+                           for c in tree["children"]]
+    return out

@@ -29,8 +29,9 @@ from delegation.runtime.client import ServiceClient, ServiceUnavailable
 from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
+from delegation.tst import without_node_uuids
 from delegation.web.geometry import plan_geometry
-from delegation.web.mission_input import with_node_uuids, without_node_uuids
+from delegation.web.mission_input import with_node_uuids
 from delegation.web.view import SIGNALS, LiveView, node_uuid_of
 
 log = logging.getLogger(__name__)

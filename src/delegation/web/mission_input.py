@@ -55,17 +55,3 @@ def with_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
     """The tree with a uuid on every node (the caller's kept), so the page knows the operator's
     tree by uuid before the service answers."""
     return to_dict(with_uuids(parse_tree(tree)))
-
-
-def without_node_uuids(tree: dict[str, Any]) -> dict[str, Any]:
-    """A copy without node uuids: each dry-run plan gets fresh ones (a planned mission holds its
-    uuids, and a second plan of the same uuids would be refused)."""
-    out = {k: v for k, v in tree.items() if k not in ("children", "common_params",
-                                                       "common-params")}
-    for key in ("common_params", "common-params"):
-        if isinstance(tree.get(key), dict):
-            out[key] = {k: v for k, v in tree[key].items() if k != "node-uuid"}
-    if isinstance(tree.get("children"), list):
-        out["children"] = [without_node_uuids(c) if isinstance(c, dict) else c
-                           for c in tree["children"]]
-    return out
