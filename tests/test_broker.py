@@ -77,3 +77,78 @@ def test_stable_free_port_is_outside_the_ephemeral_range() -> None:
     assert not lo <= port <= hi
     with socket.socket() as s:
         s.bind(("127.0.0.1", port))
+
+
+@pytest.mark.mqtt
+def test_broker_process_carries_messages_and_stops() -> None:
+    """The demo's embedded broker in its own process: loopback only, messages go through, and
+    stop ends the child."""
+    import threading
+
+    from delegation.runtime.broker import BrokerProcess
+
+    broker = BrokerProcess().start()
+    try:
+        assert broker.running
+        assert _listening_addresses(broker.port) == {"127.0.0.1"}
+        got = threading.Event()
+        sub = MqttClient(broker.settings(), sink=lambda msg: got.set())
+        sub.connect()
+        sub.subscribe("t/x", 1)
+        pub = MqttClient(broker.settings())
+        pub.connect()
+        pub.publish("t/x", b"hello", qos=1)
+        assert got.wait(10)
+        pub.disconnect()
+        sub.disconnect()
+    finally:
+        broker.stop()
+    assert not broker.running
+    broker.stop()  # idempotent
+
+
+def test_broker_process_refuses_other_interfaces() -> None:
+    from delegation.runtime.broker import BrokerProcess
+
+    with pytest.raises(BrokerError, match="loopback"):
+        BrokerProcess(host="0.0.0.0")
+
+
+@pytest.mark.mqtt
+def test_broker_process_exits_when_its_parent_is_killed() -> None:
+    """A parent killed with -9 cannot stop its broker: the child sees its stdin close and exits
+    (waited on with a pidfd, not polled)."""
+    import os
+    import select
+    import signal
+    import subprocess
+    import sys
+
+    parent = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, threading\n"
+         "from delegation.runtime.broker import BrokerProcess\n"
+         "b = BrokerProcess().start()\n"
+         "print(b._proc.pid, flush=True)\n"
+         "threading.Event().wait()\n"],
+        stdout=subprocess.PIPE,
+    )
+    try:
+        assert parent.stdout is not None
+        ready, _, _ = select.select([parent.stdout], [], [], 20)
+        assert ready, "the parent did not start its broker"
+        child = int(parent.stdout.readline())
+        fd = os.pidfd_open(child)
+        try:
+            parent.send_signal(signal.SIGKILL)
+            parent.wait(10)
+            readable, _, _ = select.select([fd], [], [], 15)
+            assert readable, f"broker process {child} still running 15 s after its parent died"
+        finally:
+            os.close(fd)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait(10)
+        if parent.stdout:
+            parent.stdout.close()

@@ -19,7 +19,7 @@ from typing import Any
 from delegation.engine import TstEngine
 from delegation.errors import DelegationError
 from delegation.fleet import UnitState
-from delegation.runtime.broker import EmbeddedBroker
+from delegation.runtime.broker import BrokerProcess
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.service import DelegationService, ServiceConfig
@@ -71,7 +71,7 @@ class LocalSystem:
         #: Per-part settings by part name (service, engine, unit): each its own broker login,
         #: as a broker with an ACL wants (docs/security.md); other parts use ``settings``.
         self.credentials = dict(credentials or {})
-        self.broker: EmbeddedBroker | None = None
+        self.broker: BrokerProcess | None = None
         self.fleet: SimFleet | None = None
         self.engine: TstEngine | None = None
         self.service: DelegationService | None = None
@@ -107,7 +107,7 @@ class LocalSystem:
     def _start_parts(self) -> None:
         stack = self._stack
         if self.settings is None:
-            self.broker = EmbeddedBroker().start()
+            self.broker = BrokerProcess().start()
             stack.callback(self.broker.stop)
             self.settings = self.broker.settings()
             log.info("embedded broker on %s", self.settings.describe())

@@ -2,7 +2,8 @@
 
 Both listen on 127.0.0.1 only, on a free port, and are started and stopped explicitly (or as
 context managers). `EmbeddedBroker` is the default when no broker is configured: pure Python,
-MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10). `PrivateMosquitto` is for tests and benchmarks
+MQTT 3.1.1 only, ~5k msg/s (docs/protocol.md §10); `BrokerProcess` runs it in a child process
+(the demo's choice: its own GIL). `PrivateMosquitto` is for tests and benchmarks
 where the `mosquitto` binary exists.
 """
 
@@ -14,9 +15,12 @@ import logging
 import os
 import pwd
 import random
+import selectors
 import shutil
+import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -220,6 +224,119 @@ class EmbeddedBroker:
         self.stop()
 
 
+class BrokerProcess:
+    """The embedded amqtt broker in a child Python process (what `LocalSystem` and the demo use).
+
+    Why not a thread: the demo runs the simulated fleet (two threads a unit), the engine and the
+    service in one process, and amqtt's event loop then competes with all of them for one GIL. At
+    20 units x 100 tasks the loop starved: clients timed out waiting for PUBACKs, the engine did
+    not get its start-tst within 15 s and the mission failed; with the same broker in its own
+    process it succeeded. The child needs nothing the package does not ship, listens on loopback
+    only, ignores Ctrl-C (the parent stops it after its clients) and exits when its stdin closes,
+    so a parent killed with -9 leaves no broker behind.
+    """
+
+    kind = "amqtt"
+
+    def __init__(self, host: str = LOOPBACK, port: int = 0) -> None:
+        if host not in (LOOPBACK, "localhost", "::1"):
+            raise BrokerError(f"the embedded broker listens on loopback only, not {host!r}")
+        self.host = LOOPBACK if host == "localhost" else host
+        self._requested_port = port
+        self.port = 0
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    def start(self, timeout: float = 15.0) -> BrokerProcess:
+        if self._proc is not None:
+            return self
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "delegation.runtime.broker",
+             "--host", self.host, "--port", str(self._requested_port)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        line = _read_line(self._proc, timeout)
+        if not line.startswith("port "):
+            error = self._proc.stderr.read().decode(errors="replace").strip() if (
+                self._proc.poll() is not None and self._proc.stderr) else ""
+            self.stop()
+            raise BrokerError(f"amqtt did not start within {timeout}s: {error or line or 'silent'}")
+        self.port = int(line.split()[1])
+        log.info("embedded amqtt broker (own process) on %s:%d", self.host, self.port)
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Close its stdin (it shuts down and exits), then terminate or kill it if it lingers."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        with contextlib.suppress(OSError):
+            if proc.stdin:
+                proc.stdin.close()
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        for stream in (proc.stdout, proc.stderr):
+            if stream:
+                stream.close()
+
+    @property
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def settings(self) -> BrokerSettings:
+        """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
+        return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
+
+    def __enter__(self) -> BrokerProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _read_line(proc: subprocess.Popen[bytes], timeout: float) -> str:
+    """The child's first stdout line, or "" when it exits or says nothing within ``timeout``."""
+    assert proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        if not sel.select(timeout):
+            return ""
+    return proc.stdout.readline().decode(errors="replace").strip()
+
+
+def serve_embedded(argv: list[str] | None = None) -> int:
+    """``python -m delegation.runtime.broker``: the child side of `BrokerProcess`."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m delegation.runtime.broker")
+    parser.add_argument("--host", default=LOOPBACK)
+    parser.add_argument("--port", type=int, default=0)
+    args = parser.parse_args(argv)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: parent stops us
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    logging.basicConfig(level=logging.ERROR)
+    with EmbeddedBroker(args.host, args.port) as broker:
+        sys.stdout.write(f"port {broker.port}\n")
+        sys.stdout.flush()
+
+        def stdin_closed() -> None:
+            sys.stdin.buffer.read()  # returns at EOF: the parent closed it or died
+            done.set()
+
+        threading.Thread(target=stdin_closed, name="parent-watch", daemon=True).start()
+        done.wait()
+    return 0
+
+
 MOSQUITTO_CONF = """\
 listener {port} {host}
 {listener_extra}allow_anonymous {anonymous}
@@ -412,3 +529,7 @@ class PrivateMosquitto:
 
 #: Either kind of broker we start ourselves.
 LocalBroker = EmbeddedBroker | PrivateMosquitto
+
+
+if __name__ == "__main__":
+    sys.exit(serve_embedded())
