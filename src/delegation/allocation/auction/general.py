@@ -61,6 +61,7 @@ class _GeneralAuction:
         self.open_task = self.allowed.any(axis=0)
         self.pending = (self.before & self.open_task[:, None]).sum(axis=0)  # unsettled preds
         self.base = home_legs(problem)
+        self.ready = problem.ready.tolist() if problem.ready is not None else [0.0] * n_units
         # Per unit: added time per (route position, task); the best position and its cost.
         self.costs: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
         self.delta = np.full((n_units, n_tasks), np.inf)
@@ -271,19 +272,43 @@ class _GeneralAuction:
         return chosen
 
     def _bounds(self, bids: list[tuple[int, int]], cols: np.ndarray) -> np.ndarray:
-        """A lower bound on the objective after each bid (unit, column): the unit's battery use
-        with the task at its cheapest position (it finishes no earlier), or the total time."""
+        """A lower bound on the objective after each bid (unit, column): the unit's finish
+        (``_finish_bound``) for makespan, the total time with the task at its cheapest position
+        for total."""
         if not bids:
             return np.zeros(0)
-        us = np.array([u for u, _ in bids], dtype=int)
-        ts = cols[np.array([j for _, j in bids], dtype=int)]
-        current = self.current
         match self.objective:
             case Objective.MAKESPAN:
-                base = current.unit_used[us]
+                return np.array([self._finish_bound(u, int(cols[j])) for u, j in bids])
             case Objective.TOTAL:
-                base = np.full(us.size, current.total_time)
-        return np.asarray(base + self.delta[us, ts])
+                ts = cols[np.array([j for _, j in bids], dtype=int)]
+                us = np.array([u for u, _ in bids], dtype=int)
+                return np.asarray(self.current.total_time + self.delta[us, ts])
+
+    def _finish_bound(self, u: int, t: int) -> float:
+        """A lower bound on when unit ``u`` finishes with ``t`` at any position it may take.
+
+        Nothing before the position moves (those tasks wait for nothing ``t`` waits for: its
+        tree successors have no unit yet), so ``t`` starts no earlier than its activation and
+        the end of the task before it; then the unit does ``t`` and the rest of its route one
+        after another: their travel and work, ``costs`` more than they took before.
+        """
+        current, route = self.current, self.routes[u]
+        column = self.costs[u][:, t].tolist()
+        low = int(self.low[u, t]) if self.has_pred[t] else 0
+        act = float(current.node_act[self.node_of[t]]) if current.node_act is not None else 0.0
+        before = self.ready[u]
+        rest = float(current.unit_used[u]) if route else float(self.base[u])
+        end, travel, work = current.end, current.travel_time, current.work_time
+        best = np.inf
+        for q, added in enumerate(column):
+            if q > 0:
+                k = route[q - 1]
+                before = float(end[k])
+                rest -= float(travel[k] + work[k])
+            if q >= low and added < np.inf:
+                best = min(best, max(act, before) + added + rest)
+        return best
 
     def _try_bid(
         self, chosen: _Chosen | None, u: int, j: int, cols: np.ndarray,
