@@ -143,6 +143,10 @@ def precedence(structure: Structure, n_tasks: int) -> np.ndarray:
     return before
 
 
+#: Largest task count for which ``Problem.lca_depth`` keeps a (T, T) table (8 bytes a pair).
+LCA_TABLE_TASKS = 1500
+
+
 @dataclass
 class Problem:
     """Everything a strategy needs: tasks, units, costs (s, m), who may take what, the tree."""
@@ -246,10 +250,33 @@ class Problem:
 
     def lca_depth(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Depth (root = 1) of the lowest common ancestor of tasks ``a`` and ``b`` (broadcast);
-        for ``a == b`` the task's own depth + 1."""
+        for ``a == b`` the task's own depth + 1.
+
+        Up to ``LCA_TABLE_TASKS`` tasks a (T, T) table made on first use answers (the auction
+        asks after every award); above, the ancestry rows are compared each time.
+        """
+        table = self._lca_table()
+        if table is not None:
+            return np.asarray(table[np.asarray(a, dtype=int), np.asarray(b, dtype=int)])
         anc = self.ancestry()
         same = anc[np.asarray(a, dtype=int)] == anc[np.asarray(b, dtype=int)]
         return np.asarray(np.cumprod(same, axis=-1).sum(axis=-1))
+
+    def _lca_table(self) -> np.ndarray | None:
+        """(T, T) ``lca_depth`` of every pair (None above ``LCA_TABLE_TASKS`` tasks): the rows'
+        agreeing prefix, counted one depth level at a time (T x T booleans, not T x T x D)."""
+        if self.n_tasks > LCA_TABLE_TASKS:
+            return None
+        value = self.cache.get("lca")
+        if value is None:
+            anc = self.ancestry()
+            agree = np.ones((self.n_tasks, self.n_tasks), dtype=bool)
+            value = np.zeros((self.n_tasks, self.n_tasks), dtype=np.int64)
+            for d in range(anc.shape[1]):
+                agree &= anc[:, d][:, None] == anc[:, d][None, :]
+                value += agree
+            self.cache["lca"] = value
+        return np.asarray(value)
 
     def _task_counts(self) -> list[int]:
         s = self.structure

@@ -53,17 +53,22 @@ class _GeneralAuction:
         self.n_units, self.n_tasks = n_units, n_tasks
         self.assign = np.full(n_tasks, -1, dtype=int)
         self.routes: list[list[int]] = [[] for _ in range(n_units)]
+        self.has_route = np.zeros(n_units, dtype=bool)
         self.allowed = problem.allowed & problem.vehicle[None, :]
         self.alias_of = problem.alias_of()
         self.before = problem.before
         self.node_of = np.asarray(problem.structure.node_of_task, dtype=int)
         self.has_pred: np.ndarray = np.asarray(self.before.any(axis=0))
+        self.free = ~self.has_pred
         self.open_task = self.allowed.any(axis=0)
         self.pending = (self.before & self.open_task[:, None]).sum(axis=0)  # unsettled preds
         self.base = home_legs(problem)
         self.ready = problem.ready.tolist() if problem.ready is not None else [0.0] * n_units
         # Per unit: added time per (route position, task); the best position and its cost.
         self.costs: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
+        self.suffix_min: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
+        self.suffix_arg: list[np.ndarray] = [np.zeros((1, n_tasks), dtype=int)
+                                             for _ in range(n_units)]
         self.delta = np.full((n_units, n_tasks), np.inf)
         self.pos = np.zeros((n_units, n_tasks), dtype=int)
         self.low = np.zeros((n_units, n_tasks), dtype=int)  # first position a waiting task may take
@@ -130,7 +135,8 @@ class _GeneralAuction:
     # ----------------------------------------------------------------------- bids
 
     def recompute(self, u: int) -> None:
-        """Unit ``u``'s added time for every task at every position of its route; the best
+        """Unit ``u``'s added time for every task at every position of its route, and its
+        suffix minima (the cheapest position from p on, for the waiting tasks' bids); the best
         position of the tasks without predecessors."""
         table = np.full((len(self.routes[u]) + 1, self.n_tasks), np.inf)
         cand = np.nonzero(self.allowed[u])[0]
@@ -140,9 +146,11 @@ class _GeneralAuction:
                 whole, insertion_costs(self.problem, u, self.routes[u], cand), np.inf
             )
         self.costs[u] = table
-        free = ~self.has_pred
-        self.pos[u, free] = np.argmin(table[:, free], axis=0)
-        self.delta[u, free] = table[self.pos[u, free], np.nonzero(free)[0]]
+        low, arg = _suffix_minima(table)
+        self.suffix_min[u], self.suffix_arg[u] = low, arg
+        free = self.free
+        self.pos[u, free] = arg[0, free]
+        self.delta[u, free] = low[0, free]
 
     def _rebid_waiting(self, waiting: np.ndarray, act: np.ndarray) -> None:
         """Tasks with predecessors go after what starts before they can be activated. Their
@@ -151,29 +159,30 @@ class _GeneralAuction:
         current, assign, dirty = self.current, self.assign, self.dirty
         fresh = waiting & ~(act == self.seen_act)
         moved = ~(current.start == self.seen_start) & (assign >= 0)
-        dirty[np.unique(assign[moved])] = True
+        dirty[assign[moved]] = True
         self.seen_act[waiting] = act[waiting]
         self.seen_start = current.start.copy()
-        units = range(self.n_units) if fresh.any() else np.nonzero(dirty)[0].tolist()
+        units = range(self.n_units) if fresh.any() else np.flatnonzero(dirty).tolist()
+        earliest = act - 1e-9
         for u in units:
-            cols = np.nonzero((waiting if dirty[u] else fresh) & self.allowed[u])[0]
+            cols = np.flatnonzero((waiting if dirty[u] else fresh) & self.allowed[u])
             if cols.size == 0:
                 continue
             route = self.routes[u]
-            starts = current.start[route] if route else np.zeros(0)
-            lo = np.searchsorted(starts, act[cols] - 1e-9, side="left")
-            p = np.arange(len(route) + 1)[:, None]
-            table = np.where(p >= lo[None, :], self.costs[u][:, cols], np.inf)
+            lo = np.searchsorted(current.start[route], earliest[cols], side="left") if route \
+                else np.zeros(cols.size, dtype=int)
+            best = self.suffix_min[u][lo, cols]
             self.low[u, cols] = lo
-            self.pos[u, cols] = np.argmin(table, axis=0)
-            self.delta[u, cols] = table[self.pos[u, cols], np.arange(cols.size)]
+            # (np.argmin's answer where no position is left: the first)
+            self.pos[u, cols] = np.where(best < np.inf, self.suffix_arg[u][lo, cols], 0)
+            self.delta[u, cols] = best
         dirty[:] = False
 
     def _ranking(self, cols: np.ndarray, act: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The bids of the ready tasks ``cols``, flattened (unit, column): the primary and the
         secondary ranking key (inf: no bid)."""
         current = self.current
-        finish = np.where([bool(r) for r in self.routes], current.unit_finish, self.base)[:, None]
+        finish = np.where(self.has_route, current.unit_finish, self.base)[:, None]
         bid = np.where(self.rejected[:, cols], np.inf, self.delta[:, cols])
         estimate = np.maximum(finish, act[None, cols]) + bid
         match self.objective:
@@ -380,6 +389,7 @@ class _GeneralAuction:
         """The winning bid: the task joins the unit's route; the bids change."""
         _, u, t, spot, trial = chosen
         self.routes[u].insert(spot, t)
+        self.has_route[u] = True
         self.assign[t] = u
         for n, k in self.paths[t].items():
             self.unit_child[n][u] = k
@@ -397,6 +407,18 @@ class _GeneralAuction:
         self.allowed[:, t] = False
         self.delta[:, t] = np.inf
         self.pending[self.before[t]] -= 1
+
+
+def _suffix_minima(table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row p of ``table`` (positions x tasks): the minimum over rows p.. and the first row
+    holding it (``np.argmin`` of the rows from p on, offset by p)."""
+    low = np.minimum.accumulate(table[::-1], axis=0)[::-1]
+    arg = np.empty(table.shape, dtype=int)
+    last = table.shape[0] - 1
+    arg[last] = last
+    for p in range(last - 1, -1, -1):
+        arg[p] = np.where(table[p] <= low[p + 1], p, arg[p + 1])
+    return low, arg
 
 
 def _slack(value: float) -> float:
