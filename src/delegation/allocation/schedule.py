@@ -15,6 +15,7 @@ the old rule's tree (children of a conc that share a unit wrapped whole in a seq
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Sequence
@@ -23,7 +24,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from delegation.allocation.problem import Problem
+from delegation.allocation.problem import Problem, Structure
 from delegation.allocation.serialise import Serialisation, serialisation
 from delegation.allocation.strategies import Objective
 
@@ -94,8 +95,12 @@ class Schedule:
 
 @dataclass(frozen=True)
 class _Template:
+    """The tree's part of the activation graph, and which task each event finishes."""
+
     succ: list[list[int]]
     indeg: list[int]
+    task_of_event: list[int]  # per event: the task whose fin(n) it is, else -1
+    node_of_task: list[int]
 
 
 def _template(problem: Problem) -> _Template:
@@ -120,7 +125,10 @@ def _template(problem: Problem) -> _Template:
     for out in succ:
         for v in out:
             indeg[v] += 1
-    return _Template(succ, indeg)
+    task_of_event = [-1] * (2 * s.size)
+    for n, t in enumerate(s.task_of_node):
+        task_of_event[2 * n + 1] = t
+    return _Template(succ, indeg, task_of_event, list(s.node_of_task))
 
 
 def template_for(problem: Problem) -> _Template:
@@ -153,17 +161,11 @@ class _Static:
     speed: list[list[float]]  # per unit, per task: m/s, work time (s), work distance (m)
     work_time: list[list[float]]
     work_distance: list[list[float]]
-    task_of_event: list[int]  # per event: the task whose fin(n) it is, else -1
-    node_of_task: list[int]
 
 
 def _static_for(problem: Problem) -> _Static:
     static: _Static | None = problem.cache.get("static")
     if static is None:
-        s = problem.structure
-        task_of_event = [-1] * (2 * s.size)
-        for n, t in enumerate(s.task_of_node):
-            task_of_event[2 * n + 1] = t
         static = problem.cache["static"] = _Static(
             vehicle=[t.vehicle for t in problem.tasks],
             sx=problem.start_xy[:, 0].tolist(), sy=problem.start_xy[:, 1].tolist(),
@@ -177,9 +179,15 @@ def _static_for(problem: Problem) -> _Static:
                    else [0.0] * problem.n_units),
             speed=problem.speed.tolist(), work_time=problem.work_time.tolist(),
             work_distance=problem.work_distance.tolist(),
-            task_of_event=task_of_event, node_of_task=list(s.node_of_task),
         )
     return static
+
+
+def restructured(problem: Problem, structure: Structure) -> Problem:
+    """``problem`` with another tree over the same tasks (the tree sent): the per-task and
+    per-unit numbers are shared, what depends on the tree is made anew."""
+    cache = {"static": problem.cache["static"]} if "static" in problem.cache else {}
+    return dataclasses.replace(problem, structure=structure, cache=cache, _before=None)
 
 
 def evaluate(
@@ -203,7 +211,7 @@ def evaluate(
     static = _static_for(problem)
     prev, clean, issues = _clean_orders(problem, assigned_to, orders, static)
     wrap = problem.wrap_subtrees if wrapped is None else wrapped
-    graph = _activation_graph(problem, prev, clean, wrap, static)
+    graph = _activation_graph(problem, prev, clean, wrap)
     issues.extend(ScheduleIssue(IssueKind.SERIALISATION, text) for text in graph.wrapped.problems)
     run = _simulate(problem, assigned_to, prev, graph, static)
     if run.done < len(run.value):
@@ -285,13 +293,14 @@ class _Graph:
 
 
 def _activation_graph(
-    problem: Problem, prev: list[int], clean: list[list[int]], wrapped: bool, static: _Static
+    problem: Problem, prev: list[int], clean: list[list[int]], wrapped: bool
 ) -> _Graph:
     """Events act(n) = 2n, fin(n) = 2n + 1 of every tree node, and what waits for what."""
     size = 2 * problem.structure.size
-    indeg = list(template_for(problem).indeg)
+    template = template_for(problem)
+    indeg = list(template.indeg)
     after = [-1] * size
-    node_of = static.node_of_task
+    node_of = template.node_of_task
     for t, p in enumerate(prev):
         if p >= 0:
             j = 2 * node_of[t] + 1
@@ -336,15 +345,15 @@ def _simulate(
     ex, ey, travels, to_home = static.ex, static.ey, static.travels, static.to_home
     has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
     speed_rows, work_rows, workd_rows = static.speed, static.work_time, static.work_distance
-    ready, task_of_event = static.ready, static.task_of_event
+    template = template_for(problem)
+    ready, task_of_event = static.ready, template.task_of_event
     nan = math.nan
     hypot = math.hypot
     run = _Run([nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks,
                [nan] * n_tasks, [0.0] * n_tasks, [0.0] * n_tasks, [0.0] * n_events, 0)
     start_l, end_l, travel_l, work_l, dist_l = run.start, run.end, run.travel, run.work, run.dist
     pos_x, pos_y, value = run.pos_x, run.pos_y, run.value
-    succ, indeg, after, wrap_next = template_for(problem).succ, graph.indeg, graph.after, \
-        graph.wrap_next
+    succ, indeg, after, wrap_next = template.succ, graph.indeg, graph.after, graph.wrap_next
     stack = [i for i in range(n_events) if indeg[i] == 0]
     done = 0
     while stack:
