@@ -296,21 +296,29 @@ class Problem:
         ``go-home`` starts and ends at the unit's home (in place when it has none); rows of tasks
         done in place are 0 (never used: they do not travel).
         """
-        cand = np.asarray(cand, dtype=int)
-        start = self.start_xy[cand].copy()
-        end = self.end_xy[cand].copy()
-        travels = self.travels[cand].copy()
-        home = self.home_task()[cand]
-        if home.any():
-            if self.has_home[u]:
-                start[home] = self.home_xy[u]
-                end[home] = self.home_xy[u]
-                travels[home] = True
-            else:
-                travels[home] = False
-        start[~travels] = 0.0
-        end[~travels] = 0.0
+        cand = np.asarray(cand, dtype=int).reshape(-1)
+        start = self.start_xy[cand]  # (indexing by an array copies)
+        end = self.end_xy[cand]
+        travels = self.travels[cand]
+        if self._any_home_task():
+            home = self.home_task()[cand]
+            if home.any():
+                if self.has_home[u]:
+                    start[home] = self.home_xy[u]
+                    end[home] = self.home_xy[u]
+                    travels[home] = True
+                else:
+                    travels[home] = False
+        if not travels.all():
+            start[~travels] = 0.0
+            end[~travels] = 0.0
         return start, end, travels
+
+    def _any_home_task(self) -> bool:
+        value = self.cache.get("any-home-task")
+        if value is None:
+            value = self.cache["any-home-task"] = bool(self.home_task().any())
+        return bool(value)
 
     def alias_of(self) -> np.ndarray:
         """(T,) index of each task's alias group, -1 when none."""

@@ -442,7 +442,8 @@ def _ranked(
     done = np.zeros(0, dtype=index.dtype)
     while True:
         pool = _smallest(index, primary, secondary, k)
-        pool = pool[~np.isin(pool, done)]
+        if done.size:
+            pool = pool[~np.isin(pool, done)]
         order = np.lexsort((pool, secondary[pool], primary[pool]))
         yield from pool[order].tolist()
         if k >= index.size:
