@@ -107,8 +107,9 @@ class _GeneralAuction:
 
     def run(self) -> tuple[np.ndarray, list[list[int]]]:
         """Rounds until every task is settled: the ready tasks bid, the best simulated bid wins."""
-        for u in range(self.n_units):
-            self.recompute(u)
+        if not self._first_tables():
+            for u in range(self.n_units):
+                self.recompute(u)
         while self.open_task.any():
             ready = self.open_task & (self.pending <= 0)
             current = self.current
@@ -151,6 +152,37 @@ class _GeneralAuction:
         free = self.free
         self.pos[u, free] = arg[0, free]
         self.delta[u, free] = low[0, free]
+
+    def _first_tables(self) -> bool:
+        """``recompute`` for every unit at once while routes are empty (the same arithmetic as
+        ``insertion_costs``, over units x tasks); False where task points depend on the unit
+        (``go-home``): then unit by unit."""
+        problem = self.problem
+        if not self.n_units or (problem.to_home is not None and bool(problem.to_home.any())):
+            return False
+        start, end, travels = problem.points_for(0, np.arange(self.n_tasks))
+        prev = problem.unit_xy
+        # The way home comes next, at home speed (else nothing), as ``route_points`` says.
+        has_next = problem.has_home & np.isfinite(problem.home_speed)
+        after = np.where(problem.has_home[:, None], problem.home_xy, 0.0)
+        speed = np.where(has_next, problem.home_speed, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dx, dy = prev[:, 0][:, None] - start[:, 0][None, :], prev[:, 1][:, None] - start[:, 1]
+            into = np.sqrt(dx * dx + dy * dy) / problem.speed
+            dx, dy = after[:, 0][:, None] - end[:, 0][None, :], after[:, 1][:, None] - end[:, 1]
+            out = np.where(has_next[:, None], np.sqrt(dx * dx + dy * dy) / speed[:, None], 0.0)
+            old = np.where(has_next, np.hypot(after[:, 0] - prev[:, 0], after[:, 1] - prev[:, 1])
+                           / speed, 0.0)
+            cost = into + out - old[:, None]
+            cost = np.where(travels[None, :], cost, 0.0) + problem.work_time
+        table = np.where(self.allowed, cost, np.inf)
+        first = np.zeros((1, self.n_tasks), dtype=int)
+        for u in range(self.n_units):
+            self.costs[u] = self.suffix_min[u] = table[u][None, :]
+            self.suffix_arg[u] = first
+        self.pos[:, self.free] = 0
+        self.delta[:, self.free] = table[:, self.free]
+        return True
 
     def _rebid_waiting(self, waiting: np.ndarray, act: np.ndarray) -> None:
         """Tasks with predecessors go after what starts before they can be activated. Their
