@@ -22,6 +22,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from delegation.allocation.auction.flat import bind_alias
+from delegation.allocation.auction.stacked import StackedTables
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import home_legs, insertion_costs, keeps_subtrees_whole
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate
@@ -69,6 +70,8 @@ class _GeneralAuction:
         self.suffix_min: list[np.ndarray] = [np.zeros((1, n_tasks)) for _ in range(n_units)]
         self.suffix_arg: list[np.ndarray] = [np.zeros((1, n_tasks), dtype=int)
                                              for _ in range(n_units)]
+        self.stacked = StackedTables(n_units, n_tasks) \
+            if StackedTables.fits(n_units, n_tasks) else None
         self.delta = np.full((n_units, n_tasks), np.inf)
         self.pos = np.zeros((n_units, n_tasks), dtype=int)
         self.low = np.zeros((n_units, n_tasks), dtype=int)  # first position a waiting task may take
@@ -148,7 +151,7 @@ class _GeneralAuction:
             )
         self.costs[u] = table
         low, arg = _suffix_minima(table)
-        self.suffix_min[u], self.suffix_arg[u] = low, arg
+        self._set_tables(u, low, arg)
         free = self.free
         self.pos[u, free] = arg[0, free]
         self.delta[u, free] = low[0, free]
@@ -178,11 +181,16 @@ class _GeneralAuction:
         table = np.where(self.allowed, cost, np.inf)
         first = np.zeros((1, self.n_tasks), dtype=int)
         for u in range(self.n_units):
-            self.costs[u] = self.suffix_min[u] = table[u][None, :]
-            self.suffix_arg[u] = first
+            self.costs[u] = table[u][None, :]
+            self._set_tables(u, self.costs[u], first)
         self.pos[:, self.free] = 0
         self.delta[:, self.free] = table[:, self.free]
         return True
+
+    def _set_tables(self, u: int, low: np.ndarray, arg: np.ndarray) -> None:
+        self.suffix_min[u], self.suffix_arg[u] = low, arg
+        if self.stacked is not None and not self.stacked.set(u, low, arg):
+            self.stacked = None  # too big to keep stacked: unit by unit from now on
 
     def _rebid_waiting(self, waiting: np.ndarray, act: np.ndarray) -> None:
         """Tasks with predecessors go after what starts before they can be activated. Their
@@ -194,8 +202,18 @@ class _GeneralAuction:
         dirty[assign[moved]] = True
         self.seen_act[waiting] = act[waiting]
         self.seen_start = current.start.copy()
-        units = range(self.n_units) if fresh.any() else np.flatnonzero(dirty).tolist()
         earliest = act - 1e-9
+        if self.stacked is not None:
+            # Dirty units rebid every waiting task, the others the fresh ones.
+            us, cs = np.nonzero(np.where(dirty[:, None], waiting, fresh) & self.allowed)
+            if us.size:
+                lo, best, arg = self.stacked.lookup(us, cs, earliest, current.start)
+                self.low[us, cs] = lo
+                self.pos[us, cs] = np.where(best < np.inf, arg, 0)
+                self.delta[us, cs] = best
+            dirty[:] = False
+            return
+        units = range(self.n_units) if fresh.any() else np.flatnonzero(dirty).tolist()
         for u in units:
             cols = np.flatnonzero((waiting if dirty[u] else fresh) & self.allowed[u])
             if cols.size == 0:
@@ -421,6 +439,8 @@ class _GeneralAuction:
         """The winning bid: the task joins the unit's route; the bids change."""
         _, u, t, spot, trial = chosen
         self.routes[u].insert(spot, t)
+        if self.stacked is not None:
+            self.stacked.insert(u, spot, t)
         self.has_route[u] = True
         self.assign[t] = u
         for n, k in self.paths[t].items():
