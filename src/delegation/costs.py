@@ -489,8 +489,8 @@ def cost_tables(
             polygons = _polygons_from(g, task_xy[t])
             col = width[:, t]
             ref = _reference_width(col, listed[:, t])
-            for w in np.unique(col[np.isfinite(col)]):
-                path = _sweep_xy(polygons, float(w))
+            for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
+                path = _sweep_xy(polygons, w)
                 work_distance[col == w, t] = path_length(path)
                 if w == ref:
                     start_xy[t], end_xy[t] = path[0], path[-1]
