@@ -302,6 +302,8 @@ def _fly_cells(
         gaps = np.hypot(*(starts - here).transpose(2, 0, 1))
         i, v = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
         parts.append(serpentine(cells[left.pop(int(i))], int(v)))
+    if len(parts) == 1:
+        return parts[0]  # (serpentine dropped its repeats already)
     return _drop_repeats(np.concatenate(parts, axis=0))
 
 
