@@ -86,6 +86,7 @@ class _GeneralAuction:
                 self.child_at.setdefault(n, np.full(n_tasks, -1, dtype=int))[t] = k
         s = problem.structure
         self.unit_child = {n: np.full(n_units, -1, dtype=int) for n in self.child_at}
+        self.kids = {n: np.asarray(s.children[n], dtype=int) for n in self.child_at}
         self.child_count = {n: np.zeros(len(s.children[n]), dtype=int) for n in self.child_at}
         self.share = self._share()
         self.rejected = np.zeros((n_units, n_tasks), dtype=bool)  # simulated and failed
@@ -276,8 +277,9 @@ class _GeneralAuction:
         """(U, C) under conc ``n``: the length of the component unit u and the child ``xs``
         of task column c would share."""
         assert state.node_act is not None and state.node_fin is not None
-        kids = np.asarray(self.problem.structure.children[n], dtype=int)
-        child_comp = np.array([comp_of_node.get(int(k), -1) for k in kids], dtype=int)
+        kids = self.kids[n]
+        child_comp = np.array([comp_of_node.get(k, -1) for k in kids.tolist()], dtype=int) \
+            if comp_of_node else np.full(kids.size, -1, dtype=int)
         single = np.nonzero((self.child_count[n] > 0) & (child_comp < 0))[0]
         span = np.concatenate([
             np.asarray(spans, dtype=float),
@@ -296,7 +298,7 @@ class _GeneralAuction:
         size[-1] = 0.0
         joined = np.where(other, size[mine][:, None], 0.0) + size[theirs][None, :]
         joined = np.maximum(joined, 1.0)
-        joined += np.where(mine < 0, 1.0, 0.0)[:, None] * (theirs >= 0)[None, :]
+        joined += (mine < 0)[:, None] & (theirs >= 0)[None, :]
         result: np.ndarray = np.maximum(length, np.where(joined > 1, joined * self.share, 0.0))
         return result
 
