@@ -95,7 +95,7 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
         rect = shapely.minimum_rotated_rectangle(Polygon(poly))
     if isinstance(rect, Polygon) and rect.area > 0.0:
-        pts = np.asarray(rect.exterior.coords, dtype=float)
+        pts = shapely.get_coordinates(rect)  # (the exterior ring: a rectangle has no holes)
         e1, e2 = pts[1] - pts[0], pts[2] - pts[1]
         along = e1 if np.hypot(*e1) >= np.hypot(*e2) else e2
     else:  # degenerate (collinear points): sweep along the line

@@ -210,7 +210,8 @@ def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, n
     n = len(graph.duration)
     start, end = np.zeros(n), np.zeros(n)
     finish: dict[int, float] = {}  # how long each node runs, from its children's
-    for node in reversed(_preorder(root)):
+    nodes = _preorder(root)
+    for node in reversed(nodes):
         if node.kind == "task":
             finish[id(node)] = graph.duration[int(node.tasks[0])]
         elif node.kind == "conc":
@@ -219,7 +220,7 @@ def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, n
             finish[id(node)] = sum(finish[id(c)] for c in node.children)
     begin = {id(root): 0.0}
     span = 0.0
-    for node in _preorder(root):  # parents first: a seq's children one after another
+    for node in nodes:  # parents first: a seq's children one after another
         b = begin[id(node)]
         if node.kind == "task":
             t = int(node.tasks[0])
