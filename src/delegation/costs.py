@@ -38,6 +38,7 @@ per-task geometry (and one coverage path per distinct sweep width) is computed i
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections.abc import Sequence
@@ -228,10 +229,15 @@ def _geo_points(g: TaskGeometry) -> list[GeoPoint]:
 
 
 def _polygons_xy(g: TaskGeometry, frame: LocalFrame) -> list[np.ndarray]:
+    return _polygons_from(g, frame.points_xy(_geo_points(g)))
+
+
+def _polygons_from(g: TaskGeometry, xy: np.ndarray) -> list[np.ndarray]:
+    """The polygons of an ``areas`` task from its ``_geo_points`` in the frame (``xy``)."""
     if g.circle is not None:
-        centre, radius = g.circle
-        return [circle_polygon(frame.point_xy(centre), radius)]
-    return [frame.points_xy(list(area)) for area in g.areas]
+        return [circle_polygon(xy[0], g.circle[1])]
+    bounds = np.cumsum([0] + [len(area) for area in g.areas]).tolist()
+    return [xy[a:b] for a, b in itertools.pairwise(bounds)]
 
 
 def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:
@@ -423,11 +429,18 @@ def cost_tables(
             pts += _geo_points(g)
         frame = LocalFrame.around(pts)
 
-    unit_xy = frame.points_xy([u.position for u in units_t]).reshape(n_u, 2)
-    home_xy = np.full((n_u, 2), np.nan)
+    # Every point in one conversion (a call per task cost more than the arithmetic).
     homes = [(i, u.home) for i, u in enumerate(units_t) if u.home is not None]
+    task_points = [_geo_points(g) for g in geoms]
+    every = [u.position for u in units_t] + [h for _, h in homes]
+    every += [p for pts_t in task_points for p in pts_t]
+    every_xy = frame.points_xy(every).reshape(len(every), 2)
+    unit_xy = every_xy[:n_u].copy()
+    home_xy = np.full((n_u, 2), np.nan)
     if homes:
-        home_xy[[i for i, _ in homes]] = frame.points_xy([h for _, h in homes])
+        home_xy[[i for i, _ in homes]] = every_xy[n_u : n_u + len(homes)]
+    bounds = np.cumsum([n_u + len(homes)] + [len(pts_t) for pts_t in task_points])
+    task_xy = [every_xy[a:b] for a, b in itertools.pairwise(bounds.tolist())]
 
     # Unit-independent task facts.
     kinds = [g.kind for g in geoms]
@@ -467,17 +480,17 @@ def cost_tables(
     work_distance = np.zeros((n_u, n_t))
     for t, g in enumerate(geoms):
         if g.kind == "point":
-            start_xy[t] = end_xy[t] = frame.point_xy(g.points[0])
+            start_xy[t] = end_xy[t] = task_xy[t][0]
         elif g.kind == "path":
-            xy = frame.points_xy(list(g.points))
+            xy = task_xy[t]
             start_xy[t], end_xy[t] = xy[0], xy[-1]
             path_len[t] = path_length(xy)
         elif g.kind == "areas":
-            polygons = _polygons_xy(g, frame)
+            polygons = _polygons_from(g, task_xy[t])
             col = width[:, t]
             ref = _reference_width(col, listed[:, t])
-            for w in np.unique(col[np.isfinite(col)]):
-                path = _sweep_xy(polygons, float(w))
+            for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
+                path = _sweep_xy(polygons, w)
                 work_distance[col == w, t] = path_length(path)
                 if w == ref:
                     start_xy[t], end_xy[t] = path[0], path[-1]

@@ -29,8 +29,10 @@ over kilometre-sized areas stay fast (about 0.1 s for 10 000 lanes).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -49,13 +51,25 @@ def _clean_polygon(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> np.nda
     poly = np.asarray(polygon_xy, dtype=float)
     if poly.ndim != 2 or poly.shape[1] != 2:
         raise InputError(f"a polygon must be an (N, 2) array of east/north m, not {poly.shape}")
-    if len(poly) > 1 and np.allclose(poly[0], poly[-1]):
+    if len(poly) > 1 and _close(poly[0].tolist(), poly[-1].tolist()):
         poly = poly[:-1]  # closed rings repeat the first point
     if len(poly) < 3:
         raise InputError(f"a polygon needs at least 3 points, got {len(poly)}")
     if not np.all(np.isfinite(poly)):
         raise InputError("a polygon's coordinates must be finite")
     return poly
+
+
+def _close(a: Sequence[float], b: Sequence[float]) -> bool:
+    """``np.allclose(a, b)`` for two points, in plain Python (numpy's costs ~20 us a call, and
+    every coverage path asks twice)."""
+    for x, y in zip(a, b, strict=True):
+        if math.isfinite(x) and math.isfinite(y):
+            if not abs(x - y) <= 1e-8 + 1e-5 * abs(y):
+                return False
+        elif x != y:
+            return False
+    return True
 
 
 def _check_width(width: float) -> float:
@@ -81,7 +95,7 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
         rect = shapely.minimum_rotated_rectangle(Polygon(poly))
     if isinstance(rect, Polygon) and rect.area > 0.0:
-        pts = np.asarray(rect.exterior.coords, dtype=float)
+        pts = shapely.get_coordinates(rect)  # (the exterior ring: a rectangle has no holes)
         e1, e2 = pts[1] - pts[0], pts[2] - pts[1]
         along = e1 if np.hypot(*e1) >= np.hypot(*e2) else e2
     else:  # degenerate (collinear points): sweep along the line
@@ -95,16 +109,52 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return along, across
 
 
-def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
-    """The lanes clipped to the polygon: (segments (m, 2, 2) in the world frame, each segment's lane
-    index (m,)), ordered by lane and, within a lane, along the sweep; every segment points along."""
-    w = _check_width(width)
+@dataclass(frozen=True)
+class _SweepFrame:
+    """What a polygon's sweep needs whatever the width: the axes, the polygon in the sweep frame
+    (as a valid shapely area) and its extent."""
+
+    along: np.ndarray
+    across: np.ndarray
+    origin: np.ndarray
+    area: shapely.Geometry
+    x_lo: float
+    x_hi: float
+    y_lo: float
+    y_hi: float
+
+
+def _sweep_frame(poly: np.ndarray) -> _SweepFrame:
+    """The sweep frame of a cleaned polygon, remembered for the last polygons seen: the cost
+    tables sweep each area once per distinct sweep width of the fleet, and planning a mission
+    again (bids, re-delegation, maps) sweeps the same areas."""
+    return _sweep_frame_of(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly))
+
+
+@functools.lru_cache(maxsize=256)
+def _sweep_frame_of(data: bytes, n: int) -> _SweepFrame:
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     along, across = sweep_axes(poly)
     origin = poly.mean(axis=0)
     rel = poly - origin
     qx = rel @ along
     qy = rel @ across
-    y_lo, y_hi = float(qy.min()), float(qy.max())
+    area: shapely.Geometry = Polygon(np.column_stack([qx, qy]))
+    if not shapely.is_valid(area):
+        area = shapely.make_valid(area)
+    for array in (along, across, origin):
+        array.setflags(write=False)
+    return _SweepFrame(along, across, origin, area, float(qx.min()), float(qx.max()),
+                       float(qy.min()), float(qy.max()))
+
+
+def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """The lanes clipped to the polygon: (segments (m, 2, 2) in the world frame, each segment's lane
+    index (m,)), ordered by lane and, within a lane, along the sweep; every segment points along."""
+    w = _check_width(width)
+    frame = _sweep_frame(poly)
+    along, across, origin, area = frame.along, frame.across, frame.origin, frame.area
+    y_lo, y_hi = frame.y_lo, frame.y_hi
     height = y_hi - y_lo
     n = _lane_count(height, w)
     if n > MAX_LANES:
@@ -115,10 +165,7 @@ def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
 
     # Clip every lane (a horizontal line in the sweep frame, a little longer than the area) to the
     # area in one vectorised shapely call; a lane the area splits comes back in several pieces.
-    area: shapely.Geometry = Polygon(np.column_stack([qx, qy]))
-    if not shapely.is_valid(area):
-        area = shapely.make_valid(area)
-    x_lo, x_hi = float(qx.min()), float(qx.max())
+    x_lo, x_hi = frame.x_lo, frame.x_hi
     pad = max(1.0, x_hi - x_lo)
     coords = np.empty((n, 2, 2))
     coords[:, 0, 0], coords[:, 1, 0] = x_lo - pad, x_hi + pad
@@ -147,7 +194,9 @@ def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
         seg_y = ys[lane]
     starts = origin + x0s[:, None] * along + seg_y[:, None] * across
     ends = origin + x1s[:, None] * along + seg_y[:, None] * across
-    return np.stack([starts, ends], axis=1), lane
+    segments = np.empty((len(starts), 2, 2))
+    segments[:, 0], segments[:, 1] = starts, ends
+    return segments, lane
 
 
 def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
@@ -172,10 +221,10 @@ def sweep_cells(
     segments, lane = _segments(_clean_polygon(polygon_xy), width)
     if len(segments) == 0:
         return []
+    if bool(np.all(lane[1:] != lane[:-1])):  # one segment per lane (sorted by lane): one cell
+        return [segments]
     bounds = np.unique(lane, return_index=True)[1]
     per_lane = np.split(np.arange(len(lane)), bounds[1:])
-    if all(len(ix) == 1 for ix in per_lane):
-        return [segments]
     along = segments[:, 1] - segments[:, 0]
     # Positions along the sweep of each segment's ends (any common origin will do).
     direction = along[np.argmax(np.hypot(*along.T))]
@@ -223,7 +272,8 @@ def serpentine(lanes: np.ndarray, variant: int = 0) -> np.ndarray:
 def _drop_repeats(path: np.ndarray) -> np.ndarray:
     """Drop repeated points (a lane of zero length at a vertex, a cell starting where one ended)."""
     keep = np.ones(len(path), dtype=bool)
-    keep[1:] = np.any(np.abs(np.diff(path, axis=0)) > 1e-9, axis=1)
+    moved = np.abs(path[1:] - path[:-1]) > 1e-9  # (np.diff and np.any(axis=1): same, slower)
+    keep[1:] = moved[:, 0] | moved[:, 1]
     return np.asarray(path[keep])
 
 
@@ -255,6 +305,8 @@ def _fly_cells(
         gaps = np.hypot(*(starts - here).transpose(2, 0, 1))
         i, v = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
         parts.append(serpentine(cells[left.pop(int(i))], int(v)))
+    if len(parts) == 1:
+        return parts[0]  # (serpentine dropped its repeats already)
     return _drop_repeats(np.concatenate(parts, axis=0))
 
 

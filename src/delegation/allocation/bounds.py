@@ -27,7 +27,17 @@ def makespan_lower_bound(problem: Problem) -> float:
     first = np.full((n_units, n_tasks), np.inf)
     vehicle = problem.vehicle
     every = np.arange(n_tasks)
-    for u in range(n_units):
+    if problem.to_home is None or not problem.to_home.any():
+        # Task points do not depend on the unit: every unit at once (the same arithmetic).
+        start, _, travels = problem.points_for(0, every)
+        xy = problem.unit_xy
+        d = np.hypot(start[:, 0][None, :] - xy[:, 0][:, None],
+                     start[:, 1][None, :] - xy[:, 1][:, None]) * (travels & vehicle)
+        first[:] = d / problem.speed + problem.work_time
+        units: range = range(0)
+    else:
+        units = range(n_units)
+    for u in units:
         start, _, travels = problem.points_for(u, every)
         d = np.hypot(*(start - problem.unit_xy[u]).T) * (travels & vehicle)
         first[u] = d / problem.speed[u] + problem.work_time[u]

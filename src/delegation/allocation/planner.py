@@ -63,12 +63,16 @@ def plan_mission(
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
     limits: Limits = DEFAULT_LIMITS,
+    stages: dict[str, float] | None = None,
 ) -> Plan:
     """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
 
     Never raises for infeasibility (those tasks go to ``unassigned``); raises ``InputError`` for an
-    unknown strategy or objective or a tree that is not valid.
+    unknown strategy or objective or a tree that is not valid. ``stages``, when given, receives
+    the seconds each stage took (``validation``, ``problem``, ``strategy``, ``sent-tree``): the
+    breakdown ``benchmarks/auction_speed.py`` prints.
     """
+    clock = time.perf_counter()
     check_options(strategy, objective, time_limit)
     problems = tree_problems(tree, limits)
     if problems:
@@ -79,13 +83,18 @@ def plan_mission(
     began = time.perf_counter()
     prepared = with_defaults(with_uuids(tree, new_uuid))
     problem = build_problem(prepared, units)
+    built = time.perf_counter()
     result = STRATEGIES[strategy](problem, Objective(objective), time_limit)
-    solve_time = time.perf_counter() - began
-    return make_plan(
+    solved = time.perf_counter()
+    plan = make_plan(
         problem, result.schedule, prepared, strategy=strategy, objective=objective,
-        solve_time=solve_time, bound=result.bound, engine_unit=engine_unit, new_uuid=new_uuid,
-        notes=[*warnings, *result.notes], fallback=result.fallback,
+        solve_time=solved - began, bound=result.bound, engine_unit=engine_unit,
+        new_uuid=new_uuid, notes=[*warnings, *result.notes], fallback=result.fallback,
     )
+    if stages is not None:
+        stages.update({"validation": began - clock, "problem": built - began,
+                       "strategy": solved - built, "sent-tree": time.perf_counter() - solved})
+    return plan
 
 
 def make_plan(

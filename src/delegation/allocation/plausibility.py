@@ -57,19 +57,18 @@ def plausibility_notes(
     if not units:
         return []
     positions = [u.position for u in units]
+    found = [(path, node, *first) for path, node in walk(tree)
+             if not node.is_control and (first := _first_point(node)) is not None]
+    if not found:
+        return []
+    # One distance matrix for every task's point (a call per task cost most of the check).
+    distances = great_circle_matrix_m([point for *_, point in found], positions)
     notes: list[str] = []
-    for path, node in walk(tree):
-        if node.is_control:
-            continue
-        found = _first_point(node)
-        if found is None:
-            continue
-        param, point = found
-        distances = great_circle_matrix_m([point], positions)[0]
-        far = float(distances.min())
+    for (path, node, param, point), row in zip(found, distances, strict=True):
+        far = float(row.min())
         if far <= max_distance_m:
             continue
-        nearest = units[int(distances.argmin())]
+        nearest = units[int(row.argmin())]
         note = (
             f"{where(path, node)}: params.{param} is {far / 1000:,.0f} km from the nearest unit "
             f"({nearest.name})"

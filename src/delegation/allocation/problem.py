@@ -143,6 +143,10 @@ def precedence(structure: Structure, n_tasks: int) -> np.ndarray:
     return before
 
 
+#: Largest task count for which ``Problem.lca_depth`` keeps a (T, T) table (8 bytes a pair).
+LCA_TABLE_TASKS = 1500
+
+
 @dataclass
 class Problem:
     """Everything a strategy needs: tasks, units, costs (s, m), who may take what, the tree."""
@@ -246,10 +250,33 @@ class Problem:
 
     def lca_depth(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Depth (root = 1) of the lowest common ancestor of tasks ``a`` and ``b`` (broadcast);
-        for ``a == b`` the task's own depth + 1."""
+        for ``a == b`` the task's own depth + 1.
+
+        Up to ``LCA_TABLE_TASKS`` tasks a (T, T) table made on first use answers (the auction
+        asks after every award); above, the ancestry rows are compared each time.
+        """
+        table = self._lca_table()
+        if table is not None:
+            return np.asarray(table[np.asarray(a, dtype=int), np.asarray(b, dtype=int)])
         anc = self.ancestry()
         same = anc[np.asarray(a, dtype=int)] == anc[np.asarray(b, dtype=int)]
         return np.asarray(np.cumprod(same, axis=-1).sum(axis=-1))
+
+    def _lca_table(self) -> np.ndarray | None:
+        """(T, T) ``lca_depth`` of every pair (None above ``LCA_TABLE_TASKS`` tasks): the rows'
+        agreeing prefix, counted one depth level at a time (T x T booleans, not T x T x D)."""
+        if self.n_tasks > LCA_TABLE_TASKS:
+            return None
+        value = self.cache.get("lca")
+        if value is None:
+            anc = self.ancestry()
+            agree = np.ones((self.n_tasks, self.n_tasks), dtype=bool)
+            value = np.zeros((self.n_tasks, self.n_tasks), dtype=np.int64)
+            for d in range(anc.shape[1]):
+                agree &= anc[:, d][:, None] == anc[:, d][None, :]
+                value += agree
+            self.cache["lca"] = value
+        return np.asarray(value)
 
     def _task_counts(self) -> list[int]:
         s = self.structure
@@ -269,21 +296,29 @@ class Problem:
         ``go-home`` starts and ends at the unit's home (in place when it has none); rows of tasks
         done in place are 0 (never used: they do not travel).
         """
-        cand = np.asarray(cand, dtype=int)
-        start = self.start_xy[cand].copy()
-        end = self.end_xy[cand].copy()
-        travels = self.travels[cand].copy()
-        home = self.home_task()[cand]
-        if home.any():
-            if self.has_home[u]:
-                start[home] = self.home_xy[u]
-                end[home] = self.home_xy[u]
-                travels[home] = True
-            else:
-                travels[home] = False
-        start[~travels] = 0.0
-        end[~travels] = 0.0
+        cand = np.asarray(cand, dtype=int).reshape(-1)
+        start = self.start_xy[cand]  # (indexing by an array copies)
+        end = self.end_xy[cand]
+        travels = self.travels[cand]
+        if self._any_home_task():
+            home = self.home_task()[cand]
+            if home.any():
+                if self.has_home[u]:
+                    start[home] = self.home_xy[u]
+                    end[home] = self.home_xy[u]
+                    travels[home] = True
+                else:
+                    travels[home] = False
+        if not travels.all():
+            start[~travels] = 0.0
+            end[~travels] = 0.0
         return start, end, travels
+
+    def _any_home_task(self) -> bool:
+        value = self.cache.get("any-home-task")
+        if value is None:
+            value = self.cache["any-home-task"] = bool(self.home_task().any())
+        return bool(value)
 
     def alias_of(self) -> np.ndarray:
         """(T,) index of each task's alias group, -1 when none."""

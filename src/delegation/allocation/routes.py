@@ -98,10 +98,10 @@ def keeps_subtrees_whole(problem: Problem, route: Sequence[int], cand: np.ndarra
     r = np.asarray(route, dtype=int)
     d = problem.lca_depth(cand[:, None], r[None, :])  # (C, L)
     deepest = d.max(axis=1)
-    none = np.full((cand.size, 1), -1)
-    left = np.hstack([none, d])  # (C, L+1): depth of LCA with the task before position p
-    right = np.hstack([d, none])
-    near = np.maximum(left, right)
+    # (C, L+1): the deeper LCA with the task before position p and the one after it
+    near = np.full((cand.size, n + 1), -1, dtype=d.dtype)
+    near[:, :n] = d
+    near[:, 1:] = np.maximum(near[:, 1:], d)
     pair = np.full(n + 1, -1)
     if n > 1:
         pair[1:n] = problem.lca_depth(r[:-1], r[1:])

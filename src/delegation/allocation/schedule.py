@@ -15,6 +15,7 @@ the old rule's tree (children of a conc that share a unit wrapped whole in a seq
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Sequence
@@ -23,7 +24,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from delegation.allocation.problem import Problem
+from delegation.allocation.problem import Problem, Structure
 from delegation.allocation.serialise import Serialisation, serialisation
 from delegation.allocation.strategies import Objective
 
@@ -94,8 +95,12 @@ class Schedule:
 
 @dataclass(frozen=True)
 class _Template:
+    """The tree's part of the activation graph, and which task each event finishes."""
+
     succ: list[list[int]]
     indeg: list[int]
+    task_of_event: list[int]  # per event: the task whose fin(n) it is, else -1
+    node_of_task: list[int]
 
 
 def _template(problem: Problem) -> _Template:
@@ -120,7 +125,10 @@ def _template(problem: Problem) -> _Template:
     for out in succ:
         for v in out:
             indeg[v] += 1
-    return _Template(succ, indeg)
+    task_of_event = [-1] * (2 * s.size)
+    for n, t in enumerate(s.task_of_node):
+        task_of_event[2 * n + 1] = t
+    return _Template(succ, indeg, task_of_event, list(s.node_of_task))
 
 
 def template_for(problem: Problem) -> _Template:
@@ -133,7 +141,7 @@ def template_for(problem: Problem) -> _Template:
 @dataclass(frozen=True)
 class _Static:
     """The problem's per-task and per-unit numbers as plain lists (the simulation loop is
-    Python), made once per problem."""
+    Python: list indexing is several times cheaper than numpy scalars), made once per problem."""
 
     vehicle: list[bool]  # per task
     sx: list[float]  # per task: start and end point
@@ -150,6 +158,9 @@ class _Static:
     home_speed: list[float]
     endurance: list[float]
     ready: list[float]  # per unit: when it is free of earlier commitments (s)
+    speed: list[list[float]]  # per unit, per task: m/s, work time (s), work distance (m)
+    work_time: list[list[float]]
+    work_distance: list[list[float]]
 
 
 def _static_for(problem: Problem) -> _Static:
@@ -166,8 +177,17 @@ def _static_for(problem: Problem) -> _Static:
             home_speed=problem.home_speed.tolist(), endurance=problem.endurance.tolist(),
             ready=(problem.ready.tolist() if problem.ready is not None
                    else [0.0] * problem.n_units),
+            speed=problem.speed.tolist(), work_time=problem.work_time.tolist(),
+            work_distance=problem.work_distance.tolist(),
         )
     return static
+
+
+def restructured(problem: Problem, structure: Structure) -> Problem:
+    """``problem`` with another tree over the same tasks (the tree sent): the per-task and
+    per-unit numbers are shared, what depends on the tree is made anew."""
+    cache = {"static": problem.cache["static"]} if "static" in problem.cache else {}
+    return dataclasses.replace(problem, structure=structure, cache=cache, _before=None)
 
 
 def evaluate(
@@ -187,44 +207,51 @@ def evaluate(
     (``ENDURANCE``).
     """
     assign_arr = np.asarray(assign, dtype=int).reshape(problem.n_tasks)
+    assigned_to = assign_arr.tolist()
     static = _static_for(problem)
-    prev, clean, issues = _clean_orders(problem, assign_arr, orders, static)
+    prev, clean, issues = _clean_orders(problem, assigned_to, orders, static)
     wrap = problem.wrap_subtrees if wrapped is None else wrapped
     graph = _activation_graph(problem, prev, clean, wrap)
     issues.extend(ScheduleIssue(IssueKind.SERIALISATION, text) for text in graph.wrapped.problems)
-    run = _simulate(problem, assign_arr, prev, graph, static)
+    run = _simulate(problem, assigned_to, prev, graph, static)
     if run.done < len(run.value):
         issues.append(ScheduleIssue(IssueKind.DEADLOCK, (
             "deadlock: the units' orders and the tree's order wait for each other"
             if not graph.wrapped.problems else
             "deadlock: the serialised subtrees and the units' orders wait for each other"
         )))
-    totals = _unit_totals(problem, assign_arr, orders, run, static)
+    totals = _unit_totals(problem, assigned_to, orders, run, static)
     issues.extend(totals.issues)
+    # One conversion per shape (rows are views): cheaper than eleven small arrays.
+    per_task = np.array([run.start, run.end, run.travel, run.work, run.dist], dtype=float)
+    per_task = per_task.reshape(5, problem.n_tasks)
+    per_unit = np.array([totals.unit_finish, totals.unit_used, totals.home_time,
+                         totals.home_dist], dtype=float).reshape(4, problem.n_units)
+    events = np.array(run.value, dtype=float)
     return Schedule(
         assign=assign_arr.copy(),
         orders=[list(o) for o in orders],
-        start=np.array(run.start, dtype=float),
-        end=np.array(run.end, dtype=float),
-        travel_time=np.array(run.travel, dtype=float),
-        work_time=np.array(run.work, dtype=float),
-        distance=np.array(run.dist, dtype=float),
-        unit_finish=np.array(totals.unit_finish, dtype=float),
-        unit_used=np.array(totals.unit_used, dtype=float),
-        home_time=np.array(totals.home_time, dtype=float),
-        home_distance=np.array(totals.home_dist, dtype=float),
+        start=per_task[0],
+        end=per_task[1],
+        travel_time=per_task[2],
+        work_time=per_task[3],
+        distance=per_task[4],
+        unit_finish=per_unit[0],
+        unit_used=per_unit[1],
+        home_time=per_unit[2],
+        home_distance=per_unit[3],
         makespan=totals.makespan,
         total_time=totals.total_time,
         total_distance=totals.total_distance,
         issues=issues,
-        node_act=np.array(run.value[0::2]),
-        node_fin=np.array(run.value[1::2]),
+        node_act=events[0::2],
+        node_fin=events[1::2],
         serialised=graph.wrapped,
     )
 
 
 def _clean_orders(
-    problem: Problem, assign: np.ndarray, orders: Sequence[Sequence[int]], static: _Static
+    problem: Problem, assign: list[int], orders: Sequence[Sequence[int]], static: _Static
 ) -> tuple[list[int], list[list[int]], list[ScheduleIssue]]:
     """Each task's predecessor on its unit (-1: first), the orders without the tasks they list
     wrongly, and the wrongly listed or missing tasks."""
@@ -269,17 +296,21 @@ def _activation_graph(
     problem: Problem, prev: list[int], clean: list[list[int]], wrapped: bool
 ) -> _Graph:
     """Events act(n) = 2n, fin(n) = 2n + 1 of every tree node, and what waits for what."""
-    s = problem.structure
-    indeg = list(template_for(problem).indeg)
-    after = [-1] * (2 * s.size)
-    node_of = s.node_of_task
-    for t in range(problem.n_tasks):
-        if prev[t] >= 0:
-            after[2 * node_of[prev[t]] + 1] = 2 * node_of[t] + 1
-            indeg[2 * node_of[t] + 1] += 1
+    size = 2 * problem.structure.size
+    template = template_for(problem)
+    indeg = list(template.indeg)
+    after = [-1] * size
+    node_of = template.node_of_task
+    for t, p in enumerate(prev):
+        if p >= 0:
+            j = 2 * node_of[t] + 1
+            after[2 * node_of[p] + 1] = j
+            indeg[j] += 1
     # Whole subtrees sharing a unit run one after another: fin(X) -> act(next X).
-    wraps = serialisation(problem, clean, every_conc=False) if wrapped else Serialisation()
-    wrap_next = [-1] * (2 * s.size)
+    wrap_next = [-1] * size
+    if not wrapped:
+        return _Graph(indeg, after, wrap_next, Serialisation())
+    wraps = serialisation(problem, clean, every_conc=False)
     for _, kids in wraps.wraps:
         for a, b in itertools.pairwise(kids):
             wrap_next[2 * a + 1] = 2 * b
@@ -304,75 +335,83 @@ class _Run:
 
 
 def _simulate(
-    problem: Problem, assign: np.ndarray, prev: list[int], graph: _Graph, static: _Static
+    problem: Problem, assigned_to: list[int], prev: list[int], graph: _Graph, static: _Static
 ) -> _Run:
     """Run the events in topological order, earliest times everywhere: a task's event fin(n)
     is reached when the tree activated it and its unit is free; travel starts then, from where
     the unit is."""
-    n_tasks, s = problem.n_tasks, problem.structure
+    n_tasks, n_events = problem.n_tasks, 2 * problem.structure.size
     vehicle, ux, uy, sx, sy = static.vehicle, static.ux, static.uy, static.sx, static.sy
     ex, ey, travels, to_home = static.ex, static.ey, static.travels, static.to_home
     has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
-    speed_t, work_tt, work_dt = _numbers_of_units(problem, assign)
-    assigned_to = assign.tolist()
+    speed_rows, work_rows, workd_rows = static.speed, static.work_time, static.work_distance
+    template = template_for(problem)
+    ready, task_of_event = static.ready, template.task_of_event
     nan = math.nan
+    hypot = math.hypot
     run = _Run([nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks, [nan] * n_tasks,
-               [nan] * n_tasks, [0.0] * n_tasks, [0.0] * n_tasks, [0.0] * (2 * s.size), 0)
+               [nan] * n_tasks, [0.0] * n_tasks, [0.0] * n_tasks, [0.0] * n_events, 0)
     start_l, end_l, travel_l, work_l, dist_l = run.start, run.end, run.travel, run.work, run.dist
     pos_x, pos_y, value = run.pos_x, run.pos_y, run.value
-    succ, indeg, after, wrap_next = template_for(problem).succ, graph.indeg, graph.after, \
-        graph.wrap_next
-    task_of_node = s.task_of_node
-    stack = [i for i in range(2 * s.size) if indeg[i] == 0]
+    succ, indeg, after, wrap_next = template.succ, graph.indeg, graph.after, graph.wrap_next
+    stack = [i for i in range(n_events) if indeg[i] == 0]
     done = 0
     while stack:
         i = stack.pop()
         done += 1
+        v = value[i]
         if i & 1:
-            t = task_of_node[i >> 1]
+            t = task_of_event[i]
             if t >= 0:
-                begin = value[i]
                 u = assigned_to[t]
                 if u < 0:
-                    end_t = begin
+                    pass  # unassigned: ends when it begins
                 elif not vehicle[t]:
-                    w = work_tt[t]
-                    start_l[t], travel_l[t], work_l[t] = begin, 0.0, w
+                    w = work_rows[u][t]
+                    start_l[t], travel_l[t], work_l[t] = v, 0.0, w
                     dist_l[t] = 0.0
-                    end_t = begin + w
-                    end_l[t] = end_t
+                    v += w
+                    end_l[t] = v
                 else:
                     p = prev[t]
                     if p < 0:  # its first task: not before the unit is free
-                        begin = max(begin, static.ready[u])
-                    px, py = (pos_x[p], pos_y[p]) if p >= 0 else (ux[u], uy[u])
+                        px, py = ux[u], uy[u]
+                        if ready[u] > v:
+                            v = ready[u]
+                    else:
+                        px, py = pos_x[p], pos_y[p]
                     if to_home[t] and has_home[u]:
                         hx, hy = home_x[u], home_y[u]
-                        d = math.hypot(hx - px, hy - py)
-                        tt = d / speed_t[t]
+                        d = hypot(hx - px, hy - py)
+                        tt = d / speed_rows[u][t]
                         pos_x[t], pos_y[t] = hx, hy
                     elif travels[t] and not to_home[t]:
-                        d = math.hypot(sx[t] - px, sy[t] - py)
-                        tt = d / speed_t[t]
+                        d = hypot(sx[t] - px, sy[t] - py)
+                        tt = d / speed_rows[u][t]
                         pos_x[t], pos_y[t] = ex[t], ey[t]
                     else:
                         d, tt = 0.0, 0.0
                         pos_x[t], pos_y[t] = px, py
-                    w = work_tt[t]
-                    start_l[t], travel_l[t], work_l[t] = begin, tt, w
-                    dist_l[t] = d + work_dt[t]
-                    end_t = begin + tt + w
-                    end_l[t] = end_t
-                value[i] = end_t
-            v = value[i]
-            for j in (after[i], wrap_next[i]):
-                if j >= 0:
-                    if v > value[j]:
-                        value[j] = v
-                    indeg[j] -= 1
-                    if indeg[j] == 0:
-                        stack.append(j)
-        v = value[i]
+                    w = work_rows[u][t]
+                    start_l[t], travel_l[t], work_l[t] = v, tt, w
+                    dist_l[t] = d + workd_rows[u][t]
+                    v = v + tt + w
+                    end_l[t] = v
+                value[i] = v
+            j = after[i]
+            if j >= 0:
+                if v > value[j]:
+                    value[j] = v
+                indeg[j] -= 1
+                if indeg[j] == 0:
+                    stack.append(j)
+            j = wrap_next[i]
+            if j >= 0:
+                if v > value[j]:
+                    value[j] = v
+                indeg[j] -= 1
+                if indeg[j] == 0:
+                    stack.append(j)
         for j in succ[i]:
             if v > value[j]:
                 value[j] = v
@@ -381,20 +420,6 @@ def _simulate(
                 stack.append(j)
     run.done = done
     return run
-
-
-def _numbers_of_units(
-    problem: Problem, assign: np.ndarray
-) -> tuple[list[float], list[float], list[float]]:
-    """Per task, the speed, work time and work distance of its unit (0 where unassigned):
-    plain floats for the simulation loop."""
-    if not problem.n_units:
-        zeros = [0.0] * problem.n_tasks
-        return zeros, zeros, zeros
-    safe = np.where(assign >= 0, assign, 0)
-    cols = np.arange(problem.n_tasks)
-    return (problem.speed[safe, cols].tolist(), problem.work_time[safe, cols].tolist(),
-            problem.work_distance[safe, cols].tolist())
 
 
 @dataclass
@@ -412,13 +437,13 @@ class _Totals:
 
 
 def _unit_totals(
-    problem: Problem, assign: np.ndarray, orders: Sequence[Sequence[int]], run: _Run,
+    problem: Problem, assigned_to: list[int], orders: Sequence[Sequence[int]], run: _Run,
     static: _Static,
 ) -> _Totals:
     """Per unit: travel + work of its vehicle tasks, the way home, when it is done, whether its
     battery holds (plain Python: cheaper than numpy at the sizes the auction simulates hundreds
     of times)."""
-    n_units, vehicle, assigned_to = problem.n_units, static.vehicle, assign.tolist()
+    n_units, vehicle = problem.n_units, static.vehicle
     out = _Totals([0.0] * n_units, [0.0] * n_units, [0.0] * n_units, [0.0] * n_units)
     unit_finish_l, unit_used_l = out.unit_finish, out.unit_used
     home_time_l, home_dist_l = out.home_time, out.home_dist
@@ -428,12 +453,13 @@ def _unit_totals(
         e = end_l[t]
         if e != e:  # NaN: unassigned or never reached
             continue
-        tt, w = travel_l[t], work_l[t]
-        total_time += tt + w
+        tw = travel_l[t] + work_l[t]
+        total_time += tw
         total_distance += dist_l[t]
-        makespan = max(makespan, e)
+        if e > makespan:
+            makespan = e
         if vehicle[t]:
-            unit_used_l[assigned_to[t]] += tt + w
+            unit_used_l[assigned_to[t]] += tw
     has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
     home_speed, endurance = static.home_speed, static.endurance
     for u, order in enumerate(orders):
@@ -448,7 +474,8 @@ def _unit_totals(
         unit_used_l[u] += home_time_l[u]
         total_time += home_time_l[u]
         total_distance += home_dist_l[u]
-        makespan = max(makespan, unit_finish_l[u])
+        if unit_finish_l[u] > makespan:
+            makespan = unit_finish_l[u]
         if unit_used_l[u] > endurance[u] * (1 + EPS) + EPS:
             out.issues.append(ScheduleIssue(IssueKind.ENDURANCE, (
                 f"unit {problem.unit_names[u]} needs {unit_used_l[u]:.0f} s but has "

@@ -19,7 +19,7 @@ import numpy as np
 
 from delegation.allocation.instantiate import Placement, instantiate
 from delegation.allocation.problem import Problem, Structure, flatten_tree, precedence
-from delegation.allocation.schedule import IssueKind, Schedule, evaluate
+from delegation.allocation.schedule import IssueKind, Schedule, evaluate, restructured
 from delegation.allocation.series_parallel import (
     best_decomposition,
     build_tree,
@@ -61,9 +61,13 @@ def simulate_tree(
     """The schedule of running ``tree`` (the same leaves as ``problem``'s, any control nodes)
     with this allocation."""
     index = {task.uuid: t for t, task in enumerate(problem.tasks)}
-    other = dataclasses.replace(problem, structure=_remapped(tree, index), cache={},
-                                _before=None)
-    return evaluate(other, assign, orders)
+    return _simulate(problem, _remapped(tree, index), assign, orders)
+
+
+def _simulate(
+    problem: Problem, structure: Structure, assign: np.ndarray, orders: Sequence[Sequence[int]]
+) -> Schedule:
+    return evaluate(restructured(problem, structure), assign, orders)
 
 
 def missing_precedences(
@@ -79,9 +83,19 @@ def missing_precedences(
     for route in routes.values():
         for a, b in itertools.pairwise(route):
             need[index[a], index[b]] = True
-    has = precedence(_remapped(sent, index), len(uuids))
-    missing = np.argwhere(need & ~has)
+    return _missing(need, _remapped(sent, index), uuids)
+
+
+def _missing(need: np.ndarray, sent: Structure, uuids: Sequence[str]) -> list[str]:
+    """The precedences ``need[a, b]`` that the order of the tree with structure ``sent`` lacks."""
+    missing = np.argwhere(need & ~precedence(sent, len(uuids)))
     return [f"the sent tree does not run {uuids[a]} before {uuids[b]}" for a, b in missing[:5]]
+
+
+def _same_leaves(tree: TstNode, index: Mapping[str, int]) -> bool:
+    """Whether ``tree``'s leaves are exactly the tasks ``index`` numbers."""
+    got = [leaf.node_uuid or "" for leaf in leaves(tree)]
+    return len(got) == len(index) and set(got) == set(index)
 
 
 def choose_tree(
@@ -92,28 +106,37 @@ def choose_tree(
     engine_unit: str = "op0",
     new_uuid: Callable[[], str] | None = None,
 ) -> SentTree:
-    """The tree to send for ``schedule`` (planned on the precedence graph) and its times."""
+    """The tree to send for ``schedule`` (planned on the precedence graph) and its times.
+
+    ``prepared`` is the tree ``problem`` was built from (its leaves are the problem's tasks, in
+    order): the plan's precedences are ``problem.before`` and the units' orders.
+    """
     old = instantiate(prepared, placements, engine_unit, new_uuid)
     if any(i.kind in (IssueKind.ORDER, IssueKind.DEADLOCK) for i in schedule.issues):
         return SentTree(old, schedule, WRAP, "instantiation: the old wrap rule (the schedule "
                         "cannot run: " + "; ".join(map(str, schedule.issues[:2])) + ")")
-    routes = {problem.unit_names[u]: [problem.tasks[t].uuid for t in order]
-              for u, order in enumerate(schedule.orders)}
+    uuids = [t.uuid for t in problem.tasks]
+    index = {u: t for t, u in enumerate(uuids)}
+    need = problem.before.copy()
+    for route in schedule.orders:
+        for a, b in itertools.pairwise(route):
+            need[a, b] = True
     graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
                              schedule.home_time)
     filled = {leaf.node_uuid or "": leaf for leaf in leaves(old)}
     order = best_decomposition(graph, schedule.makespan)
-    sp = build_tree(order, prepared, filled, [t.uuid for t in problem.tasks], engine_unit,
-                    new_uuid)
-    missing = missing_precedences(prepared, sp, routes)
+    sp = build_tree(order, prepared, filled, uuids, engine_unit, new_uuid)
+    sp_structure = _remapped(sp, index)  # (build_tree keeps the leaves: KeyError otherwise)
+    missing = _missing(need, sp_structure, uuids)
     if missing:
         raise RuntimeError("series-parallel instantiation lost precedences: "
                            + "; ".join(missing))
-    best = SentTree(sp, simulate_tree(problem, sp, schedule.assign, schedule.orders),
+    best = SentTree(sp, _simulate(problem, sp_structure, schedule.assign, schedule.orders),
                     SERIES_PARALLEL, "")
     old_note = "the old wrap rule cannot carry this allocation"
-    if not missing_precedences(prepared, old, routes):
-        wrap = SentTree(old, simulate_tree(problem, old, schedule.assign, schedule.orders),
+    old_structure = _remapped(old, index) if _same_leaves(old, index) else None
+    if old_structure is not None and not _missing(need, old_structure, uuids):
+        wrap = SentTree(old, _simulate(problem, old_structure, schedule.assign, schedule.orders),
                         WRAP, "")
         old_note = f"the old wrap rule's tree: {wrap.schedule.makespan:.1f} s"
         if wrap.schedule.makespan <= best.schedule.makespan * (1 + 1e-9):

@@ -1,0 +1,106 @@
+"""The auction's fast paths give exactly what the plain computations give (issue 9 item 6).
+
+Each shortcut is checked against the computation it replaces, on generated trees of every shape:
+the bid bound prunes only bids that cannot win (the same plan as simulating the whole shortlist),
+the stacked tables rebid as the unit-by-unit ones do, the first tables of all units at once equal
+``recompute`` unit by unit, suffix minima equal ``np.argmin`` over the allowed positions, the LCA
+table equals the ancestry comparison, and the closed-ring test equals ``np.allclose``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+import delegation.allocation.auction.stacked as stacked
+from allocation_helpers import SHAPES, problem_for, random_instance
+from delegation.allocation import problem as problem_module
+from delegation.allocation.auction import auction
+from delegation.allocation.auction.general import _GeneralAuction, _suffix_minima
+from delegation.allocation.problem import Problem
+from delegation.allocation.schedule import Schedule
+from delegation.allocation.strategies import Objective
+from delegation.coverage import _close
+
+CASES = [(seed, shape, objective) for seed in range(3) for shape in SHAPES
+         for objective in ("makespan", "total")]
+
+
+def _instance(seed: int, shape: str, homes: bool | None = None) -> Problem:
+    tree, units = random_instance(seed, shape, n_tasks=14, n_units=4, homes=homes)
+    return problem_for(tree, units)
+
+
+def _same(a: Schedule, b: Schedule) -> None:
+    assert a.assign.tolist() == b.assign.tolist()
+    assert a.orders == b.orders
+    assert a.makespan == b.makespan and a.total_time == b.total_time
+
+
+@pytest.mark.parametrize(("seed", "shape", "objective"), CASES)
+def test_the_bound_prunes_only_bids_that_cannot_win(
+    seed: int, shape: str, objective: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fast = auction(_instance(seed, shape), objective)
+    # Bounds of zero prune nothing: every shortlisted bid is simulated.
+    monkeypatch.setattr(_GeneralAuction, "_bounds",
+                        lambda self, bids, cols: np.zeros(len(bids)))
+    _same(fast, auction(_instance(seed, shape), objective))
+
+
+@pytest.mark.parametrize(("seed", "shape", "objective"), CASES)
+def test_stacked_tables_rebid_as_unit_by_unit(
+    seed: int, shape: str, objective: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fast = auction(_instance(seed, shape), objective)
+    monkeypatch.setattr(stacked, "STACK_LIMIT", 0)
+    _same(fast, auction(_instance(seed, shape), objective))
+
+
+@pytest.mark.parametrize("homes", [False, True])
+@pytest.mark.parametrize("shape", SHAPES)
+def test_first_tables_at_once_equal_recompute_unit_by_unit(shape: str, homes: bool) -> None:
+    at_once = _GeneralAuction(_instance(1, shape, homes), Objective.MAKESPAN)
+    assert at_once._first_tables()
+    one_by_one = _GeneralAuction(_instance(1, shape, homes), Objective.MAKESPAN)
+    for u in range(one_by_one.n_units):
+        one_by_one.recompute(u)
+    for u in range(at_once.n_units):
+        np.testing.assert_array_equal(at_once.costs[u], one_by_one.costs[u])
+    np.testing.assert_array_equal(at_once.delta, one_by_one.delta)
+    np.testing.assert_array_equal(at_once.pos, one_by_one.pos)
+
+
+def test_suffix_minima_are_argmin_over_the_positions_left() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        rows, cols = int(rng.integers(1, 6)), int(rng.integers(1, 8))
+        table = rng.choice([1.0, 2.0, 3.0, np.inf], size=(rows, cols))  # ties and no position
+        low, arg = _suffix_minima(table)
+        for p in range(rows):
+            masked = np.where(np.arange(rows)[:, None] >= p, table, np.inf)
+            np.testing.assert_array_equal(low[p], masked.min(axis=0))
+            finite = np.isfinite(low[p])
+            np.testing.assert_array_equal(arg[p][finite], np.argmin(masked, axis=0)[finite])
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_lca_table_equals_the_ancestry_comparison(
+    shape: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    problem = _instance(2, shape)
+    a, b = np.meshgrid(np.arange(problem.n_tasks), np.arange(problem.n_tasks), indexing="ij")
+    table = problem.lca_depth(a, b)
+    monkeypatch.setattr(problem_module, "LCA_TABLE_TASKS", 0)
+    np.testing.assert_array_equal(table, _instance(2, shape).lca_depth(a, b))
+
+
+def test_closed_ring_test_equals_allclose() -> None:
+    values = [0.0, 1.0, 1.0 + 1e-6, 1.0 + 1e-4, -1.0, math.inf, -math.inf, math.nan, 1e8,
+              1e8 + 1e3, 1e8 + 1e4]
+    for a in itertools.product(values, repeat=2):
+        for b in itertools.product(values, repeat=2):
+            assert _close(list(a), list(b)) == bool(np.allclose(a, b)), (a, b)
