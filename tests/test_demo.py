@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from delegation.cli import main
-from delegation.cli.runtime import _read_mission, find_scenario
+from delegation.cli.runtime import DEMO_FLEET_TICKS_PER_S, _read_mission, demo_rates, find_scenario
 from delegation.errors import InputError
 from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
@@ -178,3 +178,15 @@ def test_serve_profiles_from_a_scenario_or_a_plain_file(tmp_path: Path) -> None:
     plain.write_bytes(b"\xff\xfeair: {}\n")
     with pytest.raises(InputError, match=r"p\.yaml: not UTF-8 text"):
         _read_profiles(str(plain))
+
+
+def test_demo_rates_keep_the_fleet_within_the_brokers_budget() -> None:
+    # Three units (the demo): as before, speedup / 2 up to 10 Hz, never below the scenario's rate.
+    assert demo_rates([("a", 2.0), ("b", None), ("c", 2.0)], 5.0) == {"a": 2.5, "b": 2.5, "c": 2.5}
+    assert demo_rates([("a", 2.0)], 1.0) == {"a": 2.0}
+    assert demo_rates([("a", None)], 100.0) == {"a": 10.0}
+    # Twenty units at speedup 20: the fleet's budget, not 10 Hz each.
+    rates = demo_rates([(f"u{i}", None) for i in range(20)], 20.0)
+    assert sum(rates.values()) == pytest.approx(DEMO_FLEET_TICKS_PER_S)
+    # A scenario's own rate is kept even past the budget.
+    assert demo_rates([(f"u{i}", 3.0) for i in range(40)], 20.0)["u0"] == 3.0
