@@ -16,7 +16,12 @@ import pytest
 from delegation.allocation.auction import auction
 from delegation.allocation.optimal import optimise
 from delegation.allocation.optimal import routing as routing_mod
-from delegation.allocation.optimal.minmax import MinMaxModel, minmax_search
+from delegation.allocation.optimal.minmax import (
+    MinMaxModel,
+    _Search,
+    minmax_search,
+    stall_rounds,
+)
 from delegation.allocation.optimal.parallel import HELPER_SCRIPT, use_second_core
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.strategies import Objective
@@ -43,8 +48,9 @@ def _random_model(seed: int, n: int, units: int, *, restricted: bool) -> MinMaxM
         allowed = rng.random((units, n)) < 0.7
         allowed[rng.integers(0, units, n), np.arange(n)] = True  # someone may take each
         pinned[rng.choice(n, 2, replace=False)] = True
+    angle = np.arctan2(xy[:n, 1] - xy[n, 1], xy[:n, 0] - xy[n, 0])
     return MinMaxModel(matrices, list(range(n, n + units)), list(range(n + units, size)),
-                       capacity, allowed, pinned)
+                       capacity, allowed, pinned, angle)
 
 
 def _start(model: MinMaxModel, n: int, seed: int) -> list[list[int]]:
@@ -73,6 +79,42 @@ def test_minmax_search_never_worse_and_keeps_every_rule(seed: int, restricted: b
     owner_after = {t: u for u, r in enumerate(found.routes) for t in r}
     for t in np.nonzero(model.pinned)[0].tolist():
         assert owner_after[t] == owner_before[t]
+
+
+@pytest.mark.parametrize("restricted", [False, True])
+def test_sweep_starts_cover_every_task_once_and_keep_every_rule(restricted: bool) -> None:
+    """A restart's sweep: one sector per unit; pinned tasks and tasks the sector's unit may not
+    take stay on their unit."""
+    n, units = 20, 3
+    model = _random_model(11, n, units, restricted=restricted)
+    start = _start(model, n, 11)
+    owner = {t: u for u, r in enumerate(start) for t in r}
+    search = _Search(model, time.perf_counter() + 30, seed=4)
+    for offset in (0.0, 0.3, 0.77):
+        routes = search.sweep(start, offset)
+        assert routes is not None
+        assert sorted(t for r in routes for t in r) == list(range(n))
+        for u, route in enumerate(routes):
+            assert all(model.allowed[u, t] for t in route)
+            assert all(owner[t] == u for t in route if model.pinned[t])
+    if not restricted:  # sectors of equal count
+        assert sorted(len(r) for r in routes) == [6, 7, 7]
+
+
+def test_minmax_search_restarts_from_sweeps_and_stays_never_worse() -> None:
+    """Enough perturbations for several runs: runs restart, every rule is still kept, and the
+    result is never worse than the start."""
+    n, units = 14, 3
+    model = _random_model(2, n, units, restricted=True)
+    start = _start(model, n, 2)
+    rounds = 4 * stall_rounds(n)
+    found = minmax_search(model, start, time.perf_counter() + 60, seed=1, max_rounds=rounds)
+    assert found.rounds == rounds and found.restarts >= 1
+    assert found.key() <= model.route_set(start).key()
+    assert sorted(t for r in found.routes for t in r) == list(range(n))
+    for u, route in enumerate(found.routes):
+        assert all(model.allowed[u, t] for t in route)
+        assert found.lengths[u] == pytest.approx(model.length(u, route))
 
 
 def test_minmax_search_shortens_a_bad_start() -> None:

@@ -34,7 +34,8 @@ def main(path: str) -> int:
     routes, seed = data.pop("routes"), data.pop("seed")
     minmax = _load_minmax()
     best = minmax.minmax_search(minmax.MinMaxModel(**data), routes, deadline, seed)
-    sys.stdout.buffer.write(pickle.dumps((best.routes, best.lengths.tolist(), best.rounds)))
+    answer = (best.routes, best.lengths.tolist(), best.rounds, best.restarts)
+    sys.stdout.buffer.write(pickle.dumps(answer))
     sys.stdout.buffer.flush()
     return 0
 

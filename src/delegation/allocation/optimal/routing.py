@@ -146,7 +146,8 @@ def _minmax_phase(
     mine = minmax_search(model, start, deadline, seed=0)
     kept = search.offer([[tasks[k] for k in route] for route in mine.routes])
     search.notes.append(
-        f"min-max local search from the best routes ({mine.rounds} perturbations"
+        f"min-max local search from the best routes ({mine.rounds} perturbations, "
+        f"{mine.restarts} restarts"
         + (", improved them)" if kept else ", no better)")
     )
     if helper is None:
@@ -159,7 +160,8 @@ def _minmax_phase(
     kept = search.offer([[tasks[k] for k in route] for route in theirs.routes])
     search.notes.append(
         f"min-max search on the second core from the auction's routes ({theirs.rounds} "
-        "perturbations" + (", best of all)" if kept else ", not better)")
+        f"perturbations, {theirs.restarts} restarts"
+        + (", best of all)" if kept else ", not better)")
     )
 
 
@@ -266,7 +268,18 @@ def minmax_model(setup: _Setup) -> MinMaxModel:
         capacity=np.asarray(_capacities(setup), dtype=float),
         allowed=np.asarray(problem.allowed[:, idx], dtype=bool),
         pinned=pinned,
+        angle=_angles(problem, idx),
     )
+
+
+def _angles(problem: Problem, idx: np.ndarray) -> np.ndarray:
+    """Each task's angle around the units' mean start (for ``minmax``'s sweep starts); tasks
+    done in place (no point) get the angle of their rank, which is as good as any."""
+    centre = problem.unit_xy.mean(axis=0)
+    xy = problem.start_xy[idx]
+    angle = np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0])
+    spread = np.linspace(-np.pi, np.pi, idx.size, endpoint=False)
+    return np.where(np.isnan(angle), spread, angle)
 
 
 def _tasks_and_units(setup: _Setup, manager: Any, routing: Any, span_weight: int) -> None:
