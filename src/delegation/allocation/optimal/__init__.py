@@ -37,6 +37,7 @@ from delegation.allocation.optimal.cpsat import CP_EXACT_ARCS, candidates, solve
 from delegation.allocation.optimal.cpsat_subtrees import CP_EXACT_CHILDREN
 from delegation.allocation.optimal.lns import better_key as _better_key
 from delegation.allocation.optimal.lns import lns, lns_note, tree_key
+from delegation.allocation.optimal.parallel import HelperLns
 from delegation.allocation.optimal.routing import (
     ROUTING_MAKESPAN_PHASES,
     ROUTING_MAX_ENTRIES,
@@ -44,7 +45,7 @@ from delegation.allocation.optimal.routing import (
 )
 from delegation.allocation.optimal.shared import TICKS
 from delegation.allocation.problem import Problem
-from delegation.allocation.schedule import Schedule, better
+from delegation.allocation.schedule import Schedule, better, evaluate
 from delegation.allocation.strategies import Objective
 
 log = logging.getLogger(__name__)
@@ -70,6 +71,16 @@ __all__ = [
 
 #: The search stops at this share of the time limit: the plan's instantiation follows it.
 LNS_SHARE = 0.9
+#: The search's helper process (second core) is started when the search has this long (s) at
+#: least: it needs about 0.5 s to start and load its modules.
+LNS_HELPER_MIN_SECONDS = 1.5
+#: The helper stops this share of the time limit (plus 0.1 s) before this process's search: it
+#: still has to send its answer, which is then evaluated here, and on a loaded machine it starts
+#: late and runs slower ...
+LNS_HELPER_MARGIN = 0.05
+#: ... and its answer is waited for until this share of the time limit after the search's
+#: deadline at most.
+LNS_HELPER_WAIT = 0.03
 #: Trees that are not plain with more vehicle tasks than this skip CP-SAT for the search (measured:
 #: CP-SAT found no solution in 2.5-5 s on any generated mixed tree from 10x30 to 50x300).
 CP_SEARCH_TASKS = 20
@@ -149,7 +160,7 @@ def optimise(
         )
     result.bound = bound
     if search:
-        _search(problem, objective, result, base, began + LNS_SHARE * time_limit)
+        _search(problem, objective, result, base, began + LNS_SHARE * time_limit, time_limit)
     for text in result.notes:
         log.info("optimal: %s", text)
     return result
@@ -157,21 +168,44 @@ def optimise(
 
 def _search(
     problem: Problem, objective: Objective, result: OptimalResult, base: Schedule,
-    deadline: float,
+    deadline: float, limit: float,
 ) -> None:
     """Improve the better (judged on the tree it would be sent as) of ``result``'s schedule and
-    the auction's ``base`` with the large neighbourhood search until ``deadline``."""
+    the auction's ``base`` with the large neighbourhood search until ``deadline``; with a second
+    core, a helper process runs another search (another seed) from the same start, and the
+    better of the two is kept."""
     start = result.schedule
     if not start.valid or (start is not base and _better_key(
             tree_key(problem, objective, base), tree_key(problem, objective, start))):
         if start is not base:
             result.notes.append("the auction's plan gives the shorter tree; searching from it")
         start = base
-    if time.perf_counter() >= deadline or not start.valid:
+    now = time.perf_counter()
+    if now >= deadline or not start.valid:
         return
+    helper = None
+    if deadline - now >= LNS_HELPER_MIN_SECONDS:
+        seconds = deadline - now - LNS_HELPER_MARGIN * limit - 0.1
+        helper = HelperLns.start(problem, objective, start, seconds, seed=1)
     found = lns(problem, objective, start, deadline)
     result.notes.append(lns_note(found))
-    result.schedule = found.schedule
-    result.kept_auction = found.schedule is base
-    if found.improvements:
+    best, improved = found.schedule, found.improvements > 0
+    if helper is not None:
+        theirs = helper.result(deadline + LNS_HELPER_WAIT * limit - time.perf_counter())
+        if isinstance(theirs, str):
+            result.notes.append(f"large neighbourhood search on the second core: {theirs}")
+            log.warning("optimal: large neighbourhood search on the second core: %s", theirs)
+        else:
+            other = evaluate(problem, theirs.assign, theirs.orders)
+            kept = other.valid and _better_key(tree_key(problem, objective, other),
+                                               tree_key(problem, objective, best))
+            result.notes.append(
+                f"large neighbourhood search on the second core (another seed): "
+                f"{theirs.iterations} iterations, {theirs.improvements} improvements"
+                + (", best of both" if kept else ", not better"))
+            if kept:
+                best, improved = other, True
+    result.schedule = best
+    result.kept_auction = best is base
+    if improved:
         result.solver = f"{result.solver} + lns" if result.solver else "lns"
