@@ -197,7 +197,7 @@ def test_optimal_makespan_within_its_time_limit(
     notes = " ".join(result.notes)
     assert "min-max local search" in notes
     if limit >= routing_mod.PORTFOLIO_MIN_SECONDS:
-        assert "min-max search on the second core from the auction's routes (" in notes
+        assert "min-max search on the second core from sweeps (" in notes
     else:
         assert "second core" not in notes
 

@@ -40,8 +40,8 @@ RESTART_PROBABILITY = 0.1
 THRESHOLD = 0.01
 #: A run of the iterated local search ends after this many perturbations per task (at least
 #: ``STALL_MIN``) that did not shorten its longest route.
-STALL_PER_TASK = 4
-STALL_MIN = 150
+STALL_PER_TASK = 3
+STALL_MIN = 100
 #: Moves one descent makes at most (each strictly improves, so this only guards against slow
 #: convergence on huge instances).
 MAX_MOVES = 100_000
@@ -97,7 +97,7 @@ class MinMaxModel:
 
 def minmax_search(
     model: MinMaxModel, routes: list[list[int]], deadline: float, seed: int = 0,
-    max_rounds: int | None = None,
+    max_rounds: int | None = None, sweep_first: bool = False,
 ) -> RouteSet:
     """The best routes found from ``routes`` before ``deadline`` (``time.perf_counter``) or
     after ``max_rounds`` perturbations; never worse than ``routes`` (by ``RouteSet.key``).
@@ -106,13 +106,20 @@ def minmax_search(
     ``stall_rounds`` perturbations without a shorter longest route) from a sweep of the tasks
     around the units' starts cut into one sector per unit, at a random angle (``model.angle``;
     without it, from the best so far). Measured on berlin52 with 3 units: every run from the
-    auction's routes ends at +1.4 %, half of the runs from sweeps at the best known."""
+    auction's routes ends at +1.4 %, half of the runs from sweeps at the best known.
+    ``sweep_first``: the first run too starts from a sweep (a portfolio's second search: the
+    first explores the basin of ``routes``)."""
     search = _Search(model, deadline, seed)
     began = time.perf_counter()
     span = max(deadline - began, 1e-9)
     current = model.route_set(routes)
     search.descend(current)
-    best = run_best = current.copy()
+    best = current.copy()
+    if sweep_first:
+        current = search.restart(best)
+        if current.key() < best.key():
+            best = current.copy()
+    run_best = current.copy()
     rounds = stalled = restarts = 0
     stall = stall_rounds(sum(len(r) for r in routes))
     while not search.out_of_time() and (max_rounds is None or rounds < max_rounds):
@@ -146,7 +153,8 @@ def minmax_search(
 
 def stall_rounds(n_tasks: int) -> int:
     """Perturbations without progress after which a run ends (measured: runs on 50-100 tasks
-    find their last improvement within about 4 per task, mostly far sooner)."""
+    find their last improvement within about 4 per task, mostly far sooner; on a loaded
+    machine more, shorter runs do better)."""
     return max(STALL_MIN, STALL_PER_TASK * n_tasks)
 
 

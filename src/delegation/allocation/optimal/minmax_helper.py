@@ -32,8 +32,10 @@ def main(path: str) -> int:
         data = pickle.load(f)
     deadline = time.perf_counter() + (data.pop("wall_deadline") - time.time())
     routes, seed = data.pop("routes"), data.pop("seed")
+    sweep_first = data.pop("sweep_first", False)
     minmax = _load_minmax()
-    best = minmax.minmax_search(minmax.MinMaxModel(**data), routes, deadline, seed)
+    best = minmax.minmax_search(minmax.MinMaxModel(**data), routes, deadline, seed,
+                                sweep_first=sweep_first)
     answer = (best.routes, best.lengths.tolist(), best.rounds, best.restarts)
     sys.stdout.buffer.write(pickle.dumps(answer))
     sys.stdout.buffer.flush()

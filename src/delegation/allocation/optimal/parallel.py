@@ -1,7 +1,7 @@
 """The second core: a search in its own process, beside this one's.
 
 Portfolios: while this process runs the routing solver (then ``minmax`` from its routes), a helper
-process runs ``minmax`` from the auction's routes with another seed (``HelperSearch``); on trees
+process runs ``minmax`` from sweeps with another seed (``HelperSearch``); on trees
 that are not plain, while this process runs the large neighbourhood search, a helper runs another
 one with another seed from the same start (``HelperLns``). The caller keeps the better.
 
@@ -77,6 +77,7 @@ class HelperSearch:
             "capacity": model.capacity, "allowed": model.allowed, "pinned": model.pinned,
             "angle": model.angle,
             "routes": routes, "wall_deadline": time.time() + seconds, "seed": seed,
+            "sweep_first": True,  # this process explores the basin of its own start
         }
         return HelperSearch(_second_core(HELPER_SCRIPT, pickle.dumps(data)))
 
