@@ -117,6 +117,31 @@ def test_minmax_search_restarts_from_sweeps_and_stays_never_worse() -> None:
         assert found.lengths[u] == pytest.approx(model.length(u, route))
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_min_sum_search_fills_every_unit_and_never_worsens_the_total(seed: int) -> None:
+    """``total`` with ``every_unit``: a start leaving units idle ends with every unit busy; the
+    total is judged first; every rule kept."""
+    n, units = 14, 4
+    model = _random_model(seed, n, units, restricted=False)
+    model.total, model.every_unit = True, True
+    start = _start(model, n, seed)
+    def stays(t: int) -> bool:
+        return bool(model.pinned[t]) or not model.allowed[0, t]
+
+    start[0] += [t for r in start[1:] for t in r if not stays(t)]  # crowd unit 0
+    start[1:] = [[t for t in r if stays(t)] for r in start[1:]]
+    assert not all(start)
+    found = minmax_search(model, start, time.perf_counter() + 30, seed=seed, max_rounds=60,
+                          sweep_first=True)
+    assert all(found.routes)
+    assert found.key() == (pytest.approx(found.lengths.sum()), pytest.approx(found.lengths.max()))
+    assert sorted(t for r in found.routes for t in r) == list(range(n))
+    for u, route in enumerate(found.routes):
+        assert all(model.allowed[u, t] for t in route)
+    busy = minmax_search(model, found.routes, time.perf_counter() + 30, seed=seed, max_rounds=30)
+    assert all(busy.routes) and busy.key() <= found.key()
+
+
 def test_minmax_search_shortens_a_bad_start() -> None:
     """Everything on one unit: the search spreads the tasks (the longest route shrinks)."""
     n = 12
@@ -200,6 +225,17 @@ def test_optimal_makespan_within_its_time_limit(
         assert "min-max search on the second core from sweeps (" in notes
     else:
         assert "second core" not in notes
+
+
+def test_optimal_min_sum_with_every_unit_on_both_cores(tmp_path: Path, second_core: None) -> None:
+    """Min-sum (every unit making a tour, as the published values require): the routing solver,
+    then ``minmax`` in min-sum mode, and a second search from sweeps on the second core."""
+    problem = _instance(tmp_path, 30, 4, seed=4)
+    result = optimise(problem, Objective.TOTAL, 2.5, use_all_units=True)
+    assert result.schedule.valid and all(result.schedule.orders)
+    notes = " ".join(result.notes)
+    assert "min-sum local search" in notes
+    assert "min-sum search on the second core from sweeps (" in notes
 
 
 def test_optimal_makespan_on_one_core_without_a_second_core(tmp_path: Path) -> None:

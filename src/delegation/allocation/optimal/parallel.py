@@ -75,7 +75,7 @@ class HelperSearch:
         data = {
             "matrices": model.matrices, "starts": model.starts, "ends": model.ends,
             "capacity": model.capacity, "allowed": model.allowed, "pinned": model.pinned,
-            "angle": model.angle,
+            "angle": model.angle, "total": model.total, "every_unit": model.every_unit,
             "routes": routes, "wall_deadline": time.time() + seconds, "seed": seed,
             "sweep_first": True,  # this process explores the basin of its own start
         }
