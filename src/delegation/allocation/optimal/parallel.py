@@ -59,6 +59,11 @@ def use_second_core(launcher: SecondCore | None) -> None:
     _second_core = launcher
 
 
+def second_core() -> bool:
+    """Whether a ``SecondCore`` was given (helpers can be started)."""
+    return _second_core is not None
+
+
 class HelperSearch:
     """``minmax_search`` in a helper process until ``seconds`` from now."""
 
