@@ -3,7 +3,9 @@
 Which solver:
 - the **routing solver** for larger trees where every task is activated at mission start (a
   ``conc`` of tasks: an mTSP with per-unit speeds, capabilities, aliases, homes and battery);
-  guided local search from the auction's routes; it proves no bound;
+  guided local search from the auction's routes, then ``minmax`` (a local search of its own for
+  the longest route, or the total, restarting from sweeps), also on the second core; it proves
+  no bound;
 - **CP-SAT** where the tree orders tasks across units (``seq``) or has conc children that are
   subtrees, and for small flat trees (it proves optimality there, so the plan carries a ``bound``):
   per-unit circuits over optional arcs, activation times from the tree, makespan and battery as
@@ -14,16 +16,21 @@ Which solver:
 - a **large neighbourhood search** (``lns``: ruin and recreate on the precedence-graph schedule,
   judged on the makespan of the tree it would be sent as) for trees that are not plain and have
   more than ``CP_MAX_FLAT_TASKS`` vehicle tasks: after CP-SAT (half the time) up to
-  ``CP_SEARCH_TASKS`` tasks, alone above; it proves no bound.
+  ``CP_SEARCH_TASKS`` tasks, alone above; with a second core, a helper process runs another
+  search (another seed) and the better is kept; it proves no bound.
 
 Solver costs are integers (ticks); durations are rounded down so that CP-SAT's bound stays a proven
 lower bound. Whatever the solver returns is re-evaluated with the schedule simulator, and the
 auction's schedule is kept (and said so in a note and a log line) when the solver found nothing
 better: ``optimal`` is never worse than ``auction``.
 
-Modules: ``routing`` (the routing model), ``cpsat`` (the CP-SAT model), ``cpsat_subtrees`` (its
-subtree-serialisation sub-model), ``lns`` (the search), ``shared`` (ticks, task points, evaluating
-routes); this one chooses the solver.
+The second core is used only when a composition root hands ``parallel.use_second_core`` a
+launcher (``runtime.second_core.launch``); allocation starts no process by itself.
+
+Modules: ``routing`` (the routing model), ``minmax`` (its local search), ``cpsat`` (the CP-SAT
+model), ``cpsat_subtrees`` (its subtree-serialisation sub-model), ``lns`` (the search),
+``parallel`` with ``minmax_helper``/``lns_helper`` (the second core), ``shared`` (ticks, task
+points, evaluating routes); this one chooses the solver.
 """
 
 from __future__ import annotations
