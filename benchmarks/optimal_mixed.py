@@ -4,8 +4,11 @@ Per scenario (seed 0, three sites): the auction planned and sent under the old w
 (``Problem.wrap_subtrees``), the auction today, and ``optimal`` at the given time limit, each the
 makespan of the tree sent; then the geometric mean of optimal / old auction.
 
-    .venv/bin/python benchmarks/optimal_mixed.py [TIME_LIMIT] [SIZES] [SITES]
+    .venv/bin/python benchmarks/optimal_mixed.py [--one-core] [TIME_LIMIT] [SIZES] [SITES]
     .venv/bin/python benchmarks/optimal_mixed.py 10 10x30,20x100,50x300 granso,motala,linkoping
+
+The search runs on both cores (a second process searches with another seed, as a composition root
+wires it: ``use_second_core(launch)``); ``--one-core`` leaves the second core out.
 """
 
 from __future__ import annotations
@@ -17,13 +20,19 @@ import time
 
 from delegation.allocation import check_invariants, plan_mission
 from delegation.allocation.auction import auction
+from delegation.allocation.optimal.parallel import use_second_core
 from delegation.allocation.problem import build_problem
 from delegation.bench.generate import generate_scenario
+from delegation.runtime.second_core import launch
 from delegation.scenario import scenario_from_dict
 from delegation.tst import with_defaults, with_uuids
 
 
 def main(argv: list[str]) -> int:
+    if "--one-core" in argv:
+        argv = [a for a in argv if a != "--one-core"]
+    else:
+        use_second_core(launch)
     limit = float(argv[0]) if argv else 10.0
     sizes = [tuple(int(x) for x in s.split("x"))
              for s in (argv[1] if len(argv) > 1 else "10x30,20x100,50x300").split(",")]

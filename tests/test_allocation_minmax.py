@@ -16,7 +16,12 @@ import pytest
 from delegation.allocation.auction import auction
 from delegation.allocation.optimal import optimise
 from delegation.allocation.optimal import routing as routing_mod
-from delegation.allocation.optimal.minmax import MinMaxModel, minmax_search
+from delegation.allocation.optimal.minmax import (
+    MinMaxModel,
+    _Search,
+    minmax_search,
+    stall_rounds,
+)
 from delegation.allocation.optimal.parallel import HELPER_SCRIPT, use_second_core
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.strategies import Objective
@@ -43,8 +48,9 @@ def _random_model(seed: int, n: int, units: int, *, restricted: bool) -> MinMaxM
         allowed = rng.random((units, n)) < 0.7
         allowed[rng.integers(0, units, n), np.arange(n)] = True  # someone may take each
         pinned[rng.choice(n, 2, replace=False)] = True
+    angle = np.arctan2(xy[:n, 1] - xy[n, 1], xy[:n, 0] - xy[n, 0])
     return MinMaxModel(matrices, list(range(n, n + units)), list(range(n + units, size)),
-                       capacity, allowed, pinned)
+                       capacity, allowed, pinned, angle)
 
 
 def _start(model: MinMaxModel, n: int, seed: int) -> list[list[int]]:
@@ -73,6 +79,67 @@ def test_minmax_search_never_worse_and_keeps_every_rule(seed: int, restricted: b
     owner_after = {t: u for u, r in enumerate(found.routes) for t in r}
     for t in np.nonzero(model.pinned)[0].tolist():
         assert owner_after[t] == owner_before[t]
+
+
+@pytest.mark.parametrize("restricted", [False, True])
+def test_sweep_starts_cover_every_task_once_and_keep_every_rule(restricted: bool) -> None:
+    """A restart's sweep: one sector per unit; pinned tasks and tasks the sector's unit may not
+    take stay on their unit."""
+    n, units = 20, 3
+    model = _random_model(11, n, units, restricted=restricted)
+    start = _start(model, n, 11)
+    owner = {t: u for u, r in enumerate(start) for t in r}
+    search = _Search(model, time.perf_counter() + 30, seed=4)
+    for offset in (0.0, 0.3, 0.77):
+        routes = search.sweep(start, offset)
+        assert routes is not None
+        assert sorted(t for r in routes for t in r) == list(range(n))
+        for u, route in enumerate(routes):
+            assert all(model.allowed[u, t] for t in route)
+            assert all(owner[t] == u for t in route if model.pinned[t])
+    if not restricted:  # sectors of equal count
+        assert sorted(len(r) for r in routes) == [6, 7, 7]
+
+
+def test_minmax_search_restarts_from_sweeps_and_stays_never_worse() -> None:
+    """Enough perturbations for several runs: runs restart, every rule is still kept, and the
+    result is never worse than the start."""
+    n, units = 14, 3
+    model = _random_model(2, n, units, restricted=True)
+    start = _start(model, n, 2)
+    rounds = 4 * stall_rounds(n)
+    found = minmax_search(model, start, time.perf_counter() + 60, seed=1, max_rounds=rounds)
+    assert found.rounds == rounds and found.restarts >= 1
+    assert found.key() <= model.route_set(start).key()
+    assert sorted(t for r in found.routes for t in r) == list(range(n))
+    for u, route in enumerate(found.routes):
+        assert all(model.allowed[u, t] for t in route)
+        assert found.lengths[u] == pytest.approx(model.length(u, route))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_min_sum_search_fills_every_unit_and_never_worsens_the_total(seed: int) -> None:
+    """``total`` with ``every_unit``: a start leaving units idle ends with every unit busy; the
+    total is judged first; every rule kept."""
+    n, units = 14, 4
+    model = _random_model(seed, n, units, restricted=False)
+    model.total, model.every_unit = True, True
+    start = _start(model, n, seed)
+    def stays(t: int) -> bool:
+        return bool(model.pinned[t]) or not model.allowed[0, t]
+
+    start[0] += [t for r in start[1:] for t in r if not stays(t)]  # crowd unit 0
+    start[1:] = [[t for t in r if stays(t)] for r in start[1:]]
+    assert not all(start)
+    found = minmax_search(model, start, time.perf_counter() + 30, seed=seed, max_rounds=60,
+                          sweep_first=True)
+    assert all(found.routes)
+    assert found.key() == (pytest.approx(found.lengths.sum()), pytest.approx(found.lengths.max()))
+    assert sorted(t for r in found.routes for t in r) == list(range(n))
+    for u, route in enumerate(found.routes):
+        assert all(model.allowed[u, t] for t in route)
+    busy = minmax_search(model, found.routes, time.perf_counter() + 30, seed=seed, max_rounds=30)
+    assert all(busy.routes) and busy.key() <= found.key()
 
 
 def test_minmax_search_shortens_a_bad_start() -> None:
@@ -155,9 +222,20 @@ def test_optimal_makespan_within_its_time_limit(
     notes = " ".join(result.notes)
     assert "min-max local search" in notes
     if limit >= routing_mod.PORTFOLIO_MIN_SECONDS:
-        assert "min-max search on the second core from the auction's routes (" in notes
+        assert "min-max search on the second core from sweeps (" in notes
     else:
         assert "second core" not in notes
+
+
+def test_optimal_min_sum_with_every_unit_on_both_cores(tmp_path: Path, second_core: None) -> None:
+    """Min-sum (every unit making a tour, as the published values require): the routing solver,
+    then ``minmax`` in min-sum mode, and a second search from sweeps on the second core."""
+    problem = _instance(tmp_path, 30, 4, seed=4)
+    result = optimise(problem, Objective.TOTAL, 2.5, use_all_units=True)
+    assert result.schedule.valid and all(result.schedule.orders)
+    notes = " ".join(result.notes)
+    assert "min-sum local search" in notes
+    assert "min-sum search on the second core from sweeps (" in notes
 
 
 def test_optimal_makespan_on_one_core_without_a_second_core(tmp_path: Path) -> None:

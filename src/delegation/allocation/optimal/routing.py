@@ -27,15 +27,22 @@ from delegation.allocation.strategies import Objective
 
 #: Routing is not tried when its transit matrices would hold more entries than this.
 ROUTING_MAX_ENTRIES = 30_000_000
-#: Makespan: the share of the time limit the routing solver gets before ``minmax`` takes over.
-MINMAX_ROUTING_SHARE = 0.5
+#: Makespan: the share of the time limit the routing solver gets before ``minmax`` takes over
+#: (measured: its guided local search ends a few per cent above ``minmax``'s results).
+MINMAX_ROUTING_SHARE = 0.25
+#: Total (min-sum): the same; its guided local search is strong there (berlin52: +0.03 % at 10 s
+#: idle) but slow under load (+1.6 % with a core busy), so ``minmax`` (min-sum mode) follows it
+#: and runs from sweeps on the second core.
+TOTAL_ROUTING_SHARE = 0.6
 #: Makespan: the searches stop at this share of the time limit (the rest: evaluating, answers).
 MINMAX_END = 0.96
-#: Makespan: from this time limit (s) on, a second process runs ``minmax`` from the auction.
+#: Makespan: from this time limit (s) on, a second process runs ``minmax`` from sweeps.
 PORTFOLIO_MIN_SECONDS = 2.0
 #: Makespan: the helper process stops searching at this share of the time limit (a little before
 #: this process: it still has to send its routes, and on a loaded machine it runs slower).
 HELPER_END = 0.92
+#: ... less this many seconds (its start-up and answer take about that on a loaded machine).
+HELPER_SLACK = 0.1
 #: Makespan: the helper's answer is waited for until this share of the time limit at most.
 HELPER_WAIT_END = 1.04
 log = logging.getLogger(__name__)
@@ -75,22 +82,21 @@ def solve_routing(
     *,
     use_all_units: bool = False,
 ) -> tuple[Schedule | None, str]:
-    """The best routes the routing solver (and, for makespan, ``minmax`` on both cores) finds
-    within ``limit`` seconds (None: none better than ``base``), and a note of what it did."""
+    """The best routes the routing solver, then ``minmax`` (on both cores) find within
+    ``limit`` seconds (None: none better than ``base``), and a note of what it did."""
     setup = _setup(problem, objective, base, tasks, use_all_units)
     if isinstance(setup, str):
         return None, setup
     began = time.perf_counter()
-    minmax = objective is Objective.MAKESPAN and not use_all_units
     pos = {t: k for k, t in enumerate(tasks)}
-    model = minmax_model(setup) if minmax else None
+    model = minmax_model(setup)
     helper = None
     if (
-        model is not None and limit >= PORTFOLIO_MIN_SECONDS and (os.cpu_count() or 1) >= 2
+        limit >= PORTFOLIO_MIN_SECONDS and (os.cpu_count() or 1) >= 2
         and len(setup.classes) * (len(tasks) + 2 * problem.n_units) ** 2 <= HELPER_MAX_ENTRIES
     ):
         start = [[pos[t] for t in order if t in pos] for order in base.orders]
-        helper = HelperSearch.start(model, start, limit * HELPER_END, seed=1)
+        helper = HelperSearch.start(model, start, limit * HELPER_END - HELPER_SLACK, seed=1)
     search = _Best(problem, objective, base, use_all_units)
     # Makespan: a short run that weighs the longest route lightly (the total guides the search
     # to good tours), then one that weighs it heavily, from the best so far. Measured on berlin52
@@ -100,7 +106,8 @@ def solve_routing(
             phases = ROUTING_MAKESPAN_PHASES
         case Objective.TOTAL:
             phases = ((0, 1.0),)
-    routing_limit = limit * (MINMAX_ROUTING_SHARE if model is not None else 1.0)
+    share = MINMAX_ROUTING_SHARE if objective is Objective.MAKESPAN else TOTAL_ROUTING_SHARE
+    routing_limit = limit * share
     for k, (weight, share) in enumerate(phases):
         left = routing_limit - (time.perf_counter() - began)
         budget = left if k == len(phases) - 1 else routing_limit * share
@@ -108,9 +115,8 @@ def solve_routing(
         search.notes.append(note)
         if orders is not None:
             search.offer(orders)
-    if model is not None:
-        _minmax_phase(search, model, tasks, pos, began + limit * MINMAX_END, helper,
-                      began + limit * HELPER_WAIT_END)
+    _minmax_phase(search, model, tasks, pos, began + limit * MINMAX_END, helper,
+                  began + limit * HELPER_WAIT_END)
     if search.best is base:
         return None, "; ".join(search.notes)
     return search.best, "; ".join(search.notes)
@@ -128,10 +134,14 @@ class _Best:
         self.notes: list[str] = []
 
     def offer(self, orders: list[list[int]]) -> bool:
-        """Keep ``orders`` (task indices per unit) if they are valid and better."""
+        """Keep ``orders`` (task indices per unit) if they are valid and better (with
+        ``use_all_units``, routes using every unit beat any that do not)."""
         found = finish(self.problem, orders)
         counts = not self.use_all_units or all(self.best.orders)
-        if found.valid and (better(found, self.best, self.objective) or not counts):
+        found_counts = not self.use_all_units or all(found.orders)
+        if not found.valid or (counts and not found_counts):
+            return False
+        if better(found, self.best, self.objective) or (found_counts and not counts):
             self.best, self.orders = found, orders
             return True
         return False
@@ -145,21 +155,24 @@ def _minmax_phase(
     start = [[pos[t] for t in order if t in pos] for order in search.orders]
     mine = minmax_search(model, start, deadline, seed=0)
     kept = search.offer([[tasks[k] for k in route] for route in mine.routes])
+    label = "min-sum" if model.total else "min-max"
     search.notes.append(
-        f"min-max local search from the best routes ({mine.rounds} perturbations"
+        f"{label} local search from the best routes ({mine.rounds} perturbations, "
+        f"{mine.restarts} restarts"
         + (", improved them)" if kept else ", no better)")
     )
     if helper is None:
         return
     theirs = helper.result(wait_until - time.perf_counter())
     if isinstance(theirs, str):
-        search.notes.append(f"min-max search on the second core: {theirs}")
-        log.warning("optimal: min-max search on the second core: %s", theirs)
+        search.notes.append(f"{label} search on the second core: {theirs}")
+        log.warning("optimal: %s search on the second core: %s", label, theirs)
         return
     kept = search.offer([[tasks[k] for k in route] for route in theirs.routes])
     search.notes.append(
-        f"min-max search on the second core from the auction's routes ({theirs.rounds} "
-        "perturbations" + (", best of all)" if kept else ", not better)")
+        f"{label} search on the second core from sweeps ({theirs.rounds} "
+        f"perturbations, {theirs.restarts} restarts"
+        + (", best of all)" if kept else ", not better)")
     )
 
 
@@ -266,7 +279,20 @@ def minmax_model(setup: _Setup) -> MinMaxModel:
         capacity=np.asarray(_capacities(setup), dtype=float),
         allowed=np.asarray(problem.allowed[:, idx], dtype=bool),
         pinned=pinned,
+        angle=_angles(problem, idx),
+        total=setup.objective is Objective.TOTAL,
+        every_unit=setup.use_all_units,
     )
+
+
+def _angles(problem: Problem, idx: np.ndarray) -> np.ndarray:
+    """Each task's angle around the units' mean start (for ``minmax``'s sweep starts); tasks
+    done in place (no point) get the angle of their rank, which is as good as any."""
+    centre = problem.unit_xy.mean(axis=0)
+    xy = problem.start_xy[idx]
+    angle = np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0])
+    spread = np.linspace(-np.pi, np.pi, idx.size, endpoint=False)
+    return np.where(np.isnan(angle), spread, angle)
 
 
 def _tasks_and_units(setup: _Setup, manager: Any, routing: Any, span_weight: int) -> None:
