@@ -121,3 +121,28 @@ def test_demo_rejects_an_unknown_strategy_before_starting_anything(capsys) -> No
         main(["demo", "--strategy", "bogus"])
     assert exc.value.code == 2
     assert "invalid choice: 'bogus'" in capsys.readouterr().err
+
+
+def test_plan_runs_optimal_on_both_cores_and_leaves_nothing_behind(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`delegation plan` is a composition root: its `optimal` runs the helper search on the
+    second core (the note says so), and the in-process call puts the one-core default back."""
+    import os
+
+    import yaml
+
+    from delegation.allocation.optimal.parallel import second_core
+    from delegation.bench.generate import generate_scenario
+
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("one CPU: optimal searches on one core by design")
+    path = tmp_path / "mixed.yaml"
+    path.write_text(yaml.safe_dump(generate_scenario(units=10, tasks=30, seed=0,
+                                                     structure="mixed")))
+    assert not second_core()
+    code = main(["plan", str(path), "--strategy", "optimal", "--time-limit", "2",
+                 "--format", "json"])
+    plan = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert any("on the second core" in note for note in plan["notes"]), plan["notes"]
+    assert not second_core()

@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 from delegation import __version__
 from delegation.cli.options import (
@@ -61,6 +63,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands that plan (and so may run ``optimal``).
+PLANNING_COMMANDS = frozenset({"plan", "bench", "serve", "demo"})
+
+
+@contextmanager
+def both_cores(command: str | None) -> Iterator[None]:
+    """While a planning command runs, ``optimal`` may run its helper search on a second core (a
+    process of its own) where the machine has one: allocation only says what to run, a
+    composition root says it may (``allocation.optimal.parallel``). Put back afterwards, so
+    that ``main`` called in-process leaves nothing behind."""
+    if command not in PLANNING_COMMANDS or (os.cpu_count() or 1) < 2:
+        yield
+        return
+    from delegation.allocation.optimal.parallel import use_second_core
+    from delegation.runtime.second_core import launch
+
+    previous = use_second_core(launch)
+    try:
+        yield
+    finally:
+        use_second_core(previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -72,7 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     install_signal_handlers()
     try:
-        return int(handler(args) or 0)
+        with both_cores(args.command):
+            return int(handler(args) or 0)
     except UsageError as exc:
         print(f"delegation {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

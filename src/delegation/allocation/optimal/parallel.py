@@ -53,10 +53,12 @@ class SecondCore(Protocol):
 _second_core: SecondCore | None = None
 
 
-def use_second_core(launcher: SecondCore | None) -> None:
-    """Let ``optimal`` run a helper search through ``launcher`` (None: one core only)."""
+def use_second_core(launcher: SecondCore | None) -> SecondCore | None:
+    """Let ``optimal`` run a helper search through ``launcher`` (None: one core only); returns
+    the launcher it replaces, for the caller to put back."""
     global _second_core
-    _second_core = launcher
+    previous, _second_core = _second_core, launcher
+    return previous
 
 
 def second_core() -> bool:
