@@ -52,7 +52,9 @@ def test_optimal_equals_brute_force(seed: int, shape: str, n_tasks: int, n_units
     optimum = brute_force_all(problem)
     for objective in ("makespan", "total"):
         best = optimum[objective]
-        result = optimise(problem, objective, time_limit=2.0)
+        # CP-SAT stops once it has proved the optimum (well under a second idle); the limit is
+        # what a loaded CI machine may need to prove it (2 s failed at load average 13).
+        result = optimise(problem, objective, time_limit=10.0)
         got = result.schedule
         assert got.valid
         primary = 1  # key: (unassigned, objective, other)
