@@ -139,6 +139,7 @@ def test_a_mission_follows_feedback_forward_only_with_elapsed_frozen_at_the_end(
     assert (m["id"], m["owner"], m["strategy"], m["objective"]) == ("r1", "alice", "auction",
                                                                     "makespan")
     assert m["status"] == "planned" and m["units"] == ["dji0"] and m["elapsed"] is None
+    assert m["fallback"] is None
     view.mission_feedback({"root-uuid": "r1", "status": "started"}, 101.0)
     view.mission_feedback({"root-uuid": "r1", "status": "running"}, 102.0)
     view.mission_feedback({"root-uuid": "r1", "status": "started"}, 103.0)  # late: ignored
@@ -281,3 +282,19 @@ def test_http_addresses() -> None:
             parse_http(bad)
     assert is_loopback("127.0.0.2") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("example.org")
+
+
+def test_a_plan_that_kept_another_strategys_says_so() -> None:
+    """`optimal` that kept the auction's plan is shown as such (`optimal (= auction)` on the
+    page), from the plan and from a query-mission answer alike."""
+    view = LiveView()
+    live_unit(view)
+    plan = {**plan_json(), "strategy": "optimal", "fallback": "auction"}
+    view.mission_planned("r1", plan, plan["tst"], "alice", 100.0)
+    (m,) = view.state(100.0)["missions"]
+    assert (m["strategy"], m["fallback"]) == ("optimal", "auction")
+    other = LiveView()
+    other.mission_answer({"root-uuid": "r2", "status": "running", "strategy": "optimal",
+                          "fallback": "auction", "tst": plan["tst"]}, 100.0)
+    (m,) = other.state(100.0)["missions"]
+    assert (m["strategy"], m["fallback"]) == ("optimal", "auction")

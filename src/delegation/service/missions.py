@@ -151,6 +151,8 @@ class Mission:
             "unassigned": list(self.plan.get("unassigned", [])),
             "makespan": self.plan.get("makespan"),
             "strategy": self.plan.get("strategy"),
+            # The strategy whose plan this is when the strategy fell back to it (docs/plan.md §1).
+            "fallback": self.plan.get("fallback"),
             "objective": self.plan.get("objective"),
             "current-root": self.current_root,
             "re-delegations": self.redelegations,

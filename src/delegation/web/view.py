@@ -155,6 +155,8 @@ class MissionRecord:
     status: str = "planned"
     owner: str = ""
     strategy: str | None = None
+    #: The strategy whose plan this is when ``strategy`` fell back to it (``optimal (= auction)``).
+    fallback: str | None = None
     objective: str | None = None
     makespan: float | None = None
     created: float | None = None
@@ -199,6 +201,7 @@ class MissionRecord:
             "status": self.status,
             "owner": self.owner,
             "strategy": self.strategy,
+            "fallback": self.fallback,
             "objective": self.objective,
             "planned-makespan": self.makespan,
             "elapsed": self.elapsed(now),
@@ -549,6 +552,8 @@ class LiveView:
     def _take_plan(self, m: MissionRecord, plan: Mapping[str, Any]) -> None:
         m.plan = dict(plan)
         m.strategy = plan.get("strategy") or m.strategy
+        fallback = plan.get("fallback")
+        m.fallback = fallback if isinstance(fallback, str) and fallback else None
         m.objective = plan.get("objective") or m.objective
         makespan = number(plan.get("makespan"))
         m.makespan = round(makespan, 3) if makespan is not None else m.makespan
@@ -591,8 +596,8 @@ class LiveView:
         m = self._mission(root, now)
         self._summary_fields(m, mission)
         if m.plan is None or not m.detailed:
-            plan = {k: mission.get(k) for k in ("strategy", "makespan", "assignments",
-                                                "unassigned", "notes", "tst")}
+            plan = {k: mission.get(k) for k in ("strategy", "fallback", "makespan",
+                                                "assignments", "unassigned", "notes", "tst")}
             if mission.get("objective"):
                 plan["objective"] = mission["objective"]
             self._take_plan(m, plan)

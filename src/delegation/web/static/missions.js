@@ -52,7 +52,7 @@ export class MissionsPanel {
       const cells = [
         h("td", { class: "name", title: m.id }, m.name || m.id.slice(0, 8)),
         h("td", {}, badge(m.status)),
-        h("td", {}, m.strategy || "–"),
+        h("td", { class: "strategy" }, strategyText(m)),
         h("td", { class: "makespan" }, makespanCell(m)),
         h("td", {}, m.owner || "–"),
       ];
@@ -139,7 +139,7 @@ export class MissionDetail {
     const meta = [
       ["id", m.id],
       ["owner", m.owner],
-      ["strategy", m.strategy],
+      ["strategy", strategyText(m)],
       ["objective", m.objective],
       ["makespan plan / elapsed", makespanCell(m)],
       ["units", (m.units || []).join(", ")],
@@ -172,4 +172,10 @@ export class MissionDetail {
     const d = this.store.details.get(m.id);
     if (d && d.tree) renderGantt(document.getElementById("gantt"), d.tree, elapsedNow(m));
   }
+}
+
+/** The strategy as the plan says it: `optimal (= auction)` when it kept another's plan. */
+function strategyText(m) {
+  if (!m.strategy) return "–";
+  return m.fallback ? `${m.strategy} (= ${m.fallback})` : m.strategy;
 }
