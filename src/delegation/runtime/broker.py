@@ -24,8 +24,9 @@ import sys
 import tempfile
 import threading
 import time
+from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from delegation.errors import DelegationError
 from delegation.runtime.settings import BrokerSettings
@@ -81,8 +82,8 @@ def wait_for_port(host: str, port: int, deadline: float) -> bool:
     return False
 
 
-class EmbeddedBroker:
-    """amqtt in-process, on its own thread and event loop, bound to 127.0.0.1 on a free port."""
+class _Amqtt(ABC):
+    """What the two ways of running amqtt share: loopback only, 3.1.1 settings, a context."""
 
     kind = "amqtt"
 
@@ -92,6 +93,31 @@ class EmbeddedBroker:
         self.host = LOOPBACK if host == "localhost" else host
         self._requested_port = port
         self.port = 0
+
+    @abstractmethod
+    def start(self, timeout: float = 10.0) -> Self:
+        """Listen (on a free port unless one was asked for); raise `BrokerError` if it cannot."""
+
+    @abstractmethod
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop listening and free everything (idempotent)."""
+
+    def settings(self) -> BrokerSettings:
+        """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
+        return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class EmbeddedBroker(_Amqtt):
+    """amqtt in-process, on its own thread and event loop, bound to 127.0.0.1 on a free port."""
+
+    def __init__(self, host: str = LOOPBACK, port: int = 0) -> None:
+        super().__init__(host, port)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._broker: Any = None
@@ -213,18 +239,9 @@ class EmbeddedBroker:
         self._broker = None
         self._loop = None
 
-    def settings(self) -> BrokerSettings:
-        """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
-        return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
-
-    def __enter__(self) -> EmbeddedBroker:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
-class BrokerProcess:
+class BrokerProcess(_Amqtt):
     """The embedded amqtt broker in a child Python process (what `LocalSystem` and the demo use).
 
     Why not a thread: the demo runs the simulated fleet (two threads a unit), the engine and the
@@ -236,14 +253,8 @@ class BrokerProcess:
     so a parent killed with -9 leaves no broker behind.
     """
 
-    kind = "amqtt"
-
     def __init__(self, host: str = LOOPBACK, port: int = 0) -> None:
-        if host not in (LOOPBACK, "localhost", "::1"):
-            raise BrokerError(f"the embedded broker listens on loopback only, not {host!r}")
-        self.host = LOOPBACK if host == "localhost" else host
-        self._requested_port = port
-        self.port = 0
+        super().__init__(host, port)
         self._proc: subprocess.Popen[bytes] | None = None
 
     def start(self, timeout: float = 15.0) -> BrokerProcess:
@@ -291,15 +302,6 @@ class BrokerProcess:
     def running(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
 
-    def settings(self) -> BrokerSettings:
-        """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
-        return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
-
-    def __enter__(self) -> BrokerProcess:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
 def _read_line(proc: subprocess.Popen[bytes], timeout: float) -> str:
