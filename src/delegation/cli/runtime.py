@@ -149,6 +149,13 @@ def client_settings(args: argparse.Namespace) -> BrokerSettings:
 
 
 def register(subparsers: Any) -> None:
+    _register_demo(subparsers)
+    _register_serve(subparsers)
+    _register_submit(subparsers)
+    _register_agents(subparsers)
+
+
+def _register_demo(subparsers: Any) -> None:
     demo = subparsers.add_parser(
         "demo",
         help="broker + simulated fleet + engine + service; run a scenario's mission end to end",
@@ -196,6 +203,8 @@ def register(subparsers: Any) -> None:
     add_broker_args(demo)
     demo.set_defaults(func=_demo)
 
+
+def _register_serve(subparsers: Any) -> None:
     serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
     _service_args(serve)
     serve.add_argument(
@@ -231,6 +240,8 @@ def register(subparsers: Any) -> None:
     add_broker_args(serve)
     serve.set_defaults(func=_serve)
 
+
+def _register_submit(subparsers: Any) -> None:
     submit = subparsers.add_parser(
         "submit", help="send a mission to a running service and follow it to the end"
     )
@@ -270,6 +281,8 @@ def register(subparsers: Any) -> None:
     add_broker_args(submit)
     submit.set_defaults(func=_submit)
 
+
+def _register_agents(subparsers: Any) -> None:
     agents = subparsers.add_parser("agents", help="list the live units a broker shows")
     agents.add_argument(
         "--wait", type=float, default=3.0, help="seconds to listen for heartbeats (default 3)"
