@@ -306,6 +306,28 @@ def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
         assert browser.get("/api/config").json()["user"] == "bob"
 
 
+def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:
+    """A web site the operator visits may POST to the loopback page (no preflight for text/plain)
+    or rebind its own name to 127.0.0.1: refused, and nothing starts."""
+    auth = {"Authorization": f"Bearer {ALICE}"}
+    before = len(page.get("/api/state").json()["missions"])
+    evil = page.http.post("/api/missions", json={"mission": near_mission()},
+                          headers={**auth, "Origin": "http://evil.example"})
+    assert evil.status_code == 403 and "another site" in evil.json()["fail-reason"]
+    cancel = page.http.post(f"/api/missions/{uuid.uuid4()}/cancel",
+                            headers={**auth, "Origin": "null"})
+    assert cancel.status_code == 403
+    plain = page.http.post("/api/missions", content=json.dumps({"mission": near_mission()}),
+                           headers={**auth, "Content-Type": "text/plain"})
+    assert plain.status_code == 415 and "application/json" in plain.json()["fail-reason"]
+    rebound = page.http.get("/api/state", headers={**auth, "Host": "evil.example:8765"})
+    assert rebound.status_code == 403 and "127.0.0.1 or localhost" in rebound.json()["fail-reason"]
+    same = page.http.post("/api/plan", json={"mission": near_mission(), "strategies": ["nearest"]},
+                          headers={**auth, "Origin": page.url})
+    assert same.status_code == 200, same.text  # the page itself (same origin) is served
+    assert len(page.get("/api/state").json()["missions"]) == before
+
+
 def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> None:
     bridge = Bridge(page.settings, prefix=page.prefix, sender="ops")  # not started: no I/O
     try:

@@ -298,3 +298,24 @@ def test_a_plan_that_kept_another_strategys_says_so() -> None:
                           "fallback": "auction", "tst": plan["tst"]}, 100.0)
     (m,) = other.state(100.0)["missions"]
     assert (m["strategy"], m["fallback"]) == ("optimal", "auction")
+
+
+@pytest.mark.parametrize(("method", "host", "origin", "loopback_only", "refused"), [
+    ("GET", "127.0.0.1:8765", None, True, False),
+    ("GET", "localhost:8765", None, True, False),
+    ("GET", "[::1]:8765", None, True, False),
+    ("GET", "evil.example:8765", None, True, True),          # DNS rebinding
+    ("GET", "evil.example:8765", None, False, False),        # a public page (tokens) is named so
+    ("POST", "127.0.0.1:8765", None, True, False),           # curl, scripts: no Origin
+    ("POST", "127.0.0.1:8765", "http://127.0.0.1:8765", True, False),
+    ("POST", "127.0.0.1:8765", "http://evil.example", True, True),
+    ("POST", "127.0.0.1:8765", "null", True, True),
+    ("POST", "ops.example:443", "https://ops.example:443", False, False),
+    ("POST", "ops.example:443", "https://evil.example", False, True),
+    ("GET", "127.0.0.1:8765", "http://evil.example", True, False),  # reads: the Host rule
+])
+def test_cross_site_refusal(method: str, host: str, origin: str | None, loopback_only: bool,
+                            refused: bool) -> None:
+    from delegation.web.auth import cross_site_refusal
+
+    assert (cross_site_refusal(method, host, origin, loopback_only) is not None) == refused

@@ -84,7 +84,7 @@ def page_options(args: argparse.Namespace) -> tuple[str, int, dict[str, Any]]:
         attribution = ("© OpenStreetMap contributors"
                        if args.tiles and "openstreetmap.org" in args.tiles else "")
     return host, port, {"users": users, "tile_url": args.tiles,
-                        "tile_attribution": attribution}
+                        "tile_attribution": attribution, "loopback_only": is_loopback(host)}
 
 
 def start_page(stack: ExitStack, args: argparse.Namespace, settings: BrokerSettings, *,

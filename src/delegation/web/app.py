@@ -30,7 +30,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from delegation.errors import DelegationError, InputError
-from delegation.web.auth import COOKIE, bearer, user_of
+from delegation.web.auth import COOKIE, bearer, cross_site_refusal, user_of
 from delegation.web.bridge import OBJECTIVES, STRATEGIES, ApiError, Bridge
 from delegation.web.mission_input import mission_tree
 
@@ -65,8 +65,12 @@ class Page:
         tile_attribution: str = "",
         strategies: tuple[str, ...] = STRATEGIES,
         static: Path = STATIC,
+        loopback_only: bool = True,
     ) -> None:
+        """``loopback_only``: the server listens on loopback, so requests must name it
+        (`auth.cross_site_refusal`)."""
         self.bridge = bridge
+        self.loopback_only = loopback_only
         self.users = dict(users) if users else None
         self.tile_url = tile_url
         self.tile_attribution = tile_attribution
@@ -88,6 +92,10 @@ class Page:
         """An /api endpoint: 401 without a known token; ApiError/InputError as JSON."""
 
         async def endpoint(request: Request) -> Response:
+            refused = cross_site_refusal(request.method, request.headers.get("host"),
+                                         request.headers.get("origin"), self.loopback_only)
+            if refused:
+                return _error(403, refused)
             user = self.user(request)
             if user is None:
                 return _error(401, "a valid token is needed (Authorization: Bearer TOKEN, or "
@@ -187,6 +195,10 @@ class Page:
     # ---- commands
 
     async def _body(self, request: Request) -> dict[str, Any]:
+        # JSON only: another site's form or text/plain POST (no preflight) is not read.
+        kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if kind != "application/json":
+            raise ApiError(415, "the body must be JSON (Content-Type: application/json)")
         try:
             body = await request.json()
         except ValueError:

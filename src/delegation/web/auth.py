@@ -8,8 +8,10 @@ server's own sender.
 from __future__ import annotations
 
 import hmac
+import ipaddress
 from collections.abc import Mapping
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from delegation.errors import InputError, Problem
 
@@ -58,3 +60,39 @@ def bearer(header: str | None) -> str | None:
         return None
     scheme, _, value = header.partition(" ")
     return value.strip() or None if scheme.lower() == "bearer" else None
+
+
+def host_name(netloc: str) -> str:
+    """``host`` of ``host:port`` / ``[v6]:port`` (lower case, brackets removed)."""
+    parsed = urlsplit(f"//{netloc}")
+    return (parsed.hostname or "").lower()
+
+
+def is_loopback_name(host: str) -> bool:
+    """``localhost``, 127.0.0.0/8 or ::1."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def cross_site_refusal(method: str, host: str | None, origin: str | None,
+                       loopback_only: bool) -> str | None:
+    """Why a request must be refused as another site's, or None.
+
+    A page bound to loopback without tokens trusts whoever can reach it, which includes every web
+    site the operator's browser visits: a site may POST to ``http://127.0.0.1:8765/api/missions``
+    (a "simple" request, no preflight), or rebind its own name to 127.0.0.1 and read the API.
+    So a loopback page answers only requests addressed to a loopback name (``Host``), and every
+    page refuses a POST whose ``Origin`` is not the page itself. Clients that send no ``Origin``
+    (curl, scripts) are not browsers acting for another site.
+    """
+    if loopback_only and not is_loopback_name(host_name(host or "")):
+        return f"this page answers requests for 127.0.0.1 or localhost only, not {host!r}"
+    foreign = origin is not None and (
+        origin == "null" or urlsplit(origin).netloc.lower() != (host or "").lower())
+    if method != "GET" and foreign:
+        return f"a request from another site ({origin}) is refused"
+    return None

@@ -6,7 +6,6 @@ event streams and the server within a second or two (open streams are not waited
 
 from __future__ import annotations
 
-import ipaddress
 import logging
 import threading
 from typing import Any
@@ -15,6 +14,7 @@ import uvicorn
 from starlette.applications import Starlette
 
 from delegation.errors import DelegationError
+from delegation.web.auth import is_loopback_name
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +43,7 @@ def parse_http(value: str) -> tuple[str, int]:
 
 def is_loopback(host: str) -> bool:
     """True for 127.0.0.0/8, ::1 and ``localhost``."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+    return is_loopback_name(host.strip("[]"))
 
 
 class WebServer:
