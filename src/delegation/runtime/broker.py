@@ -288,12 +288,7 @@ class BrokerProcess(_Amqtt):
         try:
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            proc.terminate()
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+            _end(proc)
         for stream in (proc.stdout, proc.stderr):
             if stream:
                 stream.close()
@@ -302,6 +297,18 @@ class BrokerProcess(_Amqtt):
     def running(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
 
+
+
+def _end(proc: subprocess.Popen[bytes], grace: float = 5.0) -> None:
+    """SIGTERM a child still running, SIGKILL it after ``grace`` seconds; reap it."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(grace)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(grace)
 
 
 def _read_line(proc: subprocess.Popen[bytes], timeout: float) -> str:
@@ -485,13 +492,7 @@ class PrivateMosquitto:
         proc, self._proc = self._proc, None
         if proc is None:
             return
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        _end(proc)
         if proc.stderr:
             proc.stderr.close()
 

@@ -19,7 +19,7 @@ import dataclasses
 import pickle
 import time
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -66,6 +66,21 @@ def second_core() -> bool:
     return _second_core is not None
 
 
+def _answer(pending: Pending, timeout: float, size: int) -> tuple[Any, ...] | str:
+    """A helper's pickled answer tuple of ``size`` items, or why there is none (late, failed,
+    or unreadable)."""
+    out = pending.result(timeout)
+    if isinstance(out, str):
+        return out
+    try:
+        answer = pickle.loads(out)
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError) as exc:
+        return f"helper answered nothing usable ({type(exc).__name__})"
+    if not isinstance(answer, tuple) or len(answer) != size:
+        return "helper answered nothing usable (not the expected tuple)"
+    return answer
+
+
 class HelperSearch:
     """``minmax_search`` in a helper process until ``seconds`` from now."""
 
@@ -90,13 +105,10 @@ class HelperSearch:
 
     def result(self, timeout: float) -> RouteSet | str:
         """The helper's routes, or why there are none (late, failed)."""
-        out = self._pending.result(timeout)
+        out = _answer(self._pending, timeout, 4)
         if isinstance(out, str):
             return out
-        try:
-            routes, lengths, rounds, restarts = pickle.loads(out)
-        except (pickle.UnpicklingError, EOFError, ValueError, TypeError) as exc:
-            return f"helper answered nothing usable ({type(exc).__name__})"
+        routes, lengths, rounds, restarts = out
         return RouteSet(routes, np.asarray(lengths, dtype=float), rounds, restarts)
 
 
@@ -135,11 +147,8 @@ class HelperLns:
 
     def result(self, timeout: float) -> LnsAnswer | str:
         """The helper's answer, or why there is none (late, failed)."""
-        out = self._pending.result(timeout)
+        out = _answer(self._pending, timeout, 4)
         if isinstance(out, str):
             return out
-        try:
-            assign, orders, iterations, improvements = pickle.loads(out)
-        except (pickle.UnpicklingError, EOFError, ValueError, TypeError) as exc:
-            return f"helper answered nothing usable ({type(exc).__name__})"
+        assign, orders, iterations, improvements = out
         return LnsAnswer(assign, orders, iterations, improvements)
