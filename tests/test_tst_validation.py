@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.tst import (
     MAX_DEPTH,
     MAX_NODES,
@@ -62,14 +62,14 @@ def mission() -> dict[str, Any]:
     }
 
 
-def problems_of(data: Any) -> list[Problem]:
+def problems_of(data: Any) -> list[InputProblem]:
     with pytest.raises(InputError) as info:
         parse_and_validate(data)
     assert info.value.problems, "an InputError must carry problems"
     return info.value.problems
 
 
-def only(data: Any) -> Problem:
+def only(data: Any) -> InputProblem:
     found = problems_of(data)
     assert len(found) == 1, found
     return found[0]

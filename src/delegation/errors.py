@@ -1,4 +1,4 @@
-"""One exception family for the project, and the `Problem` value every validator reports.
+"""One exception family for the project, and the `InputProblem` value every validator reports.
 
 Expected failures inside the planner are values (see ``allocation``); exceptions are for input that
 cannot be understood at all, and each carries the problems found so callers can name node and field.
@@ -31,7 +31,7 @@ def json_kind(value: Any) -> str:
 
 
 @dataclass(frozen=True, slots=True)
-class Problem:
+class InputProblem:
     """One thing wrong with an input: where (node path or uuid), which field, and what."""
 
     where: str
@@ -51,12 +51,12 @@ class DelegationError(Exception):
 class InputError(DelegationError):
     """Input (JSON, a tree, a command, a scenario) that cannot be accepted, with every problem."""
 
-    def __init__(self, problems: list[Problem] | Problem | str) -> None:
+    def __init__(self, problems: list[InputProblem] | InputProblem | str) -> None:
         if isinstance(problems, str):
-            problems = [Problem("input", "", problems)]
-        elif isinstance(problems, Problem):
+            problems = [InputProblem("input", "", problems)]
+        elif isinstance(problems, InputProblem):
             problems = [problems]
-        self.problems: list[Problem] = list(problems)
+        self.problems: list[InputProblem] = list(problems)
         super().__init__("; ".join(str(p) for p in self.problems))
 
     @property

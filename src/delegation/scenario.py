@@ -24,7 +24,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.fleet import DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages.base import hyphenate
@@ -171,7 +171,7 @@ class Scenario(BaseModel):
 
 def _in_mission(exc: InputError, source: str) -> InputError:
     return InputError(
-        [Problem(f"{source}: mission {p.where}", p.field, p.message) for p in exc.problems]
+        [InputProblem(f"{source}: mission {p.where}", p.field, p.message) for p in exc.problems]
     )
 
 
@@ -179,7 +179,8 @@ def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
     """Build and check a scenario: its fields, unique agent names, and the mission tree."""
     if not isinstance(data, dict):
         raise InputError(
-            Problem(source, "", "a scenario must be a mapping (name, description, agents, mission)")
+            InputProblem(
+                source, "", "a scenario must be a mapping (name, description, agents, mission)")
         )
     try:
         scenario = Scenario.model_validate({**data, "source": source})
@@ -192,13 +193,13 @@ def scenario_from_dict(data: Any, source: str = "<dict>") -> Scenario:
             elif err["type"] == "extra_forbidden":
                 msg = "unknown field"
             msg = msg.removeprefix("Value error, ")
-            problems.append(Problem(source, loc_text(err["loc"]) or "(top level)", msg))
+            problems.append(InputProblem(source, loc_text(err["loc"]) or "(top level)", msg))
         raise InputError(problems) from None
     seen: set[str] = set()
     for i, agent in enumerate(scenario.agents):
         if agent.name in seen:
             raise InputError(
-                Problem(source, f"agents[{i}].name", f"duplicate agent name {agent.name!r}")
+                InputProblem(source, f"agents[{i}].name", f"duplicate agent name {agent.name!r}")
             )
         seen.add(agent.name)
     scenario.tree()  # raises InputError naming file, node and field
@@ -211,10 +212,10 @@ def read_text(path: str | Path) -> str:
     try:
         return Path(path).read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputError(Problem(source, "", f"cannot read: {exc.strerror or exc}")) from None
+        raise InputError(InputProblem(source, "", f"cannot read: {exc.strerror or exc}")) from None
     except UnicodeDecodeError as exc:
         raise InputError(
-            Problem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+            InputProblem(source, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
         ) from None
 
 
@@ -227,7 +228,7 @@ def read_document(path: str | Path) -> Any:
         return json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
     except json.JSONDecodeError as exc:
         raise InputError(
-            Problem(
+            InputProblem(
                 source, "", f"not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
             )
         ) from None
@@ -235,7 +236,7 @@ def read_document(path: str | Path) -> Any:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
-        raise InputError(Problem(source, "", f"not valid YAML{where}: {problem}")) from None
+        raise InputError(InputProblem(source, "", f"not valid YAML{where}: {problem}")) from None
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -263,7 +264,7 @@ def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
             header.setdefault(key.strip(), value.strip())
     kind = header.get("EDGE_WEIGHT_TYPE")
     if kind is not None and kind not in PLANAR_EDGE_WEIGHTS:
-        raise InputError(Problem(source, "EDGE_WEIGHT_TYPE", f"{kind} is not supported; "
+        raise InputError(InputProblem(source, "EDGE_WEIGHT_TYPE", f"{kind} is not supported; "
                                  f"expected one of {', '.join(PLANAR_EDGE_WEIGHTS)}"))
     coords: list[tuple[float, float]] = []
     in_section = False
@@ -278,20 +279,21 @@ def read_tsplib(path: str | Path) -> list[tuple[float, float]]:
             break
         parts = text.split()
         if len(parts) < 3:
-            raise InputError(Problem(source, f"line {number}", "expected 'id x y'"))
+            raise InputError(InputProblem(source, f"line {number}", "expected 'id x y'"))
         try:
             coords.append((float(parts[1]), float(parts[2])))
         except ValueError:
-            raise InputError(Problem(source, f"line {number}", f"not numbers: {text!r}")) from None
+            raise InputError(InputProblem(
+                source, f"line {number}", f"not numbers: {text!r}")) from None
     if not coords:
-        raise InputError(Problem(source, "NODE_COORD_SECTION", "no coordinates found "
+        raise InputError(InputProblem(source, "NODE_COORD_SECTION", "no coordinates found "
                                  "(not a TSPLIB file with node coordinates?)"))
     dimension = header.get("DIMENSION")
     if dimension is not None and dimension.isdigit() and int(dimension) != len(coords):
-        raise InputError(Problem(source, "DIMENSION", f"says {dimension} nodes, the file has "
+        raise InputError(InputProblem(source, "DIMENSION", f"says {dimension} nodes, the file has "
                                  f"{len(coords)}"))
     if len(coords) < 2:
-        raise InputError(Problem(source, "NODE_COORD_SECTION", "needs a depot and a city"))
+        raise InputError(InputProblem(source, "NODE_COORD_SECTION", "needs a depot and a city"))
     return coords
 
 
@@ -309,9 +311,9 @@ def tsplib_scenario(
     ``air`` units with ``speed`` m/s in every speed class, so time x speed = distance.
     """
     if units < 1:
-        raise InputError(Problem("tsplib", "units", f"must be at least 1, not {units}"))
+        raise InputError(InputProblem("tsplib", "units", f"must be at least 1, not {units}"))
     if not speed > 0.0:
-        raise InputError(Problem("tsplib", "speed", f"must be positive, not {speed}"))
+        raise InputError(InputProblem("tsplib", "speed", f"must be positive, not {speed}"))
     coords = read_tsplib(path_to_tsp)
     name = Path(path_to_tsp).stem
     xs = [c[0] for c in coords]

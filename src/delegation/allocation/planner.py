@@ -18,8 +18,7 @@ from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
-from delegation.errors import InputError
-from delegation.errors import Problem as InputProblem
+from delegation.errors import InputError, InputProblem
 from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
 from delegation.tst.validate import DEFAULT_LIMITS, Limits
 

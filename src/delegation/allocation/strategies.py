@@ -182,9 +182,9 @@ def _spec_of(fn: Callable[..., object]) -> str:
 
 
 def _input_error(name: str, message: str) -> Exception:
-    from delegation.errors import InputError, Problem
+    from delegation.errors import InputError, InputProblem
 
-    return InputError(Problem("options", "strategy", f"{name!r}: {message}"))
+    return InputError(InputProblem("options", "strategy", f"{name!r}: {message}"))
 
 
 def _checked(name: str, fn: object) -> StrategyFn:

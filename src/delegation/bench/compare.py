@@ -18,7 +18,7 @@ from typing import Any
 from rich.table import Table
 
 from delegation.bench.stats import geomean, sign_test, wilcoxon
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 
 #: Relative difference below which a pair counts as equal.
 EQUAL = 1e-9
@@ -53,11 +53,12 @@ def _records(path: Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
-        raise InputError(Problem(str(path), "", f"cannot read: {exc.strerror or exc}")) from None
+        raise InputError(InputProblem(
+            str(path), "", f"cannot read: {exc.strerror or exc}")) from None
     except ValueError as exc:
-        raise InputError(Problem(str(path), "", f"not JSON: {exc}")) from None
+        raise InputError(InputProblem(str(path), "", f"not JSON: {exc}")) from None
     if not isinstance(data, dict) or not isinstance(data.get("records"), list):
-        raise InputError(Problem(str(path), "records", "not a bench results.json"))
+        raise InputError(InputProblem(str(path), "records", "not a bench results.json"))
     meta = data.get("meta") or {}
     return data["records"], meta.get("provenance") or {}
 
@@ -86,7 +87,7 @@ def compare_files(a: Path, b: Path) -> Comparison:
     by_b = {_key(r): r for r in records_b}
     common = [k for k in by_a if k in by_b]
     if not common:
-        raise InputError(Problem("bench compare", "", f"{a} and {b} have no run in common "
+        raise InputError(InputProblem("bench compare", "", f"{a} and {b} have no run in common "
                                  "(same scenario source, strategy, objective and repeat)"))
     groups: dict[tuple[str, str], list[tuple[float, float]]] = {}
     skipped = 0

@@ -17,7 +17,7 @@ from contextlib import ExitStack
 from typing import Any, Protocol
 
 from delegation.bench.isolate import Outcome, call_isolated
-from delegation.errors import DelegationError, InputError, Problem
+from delegation.errors import DelegationError, InputError, InputProblem
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +104,7 @@ class DaskExecutor:
             import dask
             from distributed import Client, LocalCluster
         except ImportError:
-            raise InputError(Problem("bench", "--executor", "dask needs the optional extra: "
+            raise InputError(InputProblem("bench", "--executor", "dask needs the optional extra: "
                                      "pip install 'delegation[dask]'")) from None
         try:
             if self.scheduler:
@@ -121,7 +121,7 @@ class DaskExecutor:
                 self.client = self._stack.enter_context(Client(cluster))
         except OSError as exc:
             self._stack.close()
-            raise InputError(Problem("bench", "--scheduler",
+            raise InputError(InputProblem("bench", "--scheduler",
                                      f"cannot reach {self.scheduler}: {exc}")) from None
         return self
 

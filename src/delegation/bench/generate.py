@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.geo import LocalFrame
 
 
@@ -103,40 +103,43 @@ class GeneratorOptions:
 def parse_mix(text: str, known: Sequence[str] = TASK_TYPES) -> dict[str, float]:
     """Read ``"move-to=2,search-area=1"`` (or ``"move-to,search-area"``) into weights."""
     weights: dict[str, float] = {}
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     for part in (p.strip() for p in text.split(",")):
         if not part:
             continue
         name, _, value = part.partition("=")
         name = name.strip()
         if name not in known:
-            problems.append(Problem("mix", name, f"unknown; choose from {', '.join(known)}"))
+            problems.append(InputProblem("mix", name, f"unknown; choose from {', '.join(known)}"))
             continue
         try:
             weight = float(value) if value else 1.0
         except ValueError:
-            problems.append(Problem("mix", name, f"weight {value!r} is not a number"))
+            problems.append(InputProblem("mix", name, f"weight {value!r} is not a number"))
             continue
         if not math.isfinite(weight) or weight < 0:
-            problems.append(Problem("mix", name, f"weight {value!r} must be >= 0"))
+            problems.append(InputProblem("mix", name, f"weight {value!r} must be >= 0"))
             continue
         weights[name] = weight
     if not problems and sum(weights.values()) <= 0:
-        problems.append(Problem("mix", "", "needs at least one task type with a positive weight"))
+        problems.append(InputProblem(
+            "mix", "", "needs at least one task type with a positive weight"))
     if problems:
         raise InputError(problems)
     return weights
 
 
 def _check(options: GeneratorOptions) -> None:
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     if options.units < 1:
-        problems.append(Problem("generator", "units", f"must be at least 1, not {options.units}"))
+        problems.append(InputProblem(
+            "generator", "units", f"must be at least 1, not {options.units}"))
     if options.tasks < 1:
-        problems.append(Problem("generator", "tasks", f"must be at least 1, not {options.tasks}"))
+        problems.append(InputProblem(
+            "generator", "tasks", f"must be at least 1, not {options.tasks}"))
     if options.site not in SITES:
         problems.append(
-            Problem(
+            InputProblem(
                 "generator",
                 "site",
                 f"unknown site {options.site!r}; choose from {', '.join(SITES)}",
@@ -144,7 +147,7 @@ def _check(options: GeneratorOptions) -> None:
         )
     if options.structure not in STRUCTURES:
         problems.append(
-            Problem(
+            InputProblem(
                 "generator",
                 "structure",
                 f"{options.structure!r} is not one of {', '.join(STRUCTURES)}",
@@ -153,21 +156,21 @@ def _check(options: GeneratorOptions) -> None:
     bad_types = [t for t in options.mix if t not in TASK_TYPES]
     if bad_types or sum(w for w in options.mix.values() if w > 0) <= 0:
         problems.append(
-            Problem(
+            InputProblem(
                 "generator", "mix", f"needs positive weights for some of {', '.join(TASK_TYPES)}"
             )
         )
     bad_agents = [t for t in options.type_mix if t not in _TYPE_TASKS]
     if bad_agents or sum(w for w in options.type_mix.values() if w > 0) <= 0:
         problems.append(
-            Problem(
+            InputProblem(
                 "generator",
                 "type_mix",
                 f"needs positive weights for some of {', '.join(_TYPE_TASKS)}",
             )
         )
     if not options.radius > 0:
-        problems.append(Problem("generator", "radius", f"must be > 0, not {options.radius}"))
+        problems.append(InputProblem("generator", "radius", f"must be > 0, not {options.radius}"))
     if problems:
         raise InputError(problems)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from delegation.allocation.strategies import Objective, resolve_strategy
-from delegation.errors import DelegationError, InputError, Problem
+from delegation.errors import DelegationError, InputError, InputProblem
 
 if TYPE_CHECKING:
     from delegation.allocation import Plan
@@ -223,12 +223,12 @@ def check_choice(kind: str, chosen: Sequence[str], known: Collection[str]) -> li
     unknown = [c for c in chosen if c not in known]
     if unknown:
         raise InputError(
-            Problem(
+            InputProblem(
                 kind, "", f"unknown {', '.join(map(repr, unknown))}; choose from {', '.join(known)}"
             )
         )
     if not chosen:
-        raise InputError(Problem(kind, "", "choose at least one"))
+        raise InputError(InputProblem(kind, "", "choose at least one"))
     return list(dict.fromkeys(chosen))
 
 
@@ -268,12 +268,12 @@ def run_bench(
     objectives = check_choice("objectives", objectives or list(OBJECTIVES), OBJECTIVES)
     baseline = baseline or (BASELINE if BASELINE in strategies else strategies[0])
     if baseline not in strategies:
-        raise InputError(Problem("baseline", "", f"{baseline!r} is not among the strategies "
+        raise InputError(InputProblem("baseline", "", f"{baseline!r} is not among the strategies "
                                  f"run ({', '.join(strategies)})"))
     if repeat < 1:
-        raise InputError(Problem("repeat", "", f"must be at least 1, not {repeat}"))
+        raise InputError(InputProblem("repeat", "", f"must be at least 1, not {repeat}"))
     if not time_limit > 0:
-        raise InputError(Problem("time-limit", "", f"must be > 0, not {time_limit}"))
+        raise InputError(InputProblem("time-limit", "", f"must be > 0, not {time_limit}"))
 
     result = BenchResult(baseline=baseline)
     runs: list[dict[str, Any]] = []

@@ -29,7 +29,7 @@ from delegation.bench.runner import (
     scenarios_from_dicts,
     warm_up,
 )
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 
 if TYPE_CHECKING:
     from delegation.bench.executor import Executor
@@ -70,7 +70,7 @@ class ScaleRecord:
 
     @property
     def size(self) -> int:
-        """Problem size: units x tasks (the cost tables' size)."""
+        """InputProblem size: units x tasks (the cost tables' size)."""
         return self.units * self.tasks
 
     def to_dict(self) -> dict[str, Any]:
@@ -83,13 +83,13 @@ SCALE_FIELDS: tuple[str, ...] = (*ScaleRecord.__dataclass_fields__, "size")
 def grid(units: Sequence[int], tasks: Sequence[int]) -> list[tuple[int, int]]:
     """Cells ordered from small to large (by units x tasks, then units)."""
     problems = [
-        Problem("scale", kind, f"sizes must be >= 1, not {v}")
+        InputProblem("scale", kind, f"sizes must be >= 1, not {v}")
         for kind, values in (("units", units), ("tasks", tasks))
         for v in values
         if v < 1
     ]
     if problems or not units or not tasks:
-        raise InputError(problems or [Problem("scale", "", "needs at least one size of each")])
+        raise InputError(problems or [InputProblem("scale", "", "needs at least one size of each")])
     cells = {(int(u), int(t)) for u in units for t in tasks}
     return sorted(cells, key=lambda c: (c[0] * c[1], c[0], c[1]))
 
@@ -122,7 +122,7 @@ def run_scale(
     strategies = check_choice("strategies", strategies, STRATEGIES)
     objectives = check_choice("objectives", objectives, OBJECTIVES)
     if not budget > 0:
-        raise InputError(Problem("budget", "", f"must be > 0 seconds, not {budget}"))
+        raise InputError(InputProblem("budget", "", f"must be > 0 seconds, not {budget}"))
     base = generator or GeneratorOptions()
     cells = grid(units, tasks)
     executor = executor or LocalExecutor(isolate)

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 
 
 def _words(text: str) -> list[str]:
@@ -228,16 +228,16 @@ def run(args: argparse.Namespace) -> int:
     err = Console(stderr=True, soft_wrap=True)
     if args.in_process and args.run_timeout is not None:
         raise InputError(
-            Problem("bench", "--run-timeout", "needs child processes: drop --in-process")
+            InputProblem("bench", "--run-timeout", "needs child processes: drop --in-process")
         )
     if args.scenarios[:1] == ["compare"]:
         return _run_compare(args, console)
     if args.executor != "dask" and (args.scheduler or args.workers):
-        raise InputError(Problem("bench", "--scheduler", "needs --executor dask"))
+        raise InputError(InputProblem("bench", "--scheduler", "needs --executor dask"))
     if args.scale:
         if args.scenarios or args.page or args.save or args.tsplib:
             raise InputError(
-                Problem(
+                InputProblem(
                     "bench", "--scale",
                     "generates its own scenarios: no SCENARIO, --tsplib, --page, --save",
                 )
@@ -289,7 +289,7 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
     from delegation.bench.generate import generate_many
 
     if args.count < 1:
-        raise InputError(Problem("count", "", f"must be at least 1, not {args.count}"))
+        raise InputError(InputProblem("count", "", f"must be at least 1, not {args.count}"))
     out = []
     for units in args.units or [5]:
         for tasks in args.tasks or [20]:
@@ -306,7 +306,7 @@ def _tsplib(args: argparse.Namespace) -> list[Any]:
     out = []
     for path in args.tsplib:
         if not path.is_file():
-            raise InputError(Problem(str(path), "--tsplib", "no such file"))
+            raise InputError(InputProblem(str(path), "--tsplib", "no such file"))
         for units in args.units or [3]:
             scenario = tsplib_scenario(path, units)
             out.append(LoadedScenario(f"{path} (m={units})", scenario,
@@ -340,7 +340,7 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     from delegation.bench.summary import summarise
 
     if not args.scenarios and not args.generate and not args.tsplib:
-        raise InputError(Problem("bench", "", "give scenario files/folders, --tsplib FILE, "
+        raise InputError(InputProblem("bench", "", "give scenario files/folders, --tsplib FILE, "
                                  "--generate or --scale"))
     loaded, failures = load_scenarios(args.scenarios)
     loaded += _tsplib(args)
@@ -434,7 +434,7 @@ def _run_compare(args: argparse.Namespace, console: Any) -> int:
 
     files = args.scenarios[1:]
     if len(files) != 2:
-        raise InputError(Problem("bench compare", "", "give exactly two results.json: A B"))
+        raise InputError(InputProblem("bench compare", "", "give exactly two results.json: A B"))
     comparison = compare_files(Path(files[0]), Path(files[1]))
     for table in comparison_table(comparison):
         console.print(table)

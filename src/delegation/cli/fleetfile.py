@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.fleet import UnitState
 from delegation.tst.node import TstNode
 
@@ -24,7 +24,7 @@ def mission_and_fleet(args: argparse.Namespace) -> tuple[str, TstNode, list[Unit
         path = find_scenario(args.scenario)
         data = read_document(path)
         if isinstance(data, dict) and "agents" not in data and "name" in data:
-            raise InputError(Problem(
+            raise InputError(InputProblem(
                 args.scenario, "", "this is a mission (a TST), not a scenario: give a fleet with "
                 "--fleet SCENARIO or plan for the live fleet with --live/--broker HOST"))
         scenario = load_scenario(path)
@@ -46,7 +46,8 @@ def fleet_from_file(path: str) -> list[UnitState]:
     data = read_document(find_scenario(path))
     agents = data.get("agents") if isinstance(data, dict) else data
     if not isinstance(agents, list) or not agents:
-        raise InputError(Problem(path, "agents", "a fleet file needs a non-empty 'agents' list"))
+        raise InputError(InputProblem(
+            path, "agents", "a fleet file needs a non-empty 'agents' list"))
     units = []
     for i, raw in enumerate(agents):
         try:
@@ -54,7 +55,7 @@ def fleet_from_file(path: str) -> list[UnitState]:
         except ValidationError as exc:
             err = exc.errors()[0]
             field = ".".join(str(x) for x in err["loc"])
-            raise InputError(Problem(path, f"agents[{i}].{field}", err["msg"])) from None
+            raise InputError(InputProblem(path, f"agents[{i}].{field}", err["msg"])) from None
     return units
 
 
@@ -68,7 +69,7 @@ def live_fleet(args: argparse.Namespace) -> tuple[list[UnitState], list[str]]:
     with ServiceClient(client_settings(args), prefix=args.prefix, service=args.service) as client:
         rows = client.list_agents()
     if not rows:
-        raise InputError(Problem(args.service, "list-agents", "no live units to plan for"))
+        raise InputError(InputProblem(args.service, "list-agents", "no live units to plan for"))
     units, notes = [], []
     for row in rows:
         pos = row.get("position")

@@ -27,7 +27,7 @@ from delegation.cli.options import (
 )
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.cli.ui import add_http_args
-from delegation.errors import DelegationError, InputError, Problem
+from delegation.errors import DelegationError, InputError, InputProblem
 from delegation.topics import AGENT_TYPES, ROLES
 from delegation.tst import without_node_uuids
 
@@ -361,7 +361,7 @@ def find_scenario(name: str) -> Path:
             if (d / n).is_file():
                 return d / n
     raise InputError(
-        Problem(
+        InputProblem(
             name,
             "",
             "no such scenario file (looked in ./scenarios and the project's scenarios/ directory)",
@@ -582,7 +582,7 @@ def _demo(args: argparse.Namespace) -> int:
         offline = plan_mission(scenario.tree(), units, strategy="auction", objective=args.objective)
         speedup = max(1.0, round(float(offline.makespan or 0.0) / DEMO_TARGET_WALL_S, 1))
     if speedup <= 0:
-        raise InputError(Problem("--speedup", "", "must be greater than 0"))
+        raise InputError(InputProblem("--speedup", "", "must be greater than 0"))
     console.print(f"[bold]{scenario.name}[/]: {len(units)} units, speedup {speedup:g}")
 
     with ExitStack() as stack:
@@ -739,7 +739,7 @@ def _read_profiles(path: str) -> dict[str, dict[str, Any]]:
     bad = [k for k, v in data.items() if not isinstance(v, dict)]
     if bad:
         raise InputError(
-            Problem(path, bad[0], "a profile must be an object (speeds, endurance, home, ...)")
+            InputProblem(path, bad[0], "a profile must be an object (speeds, endurance, home, ...)")
         )
     return data
 
@@ -753,7 +753,7 @@ def _read_object(path: str) -> dict[str, Any]:
 
     data = read_document(path)
     if not isinstance(data, dict):
-        raise InputError(Problem(path, "", "must hold a JSON/YAML object"))
+        raise InputError(InputProblem(path, "", "must hold a JSON/YAML object"))
     return data
 
 
@@ -766,7 +766,7 @@ def _read_mission(path: str) -> dict[str, Any]:
         data = data["tst"]
     if not isinstance(data, dict) or "name" not in data:
         raise InputError(
-            Problem(
+            InputProblem(
                 path,
                 "",
                 "no TST found (expected a tree, a scenario or a start-tst/delegate command)",

@@ -13,7 +13,7 @@ from typing import Any
 
 from delegation.cli.options import positive_float
 from delegation.cli.runtime import add_broker_args, client_settings, find_scenario
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.topics import AGENT_TYPES, ROLES
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,7 @@ def _sim(args: argparse.Namespace) -> int:
     from delegation.sim import SimFleet
 
     if args.speedup <= 0:
-        raise InputError(Problem("--speedup", "", f"must be positive, not {args.speedup}"))
+        raise InputError(InputProblem("--speedup", "", f"must be positive, not {args.speedup}"))
     settings = _settings(args)
     scenario = load_scenario(find_scenario(args.scenario))
     fleet = SimFleet.from_scenario(

@@ -46,7 +46,7 @@ from delegation.engine.tree import (
     build_tree,
     check_instantiated,
 )
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.messages import SIGNALS, TERMINAL_NODE_STATUSES, NodeStatus, Signal
 from delegation.tst.node import TstNode, walk, where, with_uuids
 
@@ -180,7 +180,7 @@ class TreeExecutor:
                 self.forget(old.root_uuid)
             if uid in self._node_tree:
                 problems.append(
-                    Problem(
+                    InputProblem(
                         where(path, node),
                         "common_params.node-uuid",
                         f"node-uuid {uid} belongs to a tree that is already executing",
@@ -460,7 +460,8 @@ class TreeExecutor:
     def _tree_of(self, node_uuid: str) -> Tree:
         root = self._node_tree.get(node_uuid)
         if root is None or root not in self.trees:
-            raise InputError(Problem("node-uuid", "node-uuid", f"no executing node {node_uuid!r}"))
+            raise InputError(InputProblem(
+                "node-uuid", "node-uuid", f"no executing node {node_uuid!r}"))
         return self.trees[root]
 
     @staticmethod
@@ -469,7 +470,7 @@ class TreeExecutor:
             return Signal(signal)
         except ValueError:
             raise InputError(
-                Problem("signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
+                InputProblem("signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
             ) from None
 
     # ---- inputs from units

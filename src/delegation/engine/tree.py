@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from delegation.errors import Problem
+from delegation.errors import InputProblem
 from delegation.messages import TERMINAL_NODE_STATUSES, NodeStatus, Signal
 from delegation.tst.catalogue import is_vehicle_task
 from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, walk, where
@@ -156,19 +156,20 @@ class Tree:
             parent = self.parent(parent)
 
 
-def check_instantiated(root: TstNode) -> list[Problem]:
+def check_instantiated(root: TstNode) -> list[InputProblem]:
     """Why a (parsed) tree is not fully instantiated: every task node needs ``/unit``."""
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     for path, node in walk(root):
         try:
             kind, _ = classify_execunit(node.execunit)
         except TypeError as exc:
-            problems.append(Problem(where(path, node), f"{node.common_key}.execunit", str(exc)))
+            problems.append(InputProblem(
+                where(path, node), f"{node.common_key}.execunit", str(exc)))
             continue
         if node.is_control:
             if node.execunit not in (None, "") and kind is not ExecUnitKind.FIXED:
                 problems.append(
-                    Problem(
+                    InputProblem(
                         where(path, node),
                         f"{node.common_key}.execunit",
                         f"{node.execunit!r} is not a unit (a fully instantiated tree names "
@@ -179,7 +180,7 @@ def check_instantiated(root: TstNode) -> list[Problem]:
         if kind is not ExecUnitKind.FIXED:
             shown = "missing" if node.execunit is None else repr(node.execunit)
             problems.append(
-                Problem(
+                InputProblem(
                     where(path, node),
                     f"{node.common_key}.execunit",
                     f"{shown} is not a unit: the engine runs fully instantiated trees only "

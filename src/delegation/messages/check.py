@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.messages.base import WireModel
 from delegation.messages.codec import parse_message
 from delegation.messages.direct import StartTask
@@ -28,7 +28,7 @@ class CheckResult:
     """What a document is (``kind``), a one-line summary when valid, and its problems."""
 
     kind: str
-    problems: list[Problem] = field(default_factory=list)
+    problems: list[InputProblem] = field(default_factory=list)
     summary: str = ""
     message: WireModel | None = None
     tree: TstNode | None = None
@@ -55,11 +55,12 @@ def _check_task(message: StartTask, result: CheckResult) -> None:
     spec = CATALOGUE.get(message.task.name)
     if spec is None:
         result.problems.append(
-            Problem("start-task", "task.name", f"unknown task {message.task.name!r}")
+            InputProblem("start-task", "task.name", f"unknown task {message.task.name!r}")
         )
         return
     result.problems.extend(
-        Problem("start-task", f"task.{f}", m) for f, m in param_problems(spec, message.task.params)
+        InputProblem(
+            "start-task", f"task.{f}", m) for f, m in param_problems(spec, message.task.params)
     )
 
 

@@ -12,7 +12,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from delegation.errors import MessageError, Problem, json_kind
+from delegation.errors import InputProblem, MessageError, json_kind
 from delegation.geo import GeoPoint
 from delegation.messages.base import WireModel
 from delegation.messages.delegation_api import (
@@ -111,12 +111,12 @@ INFO_TYPES: dict[str, type[WireModel]] = {m.model_fields["type"].default: m for 
 def validate_model(model: type[M], data: Any, where: str) -> M:
     """``model.model_validate(data)``, with errors as a ``MessageError`` naming the fields."""
     if not isinstance(data, dict):
-        raise MessageError(Problem(where, "", f"must be a JSON object, not {json_kind(data)}"))
+        raise MessageError(InputProblem(where, "", f"must be a JSON object, not {json_kind(data)}"))
     # Writers may leave com-uuid to its default (a fresh one); on the wire it is required, or the
     # answer could not name what it answers.
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     if "com_uuid" in model.model_fields and "com-uuid" not in data and "com_uuid" not in data:
-        problems.append(Problem(where, "com-uuid", "missing"))
+        problems.append(InputProblem(where, "com-uuid", "missing"))
 
     # Raised outside the ``except`` blocks: pydantic's ValidationError takes no part in garbage
     # collection, so a frame that held it while a new exception was raised (its traceback) was
@@ -127,7 +127,7 @@ def validate_model(model: type[M], data: Any, where: str) -> M:
     except ValidationError as exc:
         problems += validation_problems(exc, where)
     except RecursionError:  # pragma: no cover - JSON this deep is refused by json_value first
-        problems.append(Problem(where, "", "nested too deeply"))
+        problems.append(InputProblem(where, "", "nested too deeply"))
     if problems or message is None:
         raise MessageError(problems)
     return message
@@ -138,20 +138,21 @@ def parse_command(data: Any, api: str | None = None) -> WireModel:
     restricts the commands accepted; without it every API's commands are (``ping`` -> ``Ping``)."""
     where = f"{api}/command" if api else "command"
     if not isinstance(data, dict):
-        raise MessageError(Problem(where, "", f"must be a JSON object, not {json_kind(data)}"))
+        raise MessageError(InputProblem(where, "", f"must be a JSON object, not {json_kind(data)}"))
     name = data.get("command")
     if not isinstance(name, str):
         message = "missing" if name is None else f"must be a string, not {json_kind(name)}"
-        raise MessageError(Problem(where, "command", message))
+        raise MessageError(InputProblem(where, "command", message))
     tables = [COMMANDS[api]] if api else list(COMMANDS.values())
     for table in tables:
         if name in table:
             if data.get("com-uuid") == "":  # a command's answer must name what it answers
-                raise MessageError(Problem(name, "com-uuid", "must not be empty"))
+                raise MessageError(InputProblem(name, "com-uuid", "must not be empty"))
             return validate_model(table[name], data, name)
     known = sorted({c for t in tables for c in t})
     raise MessageError(
-        Problem(where, "command", f"unknown command {name!r}; expected one of {', '.join(known)}")
+        InputProblem(
+            where, "command", f"unknown command {name!r}; expected one of {', '.join(known)}")
     )
 
 
@@ -178,7 +179,8 @@ def parse_message(data: Any) -> WireModel:
             if "node-uuid" in data:
                 return validate_model(TstFeedback, data, "feedback")
             return validate_model(DelegationFeedback, data, "feedback")
-    raise MessageError(Problem("message", "", "not a command, info, response or feedback message"))
+    raise MessageError(InputProblem(
+        "message", "", "not a command, info, response or feedback message"))
 
 
 def decode(topic: str, payload: bytes | str) -> WireModel:
@@ -203,7 +205,7 @@ def decode(topic: str, payload: bytes | str) -> WireModel:
             return validate_model(RESPONSES[parent], json_value(payload, where), where)
         if last == "feedback":
             return validate_model(FEEDBACK[parent], json_value(payload, where), where)
-    raise MessageError(Problem("topic", "", f"no WARA-PS message is published on {topic!r}"))
+    raise MessageError(InputProblem("topic", "", f"no WARA-PS message is published on {topic!r}"))
 
 
 def encode(model: WireModel | GeoPoint) -> bytes:
@@ -215,5 +217,6 @@ def encode(model: WireModel | GeoPoint) -> bytes:
         data = model.to_wire()
         text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
     except (TypeError, ValueError, RecursionError) as exc:
-        raise MessageError(Problem(type(model).__name__, "", f"cannot be encoded: {exc}")) from None
+        raise MessageError(InputProblem(
+            type(model).__name__, "", f"cannot be encoded: {exc}")) from None
     return text.encode("utf-8")

@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from delegation.errors import MessageError, Problem, short_repr
+from delegation.errors import InputProblem, MessageError, short_repr
 
 #: JSON nested deeper than this is refused. A tree at the parser's depth limit (64 levels) nests
 #: about 135 levels of JSON; pydantic refuses to serialise beyond about 250.
@@ -96,22 +96,23 @@ def json_value(
         value = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
     except UnicodeDecodeError as exc:
         raise MessageError(
-            Problem(where, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
+            InputProblem(where, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")
         ) from None
     except json.JSONDecodeError as exc:
         raise MessageError(
-            Problem(where, "", f"invalid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})")
+            InputProblem(
+                where, "", f"invalid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})")
         ) from None
     except RecursionError:
-        raise MessageError(Problem(where, "", "invalid JSON: nested too deeply")) from None
+        raise MessageError(InputProblem(where, "", "invalid JSON: nested too deeply")) from None
     except _NotFinite as exc:  # NaN/Infinity/1e999: name the field that holds it
         found = _non_finite_field(text)
         field, reason = found if found is not None else ("", str(exc))
-        raise MessageError(Problem(where, field, f"invalid JSON: {reason}")) from None
+        raise MessageError(InputProblem(where, field, f"invalid JSON: {reason}")) from None
     except ValueError as exc:  # integers too long to convert
-        raise MessageError(Problem(where, "", f"invalid JSON: {exc}")) from None
+        raise MessageError(InputProblem(where, "", f"invalid JSON: {exc}")) from None
     if max_depth is not None and json_depth(value) > max_depth:
-        raise MessageError(Problem(where, "", f"JSON nested deeper than {max_depth} levels"))
+        raise MessageError(InputProblem(where, "", f"JSON nested deeper than {max_depth} levels"))
     return value
 
 
@@ -126,9 +127,9 @@ def loc_text(loc: tuple[int | str, ...]) -> str:
     return out
 
 
-def validation_problems(exc: ValidationError, where: str) -> list[Problem]:
+def validation_problems(exc: ValidationError, where: str) -> list[InputProblem]:
     """One problem per pydantic error, naming the field by its wire (hyphenated) name."""
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     for err in exc.errors(include_url=False):
         # Drop pydantic's internal loc parts (union member names, validator tags).
         loc = tuple(
@@ -141,5 +142,5 @@ def validation_problems(exc: ValidationError, where: str) -> list[Problem]:
             message = "unknown field"
         else:
             message = f"{err['msg']}, got {short_repr(err.get('input'))}"
-        problems.append(Problem(where, field, message))
+        problems.append(InputProblem(where, field, message))
     return problems

@@ -10,7 +10,7 @@ from typing import Any
 
 from pydantic import ConfigDict, ValidationError
 
-from delegation.errors import MessageError, Problem
+from delegation.errors import InputProblem, MessageError
 from delegation.geo import GeoPoint
 from delegation.messages.base import WireModel
 from delegation.messages.errors import json_value, validation_problems
@@ -68,7 +68,8 @@ def sensor_value(sensor_name: str, data: Any) -> SensorValue:
             number = _number(candidates[0]) if candidates else None
         if number is None:
             raise MessageError(
-                Problem(where, "", f"expected a number or an object holding one, got {data!r:.80}")
+                InputProblem(
+                    where, "", f"expected a number or an object holding one, got {data!r:.80}")
             )
         return number
     value: SensorValue = data  # any other sensor: its JSON value as it came

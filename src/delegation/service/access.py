@@ -19,7 +19,7 @@ from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 
 #: A client level: one topic level of plain characters (no wildcards, no ``/``).
 CLIENT_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
@@ -58,7 +58,7 @@ def caller_of(
             match = CLIENT_NAME.fullmatch(raw[len(response_base) + 1 :])
         if match is None:
             raise InputError(
-                Problem(
+                InputProblem(
                     command,
                     "response-topic",
                     f"must be {response_base}/<client> (one level of letters, "
@@ -67,7 +67,7 @@ def caller_of(
             )
         if own_topic and raw != own_topic:
             raise InputError(
-                Problem(
+                InputProblem(
                     command, "response-topic", f"{client!r} may only be answered on {own_topic}"
                 )
             )
@@ -91,7 +91,7 @@ def refusal(command: str, root_uuid: str, owner: str, caller: str) -> InputError
     """The answer to a caller touching someone else's mission."""
     who = repr(caller) if caller else "an anonymous caller"
     return InputError(
-        Problem(
+        InputProblem(
             command,
             "sender",
             f"mission {root_uuid} belongs to {owner!r}; {who} is neither its "

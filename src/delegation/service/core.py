@@ -47,7 +47,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
-from delegation.errors import InputError, MessageError, Problem
+from delegation.errors import InputError, InputProblem, MessageError
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
 from delegation.geo import GeoPoint
 from delegation.learning import SpeedLearner, input_warnings, speed_class
@@ -389,7 +389,7 @@ class ServiceCore:
         response_base = self.tst_response_topic if face == "tst" else self.delegation_response_topic
         caller = Caller(client or "", f"{response_base}/{client}" if client else "")
         if len(payload) > limit:
-            return (None, MessageError(Problem(where, "", f"{len(payload)} bytes is more than "
+            return (None, MessageError(InputProblem(where, "", f"{len(payload)} bytes is more than "
                                                           f"the {limit} allowed")),
                     com_uuid_of(payload, max_bytes=limit), caller)
         data: Any = None
@@ -489,7 +489,7 @@ class ServiceCore:
         if isinstance(cmd, SignalTstNode | SignalTstTree):
             mission = self.book.of_node(cmd.node_uuid)
             if mission is None:
-                raise InputError(Problem(
+                raise InputError(InputProblem(
                     cmd.command, "node-uuid",
                     f"{cmd.node_uuid!r} is not a node of any mission of {self.config.name}"))
             self._authorise(cmd.command, mission, key)
@@ -508,7 +508,7 @@ class ServiceCore:
         if isinstance(cmd, Ping):
             return self._respond("tst", key, TstResponse(response="pong", response_to=key[1]))
         name = getattr(cmd, "command", "?")
-        raise InputError(Problem("tst/command", "command", f"{name!r} is not supported"))
+        raise InputError(InputProblem("tst/command", "command", f"{name!r} is not supported"))
 
     # ---- Delegation API
 
@@ -544,13 +544,13 @@ class ServiceCore:
             return ok(agents=self.agents(now))
         if isinstance(cmd, CancelMission):
             return self._cancel(cmd, key, now)
-        raise InputError(Problem("delegation/command", "command",
+        raise InputError(InputProblem("delegation/command", "command",
                                  f"{getattr(cmd, 'command', '?')!r} is not supported"))
 
     def _cancel(self, cmd: CancelMission, key: CommandKey, now: float) -> Effects:
         mission = self._authorise(cmd.command, self.book.get(cmd.root_uuid), key)
         if mission.ended:
-            raise InputError(Problem("cancel-mission", "root-uuid",
+            raise InputError(InputProblem("cancel-mission", "root-uuid",
                                      f"mission {cmd.root_uuid} already ended "
                                      f"({mission.status.value})"))
         if mission.status is MissionStatus.PLANNED and not self.engine.starting(mission.root_uuid):
@@ -604,7 +604,7 @@ class ServiceCore:
                 raise InputError(conflicts)
             problem = self.engine.problem(now) if start else None
             if problem:
-                raise InputError(Problem("engine", "", problem))
+                raise InputError(InputProblem("engine", "", problem))
         self._job_ids += 1
         entry = self.commands.get(key)
         units, notes = self.plannable(now) if kind == "plan" else (self.units(now), ())

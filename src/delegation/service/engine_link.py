@@ -14,7 +14,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from delegation.errors import InputError, MessageError, Problem
+from delegation.errors import InputError, InputProblem, MessageError
 from delegation.fleet import FleetRegistry
 from delegation.messages import (
     DelegationResponse,
@@ -115,7 +115,7 @@ class EngineLink:
         """The command to publish; its answer is awaited. ``InputError`` if no engine is live."""
         base = self.base(now)
         if base is None:
-            raise InputError(Problem("engine", "", self.problem(now) or "no engine"))
+            raise InputError(InputProblem("engine", "", self.problem(now) or "no engine"))
         com = getattr(model, "com_uuid", "") or new_com_uuid()
         self.pending[com] = EngineRequest(kind, key, face, now + self.config.engine_timeout,
                                           root_uuid, plan, base)

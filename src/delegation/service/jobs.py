@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES, Plan, compute_bids, plan_mission
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.fleet import UnitState
 from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
@@ -46,15 +46,15 @@ def plan_options(
     strategy = strategy or defaults.strategy
     objective = objective or defaults.objective
     if strategy not in STRATEGIES:
-        raise InputError(Problem("command", "strategy",
+        raise InputError(InputProblem("command", "strategy",
                                  f"unknown strategy {strategy!r}; expected one of "
                                  f"{', '.join(STRATEGIES)}"))
     if objective not in OBJECTIVES:
-        raise InputError(Problem("command", "objective",
+        raise InputError(InputProblem("command", "objective",
                                  f"unknown objective {objective!r}; expected one of "
                                  f"{', '.join(OBJECTIVES)}"))
     if time_limit is not None and time_limit > max_time_limit:
-        raise InputError(Problem("command", "time-limit",
+        raise InputError(InputProblem("command", "time-limit",
                                  f"{time_limit:g} s is above this service's maximum of "
                                  f"{max_time_limit:g} s"))
     return PlanOptions(strategy, objective, time_limit or defaults.time_limit)
@@ -145,7 +145,7 @@ def run_job(job: Job) -> JobResult:
 
 def internal_error(exc: object) -> JobFailed:
     """The answer to a job that raised (or returned something else than a `JobResult`)."""
-    problem = Problem("planner", "", f"internal error: {type(exc).__name__}: {exc}")
+    problem = InputProblem("planner", "", f"internal error: {type(exc).__name__}: {exc}")
     return JobFailed(InputError(problem).fail_reason)
 
 

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.service.operator_view import OperatorView
 from delegation.tst.node import TstNode, parse_tree, walk
@@ -309,15 +309,15 @@ class MissionBook:
     def __contains__(self, root_uuid: object) -> bool:
         return root_uuid in self._missions
 
-    def conflicts(self, tree: TstNode) -> list[Problem]:
+    def conflicts(self, tree: TstNode) -> list[InputProblem]:
         """Node uuids of ``tree`` already used by a mission that has not ended."""
-        problems: list[Problem] = []
+        problems: list[InputProblem] = []
         for path, node in walk(tree):
             uid = node.node_uuid
             root = self._node_root.get(uid) if uid else None
             if root is not None and not self._missions[root].ended:
                 problems.append(
-                    Problem(
+                    InputProblem(
                         path,
                         "common_params.node-uuid",
                         f"{uid} is already part of mission {root} "
@@ -353,7 +353,7 @@ class MissionBook:
         """The mission with this root uuid; ``InputError`` naming it if there is none."""
         mission = self.find(root_uuid)
         if mission is None:
-            raise InputError(Problem("command", "root-uuid", f"unknown mission {root_uuid!r}"))
+            raise InputError(InputProblem("command", "root-uuid", f"unknown mission {root_uuid!r}"))
         return mission
 
     def find(self, root_uuid: str) -> Mission | None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, TypeVar
 
-from delegation.errors import InputError, Problem, json_kind
+from delegation.errors import InputError, InputProblem, json_kind
 
 #: Control nodes: they order their children and run on the engine.
 CONTROL_NODES: frozenset[str] = frozenset({"seq", "conc"})
@@ -182,7 +182,7 @@ def parse_tree(data: Any) -> TstNode:
     not objects, a task node with children, duplicate node-uuids, a tree deeper than
     ``MAX_DEPTH`` or larger than ``MAX_NODES``.
     """
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     count = 0
     # Iterative pre-order over raw dicts; nodes are assembled afterwards bottom-up.
     order: list[tuple[str, Any, int, str | None]] = []  # (path, raw, depth, parent path)
@@ -191,21 +191,22 @@ def parse_tree(data: Any) -> TstNode:
         path, raw, depth, parent = stack.pop()
         count += 1
         if count > MAX_NODES:
-            raise InputError(Problem("root", "", f"tree has more than {MAX_NODES} nodes"))
+            raise InputError(InputProblem("root", "", f"tree has more than {MAX_NODES} nodes"))
         if depth > MAX_DEPTH:
             raise InputError(
-                Problem(path, "children", f"tree is nested deeper than {MAX_DEPTH} levels")
+                InputProblem(path, "children", f"tree is nested deeper than {MAX_DEPTH} levels")
             )
         order.append((path, raw, depth, parent))
         if not isinstance(raw, dict):
             kind = json_kind(raw)
-            problems.append(Problem(path, "", f"a node must be a JSON object, not {kind}"))
+            problems.append(InputProblem(path, "", f"a node must be a JSON object, not {kind}"))
             continue
         children = raw.get("children", [])
         if children is None:
             children = []
         if not isinstance(children, list):
-            problems.append(Problem(path, "children", f"must be a list, not {json_kind(children)}"))
+            problems.append(InputProblem(
+                path, "children", f"must be a list, not {json_kind(children)}"))
             continue
         for i in range(len(children) - 1, -1, -1):
             stack.append((f"{path}/children[{i}]", children[i], depth + 1, path))
@@ -228,12 +229,12 @@ def parse_tree(data: Any) -> TstNode:
         uid = node.common_params.get("node-uuid")
         if uid is not None and not isinstance(uid, str):
             problems.append(
-                Problem(where(path, node), "common_params.node-uuid", "must be a string")
+                InputProblem(where(path, node), "common_params.node-uuid", "must be a string")
             )
         elif isinstance(uid, str) and uid:
             if uid in seen_uuids:
                 problems.append(
-                    Problem(
+                    InputProblem(
                         where(path, node),
                         "common_params.node-uuid",
                         f"duplicate node-uuid {uid!r} (also used by {seen_uuids[uid]})",
@@ -255,31 +256,32 @@ def _path_key(text: str) -> list[int]:
 
 def _build_node(
     path: str, raw: dict[str, Any], built: dict[str, TstNode]
-) -> tuple[TstNode | None, list[Problem]]:
-    problems: list[Problem] = []
+) -> tuple[TstNode | None, list[InputProblem]]:
+    problems: list[InputProblem] = []
     name = raw.get("name")
     if not isinstance(name, str) or not name:
         problems.append(
-            Problem(path, "name", "missing" if name is None else "must be a non-empty string")
+            InputProblem(path, "name", "missing" if name is None else "must be a non-empty string")
         )
         return None, problems
     present = [k for k in COMMON_KEYS if k in raw]
     common_key = present[0] if present else COMMON_KEY
     if len(present) > 1:
         problems.append(
-            Problem(path, "common_params", "both common_params and common-params are given")
+            InputProblem(path, "common_params", "both common_params and common-params are given")
         )
     common = raw.get(common_key, {})
     if common is None:
         common = {}
     if not isinstance(common, dict):
-        problems.append(Problem(path, common_key, f"must be an object, not {json_kind(common)}"))
+        problems.append(InputProblem(
+            path, common_key, f"must be an object, not {json_kind(common)}"))
         common = {}
     params = raw.get("params", {})
     if params is None:
         params = {}
     if not isinstance(params, dict):
-        problems.append(Problem(path, "params", f"must be an object, not {json_kind(params)}"))
+        problems.append(InputProblem(path, "params", f"must be an object, not {json_kind(params)}"))
         params = {}
     raw_children = raw.get("children") or []
     children = tuple(
@@ -303,7 +305,7 @@ def _build_node(
     )
     if name not in CONTROL_NODES and children:
         problems.append(
-            Problem(where(path, node), "children", f"task node {name!r} cannot have children")
+            InputProblem(where(path, node), "children", f"task node {name!r} cannot have children")
         )
     return (node if not problems else None), problems
 

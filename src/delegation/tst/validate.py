@@ -13,7 +13,7 @@ from typing import Any
 
 from shapely.geometry import LinearRing, Polygon
 
-from delegation.errors import InputError, Problem, short_repr
+from delegation.errors import InputError, InputProblem, short_repr
 from delegation.geo import GeoPoint
 from delegation.tst.catalogue import CATALOGUE, SPEED_CLASSES, ParamType, TaskSpec
 from delegation.tst.node import TstNode, classify_execunit, map_tree, parse_tree, walk, where
@@ -235,10 +235,10 @@ def param_problems(
     return out
 
 
-def _string_problems(label: str, node: TstNode, limits: Limits) -> list[Problem]:
+def _string_problems(label: str, node: TstNode, limits: Limits) -> list[InputProblem]:
     """Names, node-uuids and execunits are identifiers: bounded, so that a 1 MB name is refused
     before it is kept anywhere."""
-    out: list[Problem] = []
+    out: list[InputProblem] = []
     for field, value in (
         ("name", node.name),
         (f"{node.common_key}.node-uuid", node.common_params.get("node-uuid")),
@@ -246,17 +246,17 @@ def _string_problems(label: str, node: TstNode, limits: Limits) -> list[Problem]
     ):
         if isinstance(value, str) and len(value) > limits.max_string:
             out.append(
-                Problem(
+                InputProblem(
                     label, field, f"is {len(value)} characters long; at most {limits.max_string}"
                 )
             )
     return out
 
 
-def tree_problems(root: TstNode, limits: Limits = DEFAULT_LIMITS) -> list[Problem]:
+def tree_problems(root: TstNode, limits: Limits = DEFAULT_LIMITS) -> list[InputProblem]:
     """Every catalogue problem in a parsed tree: unknown tasks, params, execunit types, string
     lengths and physical ranges."""
-    problems: list[Problem] = []
+    problems: list[InputProblem] = []
     for path, node in walk(root):
         label = where(path, node)
         strings = _string_problems(label, node, limits)
@@ -266,16 +266,17 @@ def tree_problems(root: TstNode, limits: Limits = DEFAULT_LIMITS) -> list[Proble
         try:
             classify_execunit(node.execunit)
         except TypeError as exc:
-            problems.append(Problem(label, f"{node.common_key}.execunit", str(exc)))
+            problems.append(InputProblem(label, f"{node.common_key}.execunit", str(exc)))
         if node.is_control:
             continue
         spec = CATALOGUE.get(node.name)
         if spec is None:
             problems.append(
-                Problem(label, "name", f"unknown task {node.name!r}: not in the catalogue")
+                InputProblem(label, "name", f"unknown task {node.name!r}: not in the catalogue")
             )
             continue
-        problems.extend(Problem(label, f, m) for f, m in param_problems(spec, node.params, limits))
+        problems.extend(InputProblem(
+            label, f, m) for f, m in param_problems(spec, node.params, limits))
     return problems
 
 

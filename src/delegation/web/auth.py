@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 
 COOKIE = "delegation-token"
 
@@ -23,7 +23,8 @@ def read_users(path: str | Path) -> dict[str, str]:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputError(Problem(str(path), "", f"cannot read the users file: {exc}")) from None
+        raise InputError(InputProblem(
+            str(path), "", f"cannot read the users file: {exc}")) from None
     users: dict[str, str] = {}
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
@@ -31,15 +32,16 @@ def read_users(path: str | Path) -> dict[str, str]:
             continue
         parts = line.split()
         if len(parts) != 2:
-            raise InputError(Problem(f"{path}:{number}", "", "expected 'TOKEN NAME'"))
+            raise InputError(InputProblem(f"{path}:{number}", "", "expected 'TOKEN NAME'"))
         token, name = parts
         if len(token) < 8:
-            raise InputError(Problem(f"{path}:{number}", "", "a token needs 8 characters or more"))
+            raise InputError(InputProblem(
+                f"{path}:{number}", "", "a token needs 8 characters or more"))
         if token in users:
-            raise InputError(Problem(f"{path}:{number}", "", "the same token twice"))
+            raise InputError(InputProblem(f"{path}:{number}", "", "the same token twice"))
         users[token] = name
     if not users:
-        raise InputError(Problem(str(path), "", "no users (lines 'TOKEN NAME')"))
+        raise InputError(InputProblem(str(path), "", "no users (lines 'TOKEN NAME')"))
     return users
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from delegation.errors import InputError, Problem
+from delegation.errors import InputError, InputProblem
 from delegation.tst.node import parse_tree, to_dict, with_uuids
 from delegation.tst.validate import parse_and_validate
 
@@ -22,7 +22,7 @@ MAX_TEXT = 2_000_000
 
 def _document(text: str) -> Any:
     if len(text) > MAX_TEXT:
-        raise InputError(Problem("mission", "", f"longer than {MAX_TEXT} characters"))
+        raise InputError(InputProblem("mission", "", f"longer than {MAX_TEXT} characters"))
     try:
         return json.loads(text)
     except ValueError:
@@ -31,22 +31,24 @@ def _document(text: str) -> Any:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(Problem("mission", "", f"neither JSON nor YAML: {line}")) from None
+        raise InputError(InputProblem("mission", "", f"neither JSON nor YAML: {line}")) from None
 
 
 def mission_tree(value: Any) -> dict[str, Any]:
     """The validated TST (JSON form) in mission text or an object; `InputError` otherwise."""
     data = _document(value) if isinstance(value, str) else value
     if not isinstance(data, dict):
-        raise InputError(Problem("mission", "", "must be a JSON/YAML object (a TST, a scenario "
-                                 "or a start-tst/delegate command)"))
+        raise InputError(InputProblem(
+            "mission", "", "must be a JSON/YAML object (a TST, a scenario "
+            "or a start-tst/delegate command)"))
     if "mission" in data and "agents" in data:
         data = data["mission"]
     elif "tst" in data and "command" in data:
         data = data["tst"]
     if not isinstance(data, dict) or "name" not in data:
-        raise InputError(Problem("mission", "", "no TST found (expected a tree, a scenario or a "
-                                 "start-tst/delegate command)"))
+        raise InputError(InputProblem(
+            "mission", "", "no TST found (expected a tree, a scenario or a "
+            "start-tst/delegate command)"))
     parse_and_validate(data)
     return data
 
