@@ -19,11 +19,15 @@ import pytest
 
 from delegation.engine import EngineOptions, NodeChanged, SendSignal, SendStartTask, TreeExecutor
 from delegation.engine.executor import Action
+from delegation.fleet import make_unit
+from delegation.geo import GeoPoint
 from delegation.messages import ExecResponse, encode
 from delegation.messages import NodeStatus as S
+from delegation.sim import SimUnitCore
 from delegation.tst.node import MAX_DEPTH, MAX_NODES, TstNode, make_node, parse_tree
 from test_engine_core import DJI0, ctl, engine, on, send, start_tst, task
 
+START = GeoPoint(latitude=57.7605, longitude=16.6815, altitude=40.0)
 UNIT_FEEDBACK = {"$abort": "aborted", "$enough": "finished", "$pause": "paused",
                  "$continue": "running"}
 
@@ -411,6 +415,26 @@ def test_the_core_sends_signal_tasks_with_their_com_uuid_and_resends_the_same_by
     ok = ExecResponse(response="ok", response_to=sent["com-uuid"])
     c.on_message(f"{DJI0}/exec/response", encode(ok), 5.0)
     assert on(c.on_tick(9.0), f"{DJI0}/exec/command") == []
+
+
+def test_a_unit_answers_a_resent_signal_task_again_and_never_runs_it_twice() -> None:
+    unit = make_unit("dji0", "air", START, ["move-to"], speeds={"standard": 5.0})
+    sim = SimUnitCore(unit, prefix="t")
+    command = sim.identity.topic("exec/command")
+
+    def send_unit(msg: dict[str, Any], now: float) -> list[Any]:
+        return sim.on_message(command, json.dumps(msg).encode(), now).publish
+
+    start = {"com-uuid": "s", "command": "start-task", "execution-unit": "dji0",
+             "task": {"name": "move-to", "params": task("a")["params"]}, "task-uuid": "t1"}
+    first = [o for o in send_unit(start, 0.0) if o.topic.endswith("exec/response")]
+    assert send_unit(start, 0.5) == first  # the same answer, the task started once
+    pause = {"com-uuid": "p", "command": "signal-task", "signal": "$pause", "task-uuid": "t1"}
+    answer = [o for o in send_unit(pause, 1.0) if o.topic.endswith("exec/response")]
+    send_unit({"com-uuid": "c", "command": "signal-task", "signal": "$continue",
+               "task-uuid": "t1"}, 2.0)
+    assert send_unit(pause, 3.0) == answer  # a late copy of $pause: answered, not applied again
+    assert sim.vehicle.status_of("t1") == "running" and sim.commands_handled == 3
 
 
 # --------------------------------------------------------------------------- depth and width

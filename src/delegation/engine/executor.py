@@ -6,10 +6,11 @@ what arrives (unit responses and feedback, signals, heartbeats) together with ``
 `Action` values (commands to send, node status changes to report);
 `delegation.engine.core.EngineCore` turns them into messages.
 
-Rules (docs/protocol.md §8 and the seed):
+Rules (docs/protocol.md §8, §12 and the seed):
 
 * A start-task is re-sent with the same com-uuid (and task-uuid) every ``resend_after`` s until
-  the unit answers, at most ``max_attempts`` times; then the node fails.
+  the unit answers, at most ``max_attempts`` times; then the node fails and the unit is sent
+  ``$abort`` (it may have got the task and be running it).
 * A unit runs one vehicle task at a time: a vehicle task whose unit is busy with another of this
   engine's tasks waits (status ``waiting``) in a FIFO per unit. A unit that refuses with "A task is
   already running" (busy with someone else's task) is asked again every ``busy_retry`` s with a
@@ -17,15 +18,25 @@ Rules (docs/protocol.md §8 and the seed):
 * A task whose unit has not been seen (no heartbeat) waits up to ``unit_timeout`` s, then fails.
 * Unit feedback ``finished``/``enough`` -> ``succeeded``; ``failed`` -> ``failed``; ``aborted``
   -> ``aborted``; ``paused``/``running`` as they are.
-* A child that fails fails its ``seq``/``conc``; the rest is stopped (running tasks get ``$abort``,
-  tasks not started are ``revoked``). A child that is aborted aborts its parent the same way.
+* A child that fails fails its ``seq``/``conc``; the rest is stopped (running tasks get
+  ``$abort``, what has not started is ``revoked``). A child that is aborted ends its ``seq``
+  (the rest is revoked, never run out of order) while a ``conc`` lets its other branches run on
+  and ends ``aborted`` when they have ended (docs/protocol.md §12.3).
 * After a broker outage (the engine reconnected, or a unit's heartbeat came back after a gap) the
   engine asks the unit ``query-status`` for each task it runs for us and applies the answer as
   feedback: a ``finished`` lost during the outage still ends the task; ``unknown`` (the unit lost
   the task) fails it.
-* ``$abort``/``$pause``/``$continue``/``$enough`` on a node reach every running task under it;
-  ``$abort`` revokes what has not started; ``$pause`` also holds back what would start next;
-  ``$enough`` on a control node lets running tasks end and starts nothing more (it succeeds).
+* Signals (docs/protocol.md §12): ``signal-tst-node`` is for the node alone, ``signal-tst-tree``
+  for every node under it too. A node signalled before its turn keeps it: ``$enough`` skips it
+  (``revoked``), ``$pause`` holds it when its turn comes, ``$continue`` lets it go without
+  starting it early, ``$abort`` ends it ``aborted`` and its parent learns it when the turn comes.
+  ``$enough`` on a control node starts nothing more under it (what has not started is
+  ``revoked``, never ``succeeded``).
+* A ``signal-task`` is re-sent with the same com-uuid until the unit answers, at most
+  ``max_attempts`` times, then given up (said in the node's fail-reason; an unanswered ``$abort``
+  ends the node ``aborted`` saying the unit may still run it). A given-up start-task is followed
+  by ``$abort``. Signals that arrive before the unit answered the start-task wait, all of them,
+  in order.
 """
 
 from __future__ import annotations
