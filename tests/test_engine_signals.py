@@ -399,6 +399,29 @@ def test_signals_waiting_for_the_start_task_answer_are_all_delivered_in_order() 
     assert sent == [(start.task_uuid, "$abort"), (start.task_uuid, "$pause")]
 
 
+def test_a_refused_signal_is_said_in_the_nodes_fail_reason() -> None:
+    run = quiet(ctl("seq", "R", task("a")))
+    (sig,) = [a for a in run.executor.signal_node("a", "$pause", 1.0) if isinstance(a, SendSignal)]
+    run.take(run.executor.on_response(sig.com_uuid, "failed", 1.5, fail_reason="cannot pause"))
+    assert run.last("a") is S.RUNNING and run.reasons["a"] == "/dji0 refused $pause: cannot pause"
+    assert run.executor.tick(9.0) == []  # answered: not re-sent
+
+
+def test_signals_waiting_for_a_unit_that_turns_out_busy_are_applied_by_the_engine() -> None:
+    counter = itertools.count()
+    ex = TreeExecutor(EngineOptions(), new_uuid=lambda: f"u{next(counter)}")
+    ex.unit_seen("dji0", 0.0)
+    _, actions = ex.start_tree(parse_tree(ctl("seq", "R", task("a"), task("b", "/dji1"))), 0.0)
+    (start,) = [a for a in actions if isinstance(a, SendStartTask)]
+    assert ex.signal_node("a", "$pause", 0.5) == []  # waits for the answer
+    actions = ex.on_response(start.com_uuid, "failed", 1.0, fail_reason="A task is already running")
+    assert [(a.node_uuid, a.status) for a in actions if isinstance(a, NodeChanged)] == [
+        ("a", S.WAITING), ("a", S.PAUSED)]
+    assert ex.tick(10.0) == []  # held: not asked again until $continue
+    (again,) = [a for a in ex.signal_node("a", "$continue", 11.0) if isinstance(a, SendStartTask)]
+    assert again.task_uuid != start.task_uuid
+
+
 def test_the_core_sends_signal_tasks_with_their_com_uuid_and_resends_the_same_bytes() -> None:
     c = engine("dji0")
     (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
