@@ -62,6 +62,11 @@ def changes(actions: list[Action]) -> list[tuple[str, S]]:
     return [(a.node_uuid, a.status) for a in actions if isinstance(a, NodeChanged)]
 
 
+def signals(actions: list[Action]) -> list[tuple[str, str, str]]:
+    """The signal-tasks among ``actions``: (unit, task-uuid, signal), com-uuids left out."""
+    return [(a.unit, a.task_uuid, a.signal) for a in actions if isinstance(a, SendSignal)]
+
+
 def accept(c: TreeExecutor, start: SendStartTask, now: float = 0.0) -> list[Action]:
     return c.on_response(start.com_uuid, "running", now, task_uuid=start.task_uuid)
 
@@ -131,9 +136,7 @@ def test_failed_child_fails_the_seq_and_aborts_the_rest() -> None:
     accept(c, sb)
     actions = c.on_feedback(sa.task_uuid, "failed", 1.0)
     assert changes(actions) == [("a", S.FAILED)]
-    assert [a for a in actions if isinstance(a, SendSignal)] == [
-        SendSignal("dji1", sb.task_uuid, "$abort")
-    ]
+    assert signals(actions) == [("dji1", sb.task_uuid, "$abort")]
     actions = c.on_feedback(sb.task_uuid, "aborted", 2.0)
     assert changes(actions) == [
         ("b", S.ABORTED),
@@ -162,7 +165,7 @@ def test_abort_tree_reaches_running_tasks_and_revokes_the_rest() -> None:
     accept(c, sa)
     actions = c.signal_tree("R", "$abort", 1.0)
     assert len(actions) == 2
-    assert SendSignal("dji0", sa.task_uuid, "$abort") in actions
+    assert ("dji0", sa.task_uuid, "$abort") in signals(actions)
     assert ("b", S.REVOKED) in changes(actions)
     assert changes(c.on_feedback(sa.task_uuid, "aborted", 2.0)) == [
         ("a", S.ABORTED),
@@ -175,7 +178,8 @@ def test_abort_without_confirmation_times_out() -> None:
     _, actions = c.start_tree(parse_tree(ctl("seq", "R", task("a"))), 0.0)
     (sa,) = starts(actions)
     accept(c, sa)
-    c.signal_node("a", "$abort", 1.0)
+    (abort,) = [x for x in c.signal_node("a", "$abort", 1.0) if isinstance(x, SendSignal)]
+    assert c.on_response(abort.com_uuid, "ok", 1.5) == []  # accepted, never confirmed
     assert c.tick(5.0) == []
     assert changes(c.tick(16.5)) == [("a", S.ABORTED), ("R", S.ABORTED)]
 
@@ -187,7 +191,7 @@ def test_pause_holds_the_next_child_and_continue_releases_it() -> None:
     accept(c, sa)
     actions = c.signal_tree("R", "$pause", 1.0)
     assert ("R", S.PAUSED) in changes(actions)
-    assert SendSignal("dji0", sa.task_uuid, "$pause") in actions
+    assert ("dji0", sa.task_uuid, "$pause") in signals(actions)
     assert changes(c.on_feedback(sa.task_uuid, "paused", 1.1)) == [("a", S.PAUSED)]
     # The running task ends anyway (a unit may ignore $pause); b must not start while paused.
     actions = c.on_feedback(sa.task_uuid, "finished", 2.0)
@@ -203,7 +207,7 @@ def test_signal_unit_reaches_only_that_units_running_tasks() -> None:
     sa, sb = starts(actions)
     accept(c, sa)
     accept(c, sb)
-    assert c.signal_unit("/dji1", "$pause", 1.0) == [SendSignal("dji1", sb.task_uuid, "$pause")]
+    assert signals(c.signal_unit("/dji1", "$pause", 1.0)) == [("dji1", sb.task_uuid, "$pause")]
     with pytest.raises(InputError, match="signal"):
         c.signal_unit("/dji1", "$explode", 1.0)
     with pytest.raises(InputError, match="no executing node"):
@@ -291,7 +295,7 @@ def test_enough_on_a_control_node_ends_it_successfully() -> None:
     (sl,) = starts(actions)
     accept(c, sl)
     actions = c.signal_tree("R", "$enough", 5.0)
-    assert SendSignal("dji1", sl.task_uuid, "$enough") in actions
+    assert ("dji1", sl.task_uuid, "$enough") in signals(actions)
     assert ("z", S.REVOKED) in changes(actions)
     assert changes(c.on_feedback(sl.task_uuid, "finished", 6.0)) == [
         ("l", S.SUCCEEDED),

@@ -305,7 +305,8 @@ class EngineCore:
                 task=TaskSpecMsg(name=action.name, params=action.params),
                 task_uuid=action.task_uuid,
             )
-        return SignalTask(signal=action.signal.value, sender=self.name, task_uuid=action.task_uuid)
+        return SignalTask(com_uuid=action.com_uuid, signal=action.signal.value, sender=self.name,
+                          task_uuid=action.task_uuid)
 
     def _feedback(self, change: NodeChanged) -> TstFeedback:
         if change.root_flag and change.status in ENDED:

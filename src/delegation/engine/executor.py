@@ -6,10 +6,11 @@ what arrives (unit responses and feedback, signals, heartbeats) together with ``
 `Action` values (commands to send, node status changes to report);
 `delegation.engine.core.EngineCore` turns them into messages.
 
-Rules (docs/protocol.md §8 and the seed):
+Rules (docs/protocol.md §8, §12 and the seed):
 
 * A start-task is re-sent with the same com-uuid (and task-uuid) every ``resend_after`` s until
-  the unit answers, at most ``max_attempts`` times; then the node fails.
+  the unit answers, at most ``max_attempts`` times; then the node fails and the unit is sent
+  ``$abort`` (it may have got the task and be running it).
 * A unit runs one vehicle task at a time: a vehicle task whose unit is busy with another of this
   engine's tasks waits (status ``waiting``) in a FIFO per unit. A unit that refuses with "A task is
   already running" (busy with someone else's task) is asked again every ``busy_retry`` s with a
@@ -17,15 +18,25 @@ Rules (docs/protocol.md §8 and the seed):
 * A task whose unit has not been seen (no heartbeat) waits up to ``unit_timeout`` s, then fails.
 * Unit feedback ``finished``/``enough`` -> ``succeeded``; ``failed`` -> ``failed``; ``aborted``
   -> ``aborted``; ``paused``/``running`` as they are.
-* A child that fails fails its ``seq``/``conc``; the rest is stopped (running tasks get ``$abort``,
-  tasks not started are ``revoked``). A child that is aborted aborts its parent the same way.
+* A child that fails fails its ``seq``/``conc``; the rest is stopped (running tasks get
+  ``$abort``, what has not started is ``revoked``). A child that is aborted ends its ``seq``
+  (the rest is revoked, never run out of order) while a ``conc`` lets its other branches run on
+  and ends ``aborted`` when they have ended (docs/protocol.md §12.3).
 * After a broker outage (the engine reconnected, or a unit's heartbeat came back after a gap) the
   engine asks the unit ``query-status`` for each task it runs for us and applies the answer as
   feedback: a ``finished`` lost during the outage still ends the task; ``unknown`` (the unit lost
   the task) fails it.
-* ``$abort``/``$pause``/``$continue``/``$enough`` on a node reach every running task under it;
-  ``$abort`` revokes what has not started; ``$pause`` also holds back what would start next;
-  ``$enough`` on a control node lets running tasks end and starts nothing more (it succeeds).
+* Signals (docs/protocol.md §12): ``signal-tst-node`` is for the node alone, ``signal-tst-tree``
+  for every node under it too. A node signalled before its turn keeps it: ``$enough`` skips it
+  (``revoked``), ``$pause`` holds it when its turn comes, ``$continue`` lets it go without
+  starting it early, ``$abort`` ends it ``aborted`` and its parent learns it when the turn comes.
+  ``$enough`` on a control node starts nothing more under it (what has not started is
+  ``revoked``, never ``succeeded``).
+* A ``signal-task`` is re-sent with the same com-uuid until the unit answers, at most
+  ``max_attempts`` times, then given up (said in the node's fail-reason; an unanswered ``$abort``
+  ends the node ``aborted`` saying the unit may still run it). A given-up start-task is followed
+  by ``$abort``. Signals that arrive before the unit answered the start-task wait, all of them,
+  in order.
 """
 
 from __future__ import annotations
@@ -117,11 +128,12 @@ class SendStartTask:
 
 @dataclass(frozen=True, slots=True)
 class SendSignal:
-    """Send ``signal-task`` to ``unit`` for ``task_uuid``."""
+    """Send ``signal-task`` to ``unit`` for ``task_uuid`` (a re-send carries the same com-uuid)."""
 
     unit: str
     task_uuid: str
     signal: Signal
+    com_uuid: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,9 +161,30 @@ Action = SendStartTask | SendSignal | SendQuery | NodeChanged
 
 # --------------------------------------------------------------------------- the state machine
 
+#: Pending work of the state machine: (operation, tree, node uuid, child uuid or "").
+_Op = tuple[str, Tree, str, str]
+#: The fail-reason of a node skipped by ``$enough`` before it started.
+SKIPPED = "not started: $enough"
+
+
+@dataclass(slots=True)
+class _SignalOut:
+    """A ``signal-task`` out and not answered: re-sent with the same com-uuid until it is."""
+
+    unit: str
+    task_uuid: str
+    signal: Signal
+    node_uuid: str
+    sends: int
+    sent_at: float
+
 
 class TreeExecutor:
-    """Executes trees; every method takes ``now`` and returns the actions to carry out."""
+    """Executes trees; every method takes ``now`` and returns the actions to carry out.
+
+    The walks are iterative (a worklist, `_drain`), so a tree's depth and width are bounded by
+    the tree limits only, never by Python's recursion limit.
+    """
 
     def __init__(
         self, options: EngineOptions | None = None, *, new_uuid: Callable[[], str] | None = None
@@ -162,9 +195,11 @@ class TreeExecutor:
         self._node_tree: dict[str, str] = {}  # node uuid -> root uuid
         self._task_node: dict[str, str] = {}  # every task-uuid sent -> node uuid
         self._com_node: dict[str, str] = {}  # every start-task com-uuid -> node uuid
+        self._signals: dict[str, _SignalOut] = {}  # signal-task com-uuid -> what is out
         self._occupant: dict[str, str] = {}  # unit -> node uuid of the vehicle task it runs
         self._queue: dict[str, deque[str]] = {}  # unit -> node uuids waiting for it
         self._queries: dict[str, str] = {}  # query-status com-uuid -> task-uuid asked about
+        self._todo: list[_Op] = []  # the worklist, last in first out (depth first)
         self.units_seen: set[str] = set()
 
     # ---- starting
@@ -195,7 +230,24 @@ class TreeExecutor:
             self._node_tree[uid] = tree.root_uuid
         actions: list[Action] = []
         self._activate(tree, tree.root, now, actions)
+        self._drain(now, actions)
         return tree.root_uuid, actions
+
+    # ---- the worklist
+
+    def _drain(self, now: float, actions: list[Action]) -> None:
+        """Do the pending work: activations, children that ended, control nodes to move on."""
+        todo = self._todo
+        while todo:
+            op, tree, uid, child = todo.pop()
+            node = tree.nodes[uid]
+            if op == "activate":
+                self._activate(tree, node, now, actions)
+                continue
+            assert isinstance(node, ControlNode)
+            if op == "child" and not node.terminal:
+                self._note(tree, node, tree.nodes[child], now, actions)
+            self._advance(tree, node, now, actions)
 
     # ---- status changes
 
@@ -209,30 +261,27 @@ class TreeExecutor:
     ) -> None:
         if node.status == status and node.fail_reason == reason:
             return
+        was_terminal = node.terminal
         node.status = status
         node.fail_reason = reason
+        parent = tree.parent(node)
+        if parent is not None and node.terminal and not was_terminal:
+            parent.ended += 1
         actions.append(
             NodeChanged(tree.root_uuid, node.uuid, status, node.uuid == tree.root_uuid, reason)
         )
 
     def _activate(self, tree: Tree, node: ExecNode, now: float, actions: list[Action]) -> None:
+        """The node's turn came: a task starts (or waits), a control node runs its children."""
+        if node.terminal or node.turn:
+            return
+        node.turn = True
         if isinstance(node, TaskNode):
             node.waiting_since = now
             self._try_start(tree, node, now, actions)
             return
-        assert isinstance(node, ControlNode)
-        self._set(tree, node, NodeStatus.RUNNING, actions)
-        if not node.children:
-            self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
-        elif node.is_seq:
-            node.next_child = 1
-            self._activate(tree, tree.nodes[node.children[0]], now, actions)
-        else:
-            node.next_child = len(node.children)
-            for child in tree.children(node):
-                if node.terminal or node.stopping is not None:
-                    break
-                self._activate(tree, child, now, actions)
+        self._set(tree, node, NodeStatus.PAUSED if node.held else NodeStatus.RUNNING, actions)
+        self._todo.append(("advance", tree, node.uuid, ""))
 
     def _finish(
         self,
@@ -243,7 +292,7 @@ class TreeExecutor:
         actions: list[Action],
         reason: str = "",
     ) -> None:
-        """A node reached a final status: tell its parent."""
+        """A node reached a final status: tell its parent if it was waiting for it."""
         if node.terminal:
             return
         self._set(tree, node, status, actions, reason)
@@ -252,45 +301,92 @@ class TreeExecutor:
             queue = self._queue.get(node.unit)
             if queue and node.uuid in queue:
                 queue.remove(node.uuid)
-        parent = tree.parent(node)
-        if parent is not None:
-            self._child_ended(tree, parent, node, now, actions)
+            node.pending.clear()
+            for com in node.signals:
+                self._signals.pop(com, None)
+            node.signals.clear()
+        if node.turn and node.parent is not None:
+            self._todo.append(("child", tree, node.parent, node.uuid))
 
-    def _finish_if_children_ended(
-        self, tree: Tree, node: ControlNode, now: float, actions: list[Action]
-    ) -> None:
-        """A control node whose children have all ended ends too: as it is stopping (failed,
-        aborted), else succeeded."""
-        if tree.children_ended(node):
-            status = node.stopping or NodeStatus.SUCCEEDED
-            self._finish(tree, node, status, now, actions, node.fail_reason)
-
-    def _child_ended(
+    def _note(
         self, tree: Tree, parent: ControlNode, child: ExecNode, now: float, actions: list[Action]
     ) -> None:
-        if parent.terminal:
+        """What a child's end means for its parent (docs/protocol.md §12.3): a failed child
+        fails the parent and stops the rest; an aborted child ends a ``seq`` (the rest is not
+        run out of order) while a ``conc`` lets its other branches run on and ends ``aborted``;
+        a child succeeded or revoked (skipped) changes nothing."""
+        status = child.status
+        if status not in (NodeStatus.FAILED, NodeStatus.ABORTED) or parent.stopping is not None:
             return
-        if child.status in (NodeStatus.FAILED, NodeStatus.ABORTED) and parent.stopping is None:
-            why = f"{child.path} ({child.name}) {child.status.value}"
-            if child.fail_reason:
-                why += f": {child.fail_reason}"
-            parent.stopping = child.status
-            parent.fail_reason = why
-            self._stop_children(tree, parent, Signal.ABORT, now, actions)
-        going_on = parent.stopping is None and not parent.enough and parent.is_seq
-        if going_on and parent.next_child < len(parent.children):
-            nxt = tree.nodes[parent.children[parent.next_child]]
-            parent.next_child += 1
-            self._activate(tree, nxt, now, actions)
+        why = f"{child.path} ({child.name}) {status.value}"
+        if child.fail_reason:
+            why += f": {child.fail_reason}"
+        if status is NodeStatus.FAILED or parent.is_seq:
+            parent.stopping = status
+            parent.why = why
+            self._stop(tree, parent, now, actions)
+        elif parent.outcome is None:
+            parent.outcome = status
+            parent.why = why
+
+    def _advance(self, tree: Tree, node: ControlNode, now: float, actions: list[Action]) -> None:
+        """Start the children whose turn it is; end the node once every child has ended."""
+        if node.terminal or not node.turn:
             return
-        self._finish_if_children_ended(tree, parent, now, actions)
+        if node.stopping is None:
+            if node.is_seq:
+                self._advance_seq(tree, node, now, actions)
+            elif not node.opened:
+                self._open_conc(tree, node, now, actions)
+        if node.ended < len(node.children):
+            return
+        status = node.stopping or node.outcome or NodeStatus.SUCCEEDED
+        reason = node.why if status is not NodeStatus.SUCCEEDED else ""
+        self._finish(tree, node, status, now, actions, reason)
+
+    def _advance_seq(
+        self, tree: Tree, node: ControlNode, now: float, actions: list[Action]
+    ) -> None:
+        """Move the cursor past the children that ended (noting those that ended before their
+        turn) and activate the first that has not had its turn."""
+        while node.cursor < len(node.children):
+            child = tree.nodes[node.children[node.cursor]]
+            if child.terminal:
+                node.cursor += 1
+                if not child.turn:
+                    self._note(tree, node, child, now, actions)
+                    if node.stopping is not None:
+                        return
+                continue
+            if not child.turn:
+                self._activate(tree, child, now, actions)
+            return
+
+    def _open_conc(self, tree: Tree, node: ControlNode, now: float, actions: list[Action]) -> None:
+        """A ``conc``'s turn: every child that has not ended starts (depth first, in order)."""
+        node.opened = True
+        children = tree.children(node)
+        for child in children:
+            if child.terminal and not child.turn:
+                self._note(tree, node, child, now, actions)
+        if node.stopping is not None:
+            return
+        for child in reversed(children):
+            if not child.terminal:
+                self._todo.append(("activate", tree, child.uuid, ""))
 
     # ---- starting tasks and sharing units
 
+    def _held(self, tree: Tree, node: ExecNode) -> bool:
+        """``$pause`` on the node or a node above it holds it back."""
+        return node.held or any(a.held for a in tree.ancestors(node))
+
     def _try_start(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
-        """Send the task's start-task now, or make it wait for its unit."""
+        """Send the task's start-task now, or make it wait for its unit (or for ``$continue``)."""
+        if node.terminal or not node.turn or node.sent:
+            return
         unit = node.unit
-        if any(a.held for a in tree.ancestors(node)):
+        if self._held(tree, node):
             self._set(tree, node, NodeStatus.PAUSED, actions)
             return
         blocked = unit not in self.units_seen or (
@@ -343,108 +439,165 @@ class TreeExecutor:
 
     # ---- stopping and signals
 
-    def _stop_children(
-        self, tree: Tree, parent: ControlNode, signal: Signal, now: float, actions: list[Action]
-    ) -> None:
-        """Stop everything under ``parent``: signal running tasks, revoke what has not started."""
-        for child in tree.children(parent):
-            if child.terminal:
+    def _stop(self, tree: Tree, node: ControlNode, now: float, actions: list[Action]) -> None:
+        """``node`` fails or aborts: what has not started under it is revoked, running tasks
+        get ``$abort``, control nodes under it end once their children have."""
+        for n in tree.subtree(node)[1:]:
+            if n.terminal:
                 continue
-            if child.status is NodeStatus.NOT_ACTIVE:
-                self._revoke_subtree(tree, child, actions)
-            elif isinstance(child, ControlNode):
-                child.stopping = child.stopping or NodeStatus.ABORTED
-                self._stop_children(tree, child, signal, now, actions)
-                self._finish_if_children_ended(tree, child, now, actions)
-            elif isinstance(child, TaskNode):
-                self._signal_task(tree, child, signal, now, actions)
-        if parent.is_seq:
-            parent.next_child = len(parent.children)
-
-    def _revoke_subtree(self, tree: Tree, node: ExecNode, actions: list[Action]) -> None:
-        for n in tree.subtree(node):
-            if not n.terminal:
+            if isinstance(n, TaskNode):
+                if n.sent:
+                    self._signal_task(tree, n, Signal.ABORT, now, actions)
+                else:
+                    self._finish(tree, n, NodeStatus.REVOKED, now, actions)
+            elif not n.turn:
                 self._set(tree, n, NodeStatus.REVOKED, actions)
+            else:
+                assert isinstance(n, ControlNode)
+                n.stopping = n.stopping or NodeStatus.ABORTED
+                self._todo.append(("advance", tree, n.uuid, ""))
 
     def _signal_task(
         self, tree: Tree, node: TaskNode, signal: Signal, now: float, actions: list[Action]
     ) -> None:
-        """Deliver a signal to one task node, whatever state it is in."""
+        """Deliver a signal to one task node, whatever state it is in (docs/protocol.md §12.1)."""
         if node.terminal:
             return
         if not node.sent:
-            # Not sent to the unit (yet): the engine decides alone.
+            # Not sent to the unit (not its turn yet, or waiting): the engine decides alone.
             if signal is Signal.ABORT:
-                self._finish(
-                    tree, node, NodeStatus.ABORTED, now, actions, "aborted before it started"
-                )
+                why = "aborted before it started"
+                self._finish(tree, node, NodeStatus.ABORTED, now, actions, why)
             elif signal is Signal.ENOUGH:
-                self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
+                self._finish(tree, node, NodeStatus.REVOKED, now, actions, SKIPPED)
             elif signal is Signal.PAUSE:
-                self._set(tree, node, NodeStatus.PAUSED, actions)
-            elif signal is Signal.CONTINUE and node.status is NodeStatus.PAUSED:
-                self._try_start(tree, node, now, actions)
+                node.held = True
+                if node.turn:
+                    self._set(tree, node, NodeStatus.PAUSED, actions)
+            elif signal is Signal.CONTINUE:
+                node.held = False
+                if node.turn and node.status is NodeStatus.PAUSED:
+                    self._try_start(tree, node, now, actions)
             return
-        if signal is Signal.ABORT and node.abort_sent_at is None:
-            node.abort_sent_at = now
+        node.held = signal is Signal.PAUSE or (node.held and signal is not Signal.CONTINUE)
         if not node.attempt.answered:
-            node.pending_signal = signal  # deliver once the unit has accepted the task
+            node.pending.append(signal)  # delivered in order once the unit accepts the task
             return
-        actions.append(SendSignal(node.unit, node.attempt.task_uuid, signal))
+        self._send_signal(node, signal, now, actions)
 
-    @staticmethod
-    def _deliver_pending_signal(node: TaskNode, actions: list[Action]) -> None:
-        """The unit has accepted the task: send the signal that arrived before it did."""
-        if node.pending_signal is not None:
-            signal, node.pending_signal = node.pending_signal, None
-            actions.append(SendSignal(node.unit, node.attempt.task_uuid, signal))
-
-    def _signal_node(
-        self, tree: Tree, node: ExecNode, signal: Signal, now: float, actions: list[Action]
+    def _send_signal(
+        self, node: TaskNode, signal: Signal, now: float, actions: list[Action]
     ) -> None:
-        if node.terminal:
-            return
-        if isinstance(node, TaskNode):
-            self._signal_task(tree, node, signal, now, actions)
-            return
-        assert isinstance(node, ControlNode)
+        """A ``signal-task`` with a fresh com-uuid, re-sent by `tick` until answered."""
+        com = self.new_uuid()
+        task_uuid = node.attempt.task_uuid
+        self._signals[com] = _SignalOut(node.unit, task_uuid, signal, node.uuid, 1, now)
+        node.signals.add(com)
         if signal is Signal.ABORT:
-            node.stopping = node.stopping or NodeStatus.ABORTED
-            node.fail_reason = node.fail_reason or "aborted"
-            self._stop_children(tree, node, Signal.ABORT, now, actions)
-            self._finish_if_children_ended(tree, node, now, actions)
-            return
-        if signal is Signal.PAUSE:
-            node.held = True
-            self._set(tree, node, NodeStatus.PAUSED, actions)
-        elif signal is Signal.CONTINUE:
-            node.held = False
-            if node.status is NodeStatus.PAUSED:
-                self._set(tree, node, NodeStatus.RUNNING, actions)
-        elif signal is Signal.ENOUGH:
-            node.enough = True
-            if node.is_seq:
-                node.next_child = len(node.children)
-            for n in tree.subtree(node)[1:]:
-                if n.status is NodeStatus.NOT_ACTIVE:
-                    self._set(tree, n, NodeStatus.REVOKED, actions)
-        for child in tree.children(node):
-            if child.status is not NodeStatus.NOT_ACTIVE:
-                self._signal_node(tree, child, signal, now, actions)
-        if signal is Signal.ENOUGH:
-            self._finish_if_children_ended(tree, node, now, actions)
+            node.abort_sent = True
+        actions.append(SendSignal(node.unit, task_uuid, signal, com))
 
-    def signal_node(self, node_uuid: str, signal: str, now: float) -> list[Action]:
-        """``signal-tst-node``: raises `InputError` for an unknown node or signal."""
+    def _deliver_pending(self, node: TaskNode, now: float, actions: list[Action]) -> None:
+        """The unit has accepted the task: send the signals that arrived before it did."""
+        pending, node.pending = node.pending, []
+        for signal in pending:
+            self._send_signal(node, signal, now, actions)
+
+    def _abort_control(
+        self, tree: Tree, node: ControlNode, now: float, actions: list[Action]
+    ) -> None:
+        """``$abort`` to a control node: it ends ``aborted`` once what runs under it stopped."""
+        if not node.turn:
+            for n in tree.subtree(node)[1:]:
+                if not n.terminal:
+                    self._set(tree, n, NodeStatus.REVOKED, actions)
+            self._finish(tree, node, NodeStatus.ABORTED, now, actions, "aborted before it started")
+            return
+        if node.stopping is None:
+            node.stopping = NodeStatus.ABORTED
+            node.why = "aborted"
+            self._stop(tree, node, now, actions)
+        self._todo.append(("advance", tree, node.uuid, ""))
+
+    def _enough_control(
+        self, tree: Tree, node: ControlNode, whole: bool, now: float, actions: list[Action]
+    ) -> None:
+        """``$enough`` to a control node: nothing more starts under it (what has not started is
+        revoked, not reported succeeded); with ``whole`` running tasks get ``$enough`` too."""
+        for n in tree.subtree(node)[1:]:
+            if n.terminal:
+                continue
+            if isinstance(n, TaskNode):
+                if not n.sent:
+                    self._finish(tree, n, NodeStatus.REVOKED, now, actions, SKIPPED)
+                elif whole:
+                    self._signal_task(tree, n, Signal.ENOUGH, now, actions)
+            elif not n.turn:
+                self._set(tree, n, NodeStatus.REVOKED, actions, SKIPPED)
+            else:
+                self._todo.append(("advance", tree, n.uuid, ""))
+        if node.turn:
+            self._todo.append(("advance", tree, node.uuid, ""))
+        else:
+            self._finish(tree, node, NodeStatus.REVOKED, now, actions, SKIPPED)
+
+    def _hold_control(
+        self,
+        tree: Tree,
+        node: ControlNode,
+        signal: Signal,
+        whole: bool,
+        now: float,
+        actions: list[Action],
+    ) -> None:
+        """``$pause``/``$continue`` to a control node: on the node alone it holds back (lets go)
+        what would start under it; with ``whole`` every node under it gets the signal too."""
+        pause = signal is Signal.PAUSE
+        for n in tree.subtree(node) if whole else [node]:
+            if n.terminal:
+                continue
+            n.held = pause
+            if isinstance(n, TaskNode):
+                if n.sent:
+                    self._signal_task(tree, n, signal, now, actions)
+                elif pause and n.turn:
+                    self._set(tree, n, NodeStatus.PAUSED, actions)
+            elif n.turn and n.status is not NodeStatus.NOT_ACTIVE:
+                self._set(tree, n, NodeStatus.PAUSED if pause else NodeStatus.RUNNING, actions)
+        if pause:
+            return
+        for n in tree.subtree(node):  # what the hold kept back starts (if nothing else holds it)
+            if isinstance(n, TaskNode) and n.turn and not n.sent and n.status is NodeStatus.PAUSED:
+                self._try_start(tree, n, now, actions)
+
+    def _signal(self, node_uuid: str, signal: str, now: float, whole: bool) -> list[Action]:
         tree = self._tree_of(node_uuid)
         sig = self._check_signal(signal)
+        node = tree.nodes[node_uuid]
         actions: list[Action] = []
-        self._signal_node(tree, tree.nodes[node_uuid], sig, now, actions)
+        if node.terminal:
+            return actions
+        if isinstance(node, TaskNode):
+            self._signal_task(tree, node, sig, now, actions)
+        else:
+            assert isinstance(node, ControlNode)
+            if sig is Signal.ABORT:
+                self._abort_control(tree, node, now, actions)
+            elif sig is Signal.ENOUGH:
+                self._enough_control(tree, node, whole, now, actions)
+            else:
+                self._hold_control(tree, node, sig, whole, now, actions)
+        self._drain(now, actions)
         return actions
+
+    def signal_node(self, node_uuid: str, signal: str, now: float) -> list[Action]:
+        """``signal-tst-node``: the signal to this node alone (docs/protocol.md §12.2); raises
+        `InputError` for an unknown node or signal."""
+        return self._signal(node_uuid, signal, now, whole=False)
 
     def signal_tree(self, node_uuid: str, signal: str, now: float) -> list[Action]:
         """``signal-tst-tree``: the signal to the node and every node under it."""
-        return self.signal_node(node_uuid, signal, now)
+        return self._signal(node_uuid, signal, now, whole=True)
 
     def signal_unit(self, unit: str, signal: str, now: float) -> list[Action]:
         """``signal-unit``: the signal to every running task node on ``unit``."""
@@ -455,6 +608,7 @@ class TreeExecutor:
             for node in tree.tasks():
                 if node.unit == name and node.started:
                     self._signal_task(tree, node, sig, now, actions)
+        self._drain(now, actions)
         return actions
 
     def _tree_of(self, node_uuid: str) -> Tree:
@@ -486,6 +640,7 @@ class TreeExecutor:
             for node in tree.tasks():
                 if node.unit == unit and node.status is NodeStatus.WAITING and not node.sent:
                     self._try_start(tree, node, now, actions)
+        self._drain(now, actions)
         return actions
 
     def _task(self, uid: str | None) -> tuple[Tree, TaskNode] | None:
@@ -504,10 +659,14 @@ class TreeExecutor:
         fail_reason: str = "",
         task_uuid: str | None = None,
     ) -> list[Action]:
-        """A unit's ``exec/response`` to one of our start-tasks (others are ignored)."""
+        """A unit's ``exec/response`` to one of our start-tasks, signal-tasks or queries (others
+        are ignored)."""
         asked = self._queries.pop(response_to, None)
         if asked is not None:
             return self._status_answer(asked, response, now)
+        out = self._signals.pop(response_to, None)
+        if out is not None:
+            return self._signal_answer(response_to, out, response, fail_reason, now)
         found = self._task(self._com_node.get(response_to))
         if found is None or found[1].attempt.com_uuid != response_to:
             return []
@@ -522,7 +681,8 @@ class TreeExecutor:
             if response == "finished":
                 self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
             else:
-                self._deliver_pending_signal(node, actions)
+                self._deliver_pending(node, now, actions)
+            self._drain(now, actions)
             return actions
         reason = fail_reason or f"{response}"
         if reason == BUSY_REASON and now - node.waiting_since < self.options.busy_timeout:
@@ -532,9 +692,32 @@ class TreeExecutor:
             node.attempt.sends = 0
             node.refused.add(node.attempt.task_uuid)
             self._set(tree, node, NodeStatus.WAITING, actions)
-            return actions
-        refused = f"/{node.unit} refused {node.name}: {reason}"
-        self._finish(tree, node, NodeStatus.FAILED, now, actions, refused)
+            pending, node.pending = node.pending, []
+            for signal in pending:  # nothing runs on the unit: the engine decides alone
+                self._signal_task(tree, node, signal, now, actions)
+        else:
+            refused = f"/{node.unit} refused {node.name}: {reason}"
+            self._finish(tree, node, NodeStatus.FAILED, now, actions, refused)
+        self._drain(now, actions)
+        return actions
+
+    def _signal_answer(
+        self, com: str, out: _SignalOut, response: str, fail_reason: str, now: float
+    ) -> list[Action]:
+        """A unit answered one of our signal-tasks: no more re-sends; a refusal is said in the
+        node's fail-reason; an answered ``$abort`` waits for its ``aborted`` feedback."""
+        found = self._task(out.node_uuid)
+        if found is None or found[1].terminal:
+            return []
+        tree, node = found
+        node.signals.discard(com)
+        actions: list[Action] = []
+        if out.signal is Signal.ABORT and node.abort_answered_at is None:
+            node.abort_answered_at = now
+        if response not in ("ok", "running", "paused", "finished", "aborted", "enough"):
+            why = f"/{node.unit} refused {out.signal.value}: {fail_reason or response}"
+            log.info("task %s: %s", out.task_uuid, why)
+            self._set(tree, node, node.status, actions, why)
         return actions
 
     def on_feedback(self, task_uuid: str, status: str, now: float) -> list[Action]:
@@ -567,7 +750,8 @@ class TreeExecutor:
             self._finish(tree, node, mapped, now, actions, reason)
         else:
             self._set(tree, node, mapped, actions)
-            self._deliver_pending_signal(node, actions)
+            self._deliver_pending(node, now, actions)
+        self._drain(now, actions)
         return actions
 
     # ---- catching up after an outage
@@ -603,33 +787,67 @@ class TreeExecutor:
         actions: list[Action] = []
         why = f"/{node.unit} no longer knows task {task_uuid} (query-status after an outage)"
         self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
+        self._drain(now, actions)
         return actions
 
     # ---- time
 
     def tick(self, now: float) -> list[Action]:
-        """Re-send unanswered start-tasks, retry busy units, time out units never seen."""
+        """Re-send unanswered start-tasks and signal-tasks, retry busy units, time out units
+        never seen."""
         actions: list[Action] = []
+        self._tick_signals(now, actions)
         for tree in list(self.trees.values()):
             if tree.done:
                 continue
             for node in tree.tasks():
                 if not node.terminal:
                     self._tick_task(tree, node, now, actions)
+        self._drain(now, actions)
         return actions
+
+    def _tick_signals(self, now: float, actions: list[Action]) -> None:
+        """Re-send each unanswered signal-task (same com-uuid) every ``resend_after`` s; after
+        ``max_attempts`` sends give up, saying so in the node's fail-reason."""
+        opts = self.options
+        for com, out in list(self._signals.items()):
+            if now - out.sent_at < opts.resend_after:
+                continue
+            if out.sends < opts.max_attempts:
+                out.sends += 1
+                out.sent_at = now
+                actions.append(SendSignal(out.unit, out.task_uuid, out.signal, com))
+                continue
+            del self._signals[com]
+            why = f"/{out.unit} did not answer {out.signal.value} ({out.sends} attempts)"
+            log.warning("task %s: %s", out.task_uuid, why)
+            found = self._task(out.node_uuid)
+            if found is None or found[1].terminal:
+                continue
+            tree, node = found
+            node.signals.discard(com)
+            if out.signal is Signal.ABORT:
+                why += "; it may still be running the task"
+                self._finish(tree, node, NodeStatus.ABORTED, now, actions, why)
+            else:
+                self._set(tree, node, node.status, actions, why)
 
     def _tick_task(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
         opts = self.options
         attempt = node.attempt
-        if node.abort_sent_at is not None and now - node.abort_sent_at >= opts.abort_timeout:
+        answered = node.abort_answered_at
+        if answered is not None and now - answered >= opts.abort_timeout:
             why = f"/{node.unit} did not confirm $abort within {opts.abort_timeout:g} s"
             self._finish(tree, node, NodeStatus.ABORTED, now, actions, why)
-        elif node.sent and not attempt.answered and node.status is NodeStatus.ACTIVE:
+        elif node.sent and not attempt.answered:
             if now - attempt.sent_at < opts.resend_after:
                 return
             if attempt.sends >= opts.max_attempts:
-                why = f"/{node.unit} did not answer start-task ({attempt.sends} attempts)"
+                # The unit may have got it and be running it: tell it to stop.
+                why = (f"/{node.unit} did not answer start-task ({attempt.sends} attempts); "
+                       "$abort sent")
                 self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
+                self._send_signal(node, Signal.ABORT, now, actions)
                 return
             attempt.sends += 1
             attempt.sent_at = now

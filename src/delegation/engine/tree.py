@@ -39,6 +39,11 @@ class ExecNode:
     params: dict[str, Any]
     status: NodeStatus = NodeStatus.NOT_ACTIVE
     fail_reason: str = ""
+    turn: bool = False
+    """Its parent has activated it (its turn came); a node ended before its turn is skipped or
+    noted by its parent when the turn would have come (docs/protocol.md §12)."""
+    held: bool = False
+    """``$pause`` remembered: start nothing (more) here until ``$continue``."""
 
     @property
     def terminal(self) -> bool:
@@ -47,15 +52,20 @@ class ExecNode:
 
 @dataclass(slots=True, kw_only=True)
 class ControlNode(ExecNode):
-    """A ``seq`` or ``conc``: which child is next, and the signals that hold or end it."""
+    """A ``seq`` or ``conc``: which child is next, how many ended, and how it will end."""
 
-    next_child: int = 0
-    held: bool = False
-    """``$pause``: start nothing more until ``$continue``."""
-    enough: bool = False
-    """``$enough``: start nothing more, succeed once the running children end."""
+    cursor: int = 0
+    """``seq``: the child whose turn it is (``len(children)`` once past the last)."""
+    opened: bool = False
+    """``conc``: its children were activated."""
+    ended: int = 0
+    """How many children reached a final status."""
     stopping: NodeStatus | None = None
     """Failing or aborting: the status it ends with once its children have ended."""
+    outcome: NodeStatus | None = None
+    """``conc``: a child was aborted; the others go on and it ends with this status."""
+    why: str = ""
+    """The fail-reason it will end with (``stopping`` or ``outcome``)."""
 
     @property
     def is_seq(self) -> bool:
@@ -86,9 +96,14 @@ class TaskNode(ExecNode):
     waiting_since: float = 0.0
     retry_at: float | None = None
     """A busy unit refused: ask again (with fresh ids) at this time."""
-    abort_sent_at: float | None = None
-    pending_signal: Signal | None = None
-    """A signal that arrived before the unit answered the start-task."""
+    abort_sent: bool = False
+    """``$abort`` went out to the unit."""
+    abort_answered_at: float | None = None
+    """The unit answered our ``$abort``: its ``aborted`` feedback is awaited from then."""
+    pending: list[Signal] = field(default_factory=list)
+    """Signals that arrived before the unit answered the start-task, in order."""
+    signals: set[str] = field(default_factory=set)
+    """Com-uuids of this node's signal-tasks still out (unanswered)."""
     known_uuids: set[str] = field(default_factory=set)
     """Every task-uuid sent for this node (the unit may run an earlier one after all)."""
     known_coms: set[str] = field(default_factory=set)
@@ -132,9 +147,6 @@ class Tree:
 
     def children(self, node: ExecNode) -> list[ExecNode]:
         return [self.nodes[uid] for uid in node.children]
-
-    def children_ended(self, node: ExecNode) -> bool:
-        return all(self.nodes[uid].terminal for uid in node.children)
 
     def tasks(self) -> Iterator[TaskNode]:
         """The task nodes, in tree order."""
