@@ -75,22 +75,17 @@ from delegation.messages import (
     TstResponse,
     WireModel,
     decode,
-    parse_command,
 )
-from delegation.messages.errors import json_value
 from delegation.runtime.commands import (
-    CommandEntry,
     CommandKey,
     CommandLog,
-    CommandState,
-    com_uuid_of,
-    payload_digest,
 )
 from delegation.runtime.core import Effects, JobDone, Outgoing, heartbeat
-from delegation.service.access import Caller, caller_of, client_of, may_manage, refusal
+from delegation.service.access import client_of, may_manage
+from delegation.service.commands import CommandDesk, Topics
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineAnswer, EngineLink
-from delegation.service.faces import Face, failure
+from delegation.service.faces import Face
 from delegation.service.jobs import (
     BidsDone,
     Job,
@@ -162,7 +157,6 @@ class ServiceCore:
                                             min_timeout=self.config.min_heartbeat_timeout,
                                             max_timeout=self.config.max_heartbeat_timeout)
         self.book = MissionBook()
-        self.commands = CommandLog()
         self.engine = EngineLink(self.config, self.fleet)
         self.identity = self.config.identity(agent_uuid or str(uuid.uuid4()))
         self.timings: deque[Timing] = deque(maxlen=10_000)
@@ -178,13 +172,8 @@ class ServiceCore:
         self._cancels: dict[str, list[tuple[CommandKey, float]]] = {}
         #: Epoch seconds minus ``now`` (learnt from `status`): mission records are epoch stamps.
         self._epoch_offset = 0.0
-        base = self.config.base_topic
-        self.tst_command_topic = f"{base}/tst/command"
-        self.delegation_command_topic = f"{base}/delegation/command"
-        self.tst_response_topic = f"{base}/tst/response"
-        self.tst_feedback_topic = f"{base}/tst/feedback"
-        self.delegation_response_topic = f"{base}/delegation/response"
-        self.delegation_feedback_topic = f"{base}/delegation/feedback"
+        self.topics = Topics.under(self.config.base_topic)
+        self.desk = CommandDesk(self.config, CommandLog(), self.topics)
 
     @property
     def name(self) -> str:
@@ -198,16 +187,33 @@ class ServiceCore:
     def agent_uuid(self) -> str:
         return self.identity.agent_uuid
 
+    @property
+    def commands(self) -> CommandLog:
+        """Every command by (face, com-uuid) (the unit swaps in one backed by its store)."""
+        return self.desk.commands
+
+    @commands.setter
+    def commands(self, log: CommandLog) -> None:
+        self.desk.commands = log
+
+    @property
+    def tst_response_topic(self) -> str:
+        return self.topics.tst_response
+
+    @property
+    def delegation_response_topic(self) -> str:
+        return self.topics.delegation_response
+
     # ------------------------------------------------------------------ inputs
 
     def subscriptions(self) -> list[str]:
         """The filters the service listens on (the command topics also per client)."""
         p = self.config.prefix
         return [
-            self.tst_command_topic,
-            self.delegation_command_topic,
-            f"{self.tst_command_topic}/+",
-            f"{self.delegation_command_topic}/+",
+            self.topics.tst_command,
+            self.topics.delegation_command,
+            f"{self.topics.tst_command}/+",
+            f"{self.topics.delegation_command}/+",
             f"{p}/unit/+/+/+/heartbeat",
             f"{p}/unit/+/+/+/direct_execution_info",
             f"{p}/unit/+/+/+/sensor_info",
@@ -217,8 +223,8 @@ class ServiceCore:
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         """One message from the broker (a command on a shared or a per-client command topic)."""
-        faces: tuple[tuple[Face, str], ...] = (("tst", self.tst_command_topic),
-                                               ("delegation", self.delegation_command_topic))
+        faces: tuple[tuple[Face, str], ...] = (("tst", self.topics.tst_command),
+                                               ("delegation", self.topics.delegation_command))
         for face, command_topic in faces:
             if topic == command_topic:
                 return self._command(face, payload, now)
@@ -380,105 +386,18 @@ class ServiceCore:
 
     # ------------------------------------------------------------------ commands
 
-    def _read_command(
-        self, face: Face, payload: bytes, client: str | None
-    ) -> tuple[WireModel | None, MessageError | InputError | None, str | None, Caller]:
-        """(command or None, why not, its com-uuid if readable, its caller). Size first, so that
-        nothing of an oversized payload is parsed or kept; the com-uuid is bounded."""
-        where, limit = f"{face}/command", self.config.max_payload
-        response_base = self.tst_response_topic if face == "tst" else self.delegation_response_topic
-        caller = Caller(client or "", f"{response_base}/{client}" if client else "")
-        if len(payload) > limit:
-            return (None, MessageError(InputProblem(where, "", f"{len(payload)} bytes is more than "
-                                                          f"the {limit} allowed")),
-                    com_uuid_of(payload, max_bytes=limit), caller)
-        data: Any = None
-        cmd: WireModel | None = None
-        error: MessageError | InputError | None = None
-        try:
-            data = json_value(payload, where)
-            cmd = parse_command(data, face)
-        except MessageError as exc:
-            error = exc
-        com_uuid = getattr(cmd, "com_uuid", None) if cmd is not None else com_uuid_of(payload)
-        try:
-            caller = caller_of(where, data if isinstance(data, dict) else None, client,
-                               response_base)
-        except InputError as exc:
-            cmd, error = None, exc
-        return cmd, error, com_uuid, caller
-
     def _command(self, face: Face, payload: bytes, now: float, client: str | None = None
                  ) -> Effects:
-        cmd, error, com_uuid, caller = self._read_command(face, payload, client)
-        key: CommandKey | None = (face, com_uuid) if com_uuid else None
-        if key is not None:
-            digest = payload_digest(payload, self.config.max_payload)
-            entry = self.commands.seen(key)
-            if entry is not None and not entry.same_command(digest):
-                log.info("com-uuid %s reused for a different command", key[1])
-                reason = f"{face}/command: com-uuid: {key[1]!r} reused for a different command"
-                return self._respond(face, None, failure(face, key[1], reason),
-                                     caller.reply_topic)
-            if entry is not None:
-                return self._resend(entry)
-            entry = self.commands.begin(key, now, digest)
-            entry.caller, entry.reply_topic = caller.name, caller.reply_topic
-        if cmd is None or key is None:
-            reason = error.fail_reason if error is not None else f"{face}/command: unreadable"
-            log.info("bad command on %s/command: %s", face, reason)
-            return self._fail(face, key, com_uuid or "", reason, caller.reply_topic)
+        arrival = self.desk.arrive(face, payload, now, client)
+        if arrival.effects is not None or arrival.command is None:
+            return arrival.effects or Effects()
+        key = arrival.key
         try:
             if face == "tst":
-                return self._tst_command(cmd, key, now)
-            return self._delegation_command(cmd, key, now)
+                return self._tst_command(arrival.command, key, now)
+            return self._delegation_command(arrival.command, key, now)
         except InputError as exc:
-            return self._fail(face, key, key[1], exc.fail_reason)
-
-    def _resend(self, entry: CommandEntry) -> Effects:
-        """A command seen before: its stored answer again, or nothing while it is being worked on
-        (the answer goes out once ready and serves every copy)."""
-        if entry.state is CommandState.PENDING:
-            log.info("re-sent command %s is still being worked on", entry.key[1])
-            return Effects()
-        log.info("re-sent command %s: answering again", entry.key[1])
-        return Effects.of(entry.answer)
-
-    def _respond(
-        self, face: Face, key: CommandKey | None, response: WireModel, reply_topic: str = ""
-    ) -> Effects:
-        """Publish the answer to a command once, on its caller's response topic; remember it for
-        re-sends."""
-        entry = self.commands.get(key) if key is not None else None
-        topic = (entry.reply_topic if entry is not None else reply_topic) or (
-            self.tst_response_topic if face == "tst" else self.delegation_response_topic)
-        out = Outgoing.of(topic, response)
-        if key is not None and not self.commands.finish(key, [out]):
-            return Effects()
-        return Effects(publish=[out])
-
-    def _fail(self, face: Face, key: CommandKey | None, com_uuid: str, reason: str,
-              reply_topic: str = "") -> Effects:
-        log.info("command %s on %s refused: %s", com_uuid or "?", face, reason)
-        return self._respond(face, key, failure(face, com_uuid, reason), reply_topic)
-
-    # ---- who may do what (service.access)
-
-    def _caller(self, key: CommandKey) -> str:
-        entry = self.commands.get(key)
-        return entry.caller if entry is not None else ""
-
-    def _may_manage(self, mission: Mission, key: CommandKey) -> bool:
-        return may_manage(mission.owner, self._caller(key), self.config.operators)
-
-    def _authorise(self, command: str, mission: Mission, key: CommandKey) -> Mission:
-        """The mission, if the caller may touch it; else ``InputError`` saying whose it is."""
-        if not self._may_manage(mission, key):
-            caller = self._caller(key)
-            log.warning("refused %s of mission %s (owner %r) to %r", command, mission.root_uuid,
-                        mission.owner, caller)
-            raise refusal(command, mission.root_uuid, mission.owner, caller)
-        return mission
+            return self.desk.fail(face, key, key[1], exc.fail_reason)
 
     # ---- TST face
 
@@ -492,7 +411,7 @@ class ServiceCore:
                 raise InputError(InputProblem(
                     cmd.command, "node-uuid",
                     f"{cmd.node_uuid!r} is not a node of any mission of {self.config.name}"))
-            self._authorise(cmd.command, mission, key)
+            self.desk.authorise(cmd.command, mission, key)
             model: WireModel = type(cmd)(
                 node_uuid=cmd.node_uuid, signal=cmd.signal, sender=self.config.name
             )
@@ -502,11 +421,11 @@ class ServiceCore:
             for mission in self.book:
                 if not mission.ended and any(n.execunit.strip("/") == unit
                                              for n in mission.nodes.values()):
-                    self._authorise(cmd.command, mission, key)
+                    self.desk.authorise(cmd.command, mission, key)
             model = SignalUnit(unit=cmd.unit, signal=cmd.signal, sender=self.config.name)
             return self._to_engine("signal", key, "tst", model, now)
         if isinstance(cmd, Ping):
-            return self._respond("tst", key, TstResponse(response="pong", response_to=key[1]))
+            return self.desk.respond("tst", key, TstResponse(response="pong", response_to=key[1]))
         name = getattr(cmd, "command", "?")
         raise InputError(InputProblem("tst/command", "command", f"{name!r} is not supported"))
 
@@ -514,11 +433,11 @@ class ServiceCore:
 
     def _delegation_command(self, cmd: WireModel, key: CommandKey, now: float) -> Effects:
         def ok(**payload: Any) -> Effects:
-            return self._respond("delegation", key,
+            return self.desk.respond("delegation", key,
                                  DelegationResponse(response="ok", response_to=key[1], **payload))
 
         if isinstance(cmd, DelegationPing | Ping):
-            return self._respond("delegation", key, DelegationResponse(response="pong",
+            return self.desk.respond("delegation", key, DelegationResponse(response="pong",
                                                                        response_to=key[1]))
         if isinstance(cmd, Delegate):
             options = self._options(cmd.strategy, cmd.objective, cmd.time_limit)
@@ -528,10 +447,10 @@ class ServiceCore:
             return self._plan_job("delegation", key, cmd.tst, now, self._options(None, None, None),
                                   start=False, source="bids", kind="bids")
         if isinstance(cmd, QueryMission):
-            return ok(mission=self._authorise(cmd.command, self.book.get(cmd.root_uuid),
+            return ok(mission=self.desk.authorise(cmd.command, self.book.get(cmd.root_uuid),
                                               key).to_json())
         if isinstance(cmd, ListMissions):  # a page of the caller's own (an operator: every one)
-            caller = self._caller(key)
+            caller = self.desk.caller(key)
             if caller in self.config.operators:
                 missions, total = self.book.page(cmd.offset, cmd.limit)
             else:
@@ -548,13 +467,13 @@ class ServiceCore:
                                  f"{getattr(cmd, 'command', '?')!r} is not supported"))
 
     def _cancel(self, cmd: CancelMission, key: CommandKey, now: float) -> Effects:
-        mission = self._authorise(cmd.command, self.book.get(cmd.root_uuid), key)
+        mission = self.desk.authorise(cmd.command, self.book.get(cmd.root_uuid), key)
         if mission.ended:
             raise InputError(InputProblem("cancel-mission", "root-uuid",
                                      f"mission {cmd.root_uuid} already ended "
                                      f"({mission.status.value})"))
         if mission.status is MissionStatus.PLANNED and not self.engine.starting(mission.root_uuid):
-            out = self._respond("delegation", key,
+            out = self.desk.respond("delegation", key,
                                 DelegationResponse(response="ok", response_to=key[1]))
             return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
                                                "cancelled before it started"))
@@ -562,7 +481,7 @@ class ServiceCore:
         if problem or mission.redelegating:
             # Nothing to wait for: no engine runs the tree (or its replacement is not sent yet).
             why = f"cancelled ({problem})" if problem else "cancelled while re-delegating"
-            out = self._respond("delegation", key,
+            out = self.desk.respond("delegation", key,
                                 DelegationResponse(response="ok", response_to=key[1]))
             replan = self._replans.pop(mission.root_uuid, None)
             if replan is not None:  # the old tree may still run on a live engine
@@ -606,7 +525,6 @@ class ServiceCore:
             if problem:
                 raise InputError(InputProblem("engine", "", problem))
         self._job_ids += 1
-        entry = self.commands.get(key)
         units, notes = self.plannable(now) if kind == "plan" else (self.units(now), ())
         warnings = tuple(input_warnings(tree, units, self.fleet.names())) if kind == "plan" else ()
         for w in warnings:
@@ -615,7 +533,7 @@ class ServiceCore:
                  tree.name, face, source, ", start" if start else "", len(units))
         job = Job(id=self._job_ids, kind=kind, key=key, face=face, tree=tree,
                   units=units, options=options, engine=self.config.engine,
-                  start=start, source=source, received=entry.received if entry else now,
+                  start=start, source=source, received=self.desk.received(key, now),
                   speed_sources=self.speed_sources(units), warnings=warnings, notes=notes,
                   limits=self.config.limits)
         return Effects(jobs=[job])
@@ -628,9 +546,9 @@ class ServiceCore:
         if job.redelegate:
             return self._redelegated(job, result, now)
         if isinstance(result, JobFailed):
-            return self._fail(job.face, job.key, job.com_uuid, result.reason)
+            return self.desk.fail(job.face, job.key, job.com_uuid, result.reason)
         if isinstance(result, BidsDone):
-            return self._respond(job.face, job.key, DelegationResponse(
+            return self.desk.respond(job.face, job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, bids=list(result.bids)))
         plan = result.plan
         plan_json = {**plan.to_json(), "notes": list(plan.notes)}
@@ -652,12 +570,13 @@ class ServiceCore:
             reason = infeasible_reason(plan, job.tree)
             log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
             if job.face == "tst":
-                return self._fail("tst", job.key, job.com_uuid, reason)
-            return self._respond("delegation", job.key, DelegationResponse(
+                return self.desk.fail("tst", job.key, job.com_uuid, reason)
+            return self.desk.respond("delegation", job.key, DelegationResponse(
                 response="failed", response_to=job.com_uuid, fail_reason=reason, plan=plan_json))
         conflicts = self.book.conflicts(plan.tst)
         if conflicts:  # a twin command with the same tree was planned meanwhile
-            return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)
+            return self.desk.fail(job.face, job.key, job.com_uuid,
+                                  InputError(conflicts).fail_reason)
         root_uuid = plan.tst.node_uuid or ""
         self.book.add(Mission(root_uuid=root_uuid, source=job.source, created=self._epoch(now),
                               tst=plan_json["tst"], plan=plan_json,
@@ -666,19 +585,19 @@ class ServiceCore:
                               operator=(OperatorView.of(plan.source, plan.tst)
                                         if plan.source else None),
                               received=to_dict(job.tree), command=job.key,
-                              owner=self._caller(job.key)))
+                              owner=self.desk.caller(job.key)))
         for _, node in walk(plan.tst):
             cls = speed_class(node)
             if cls and node.node_uuid and isinstance(node.execunit, str):
                 self._task_class[node.node_uuid] = (node.execunit.strip("/"), cls)
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
-            return effects.extend(self._respond("delegation", job.key, DelegationResponse(
+            return effects.extend(self.desk.respond("delegation", job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, plan=plan_json)))
         problem = self.engine.problem(now)
         if problem:
             effects.extend(self._set_status(root_uuid, MissionStatus.FAILED, now, problem))
-            return effects.extend(self._fail(job.face, job.key, job.com_uuid, problem))
+            return effects.extend(self.desk.fail(job.face, job.key, job.com_uuid, problem))
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
                                        plan=plan_json))
@@ -734,14 +653,14 @@ class ServiceCore:
         effects = Effects()
         view = mission.operator
         if view is None or view.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
-            effects.send(self.tst_feedback_topic, TstFeedback(
+            effects.send(self.topics.tst_feedback, TstFeedback(
                 node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
                 fail_reason=fb.fail_reason))
         if view is not None and view.relayed(fb.node_uuid):
             # The operator's control nodes the sent tree regrouped away: derived from their
             # children (docs/protocol.md §8).
             for uid, status in view.changes(fb.node_uuid, mission.node_status):
-                effects.send(self.tst_feedback_topic, TstFeedback(
+                effects.send(self.topics.tst_feedback, TstFeedback(
                     node_uuid=uid, root_flag=uid == view.root, status=status,
                     fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
         effects.extend(self._lifecycle(events))
@@ -783,7 +702,7 @@ class ServiceCore:
             self._cancels.setdefault(req.root_uuid, []).append(
                 (req.key, now + self.config.cancel_timeout))
             return effects
-        return effects.extend(self._respond(req.face, req.key, got.answer))
+        return effects.extend(self.desk.respond(req.face, req.key, got.answer))
 
     # ------------------------------------------------------------------ ticks and status
 
@@ -853,7 +772,7 @@ class ServiceCore:
                 why = (f"$abort accepted by engine {self.config.engine} but not confirmed within "
                        f"{self.config.cancel_timeout:g} s; the mission ends when the engine "
                        f"reports it (query-mission)")
-                effects.extend(self._respond("delegation", key, DelegationResponse(
+                effects.extend(self.desk.respond("delegation", key, DelegationResponse(
                     response="pending", response_to=key[1], fail_reason=why)))
             rest = [w for w in waiting if w not in due]
             if rest:
@@ -874,13 +793,13 @@ class ServiceCore:
                     fail_reason=f"mission {e.root_uuid} ended {e.status.value} before the "
                                 f"abort took effect" + (f": {e.fail_reason}" if e.fail_reason
                                                         else ""))
-            effects.extend(self._respond("delegation", key, answer))
+            effects.extend(self.desk.respond("delegation", key, answer))
         return effects
 
     def _lifecycle(self, events: Iterable[LifecycleEvent]) -> Effects:
         effects = Effects()
         for e in events:
-            effects.send(self.delegation_feedback_topic,
+            effects.send(self.topics.delegation_feedback,
                          DelegationFeedback(root_uuid=e.root_uuid, status=e.status.value,
                                             fail_reason=e.fail_reason))
             if e.status in FINAL_MISSION_STATUSES:
@@ -994,7 +913,7 @@ class ServiceCore:
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", (INTERNAL, f"{new_root}#start"), "delegation",
                                        start, now, mission.root_uuid, plan=plan_json))
-        effects.send(self.delegation_feedback_topic, DelegationFeedback(
+        effects.send(self.topics.delegation_feedback, DelegationFeedback(
             root_uuid=mission.root_uuid, status=MissionStatus.RE_DELEGATED.value,
             fail_reason=replan.why, tasks=moved))
         log.info("mission %s re-delegated: %s", mission.root_uuid,
