@@ -47,10 +47,9 @@ from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
-from delegation.errors import InputError, InputProblem, MessageError
+from delegation.errors import InputError, InputProblem
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
-from delegation.geo import GeoPoint
-from delegation.learning import SpeedLearner, input_warnings, speed_class
+from delegation.learning import SpeedLearner, input_warnings
 from delegation.messages import (
     FINAL_MISSION_STATUSES,
     TERMINAL_NODE_STATUSES,
@@ -74,7 +73,6 @@ from delegation.messages import (
     TstFeedback,
     TstResponse,
     WireModel,
-    decode,
 )
 from delegation.runtime.commands import (
     CommandKey,
@@ -86,6 +84,7 @@ from delegation.service.commands import CommandDesk, Topics
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineAnswer, EngineLink
 from delegation.service.faces import Face
+from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import (
     BidsDone,
     Job,
@@ -156,14 +155,11 @@ class ServiceCore:
         self.fleet = fleet or FleetRegistry(profiles=self.config.profiles,
                                             min_timeout=self.config.min_heartbeat_timeout,
                                             max_timeout=self.config.max_heartbeat_timeout)
-        self.book = MissionBook()
+        self._book = MissionBook()
         self.engine = EngineLink(self.config, self.fleet)
         self.identity = self.config.identity(agent_uuid or str(uuid.uuid4()))
         self.timings: deque[Timing] = deque(maxlen=10_000)
         #: Speeds learnt from the units' flights (`delegation.learning`).
-        self.learner = SpeedLearner()
-        self._task_class: dict[str, tuple[str, str]] = {}  # node-uuid -> (unit, speed class)
-        self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
         self._job_ids = 0
         self._replanned: dict[CommandKey, int] = {}
         self._replans: dict[str, Replan] = {}
@@ -174,6 +170,7 @@ class ServiceCore:
         self._epoch_offset = 0.0
         self.topics = Topics.under(self.config.base_topic)
         self.desk = CommandDesk(self.config, CommandLog(), self.topics)
+        self.view = FleetView(self.config, self.fleet, self._book, self.engine, self._epoch)
 
     @property
     def name(self) -> str:
@@ -186,6 +183,20 @@ class ServiceCore:
     @property
     def agent_uuid(self) -> str:
         return self.identity.agent_uuid
+
+    @property
+    def book(self) -> MissionBook:
+        """Every mission (the unit swaps in one backed by its store)."""
+        return self._book
+
+    @book.setter
+    def book(self, book: MissionBook) -> None:
+        self._book = self.view.book = book
+
+    @property
+    def learner(self) -> SpeedLearner:
+        """Speeds learnt from the units' flights (`delegation.learning`)."""
+        return self.view.learner
 
     @property
     def commands(self) -> CommandLog:
@@ -239,27 +250,12 @@ class ServiceCore:
             return Effects()
         if parsed.name == self.config.engine and parsed.rest in ("tst/response", "tst/feedback"):
             return self._from_engine(topic, payload, now)
-        self._observe_fleet(topic, payload, now)
+        self.view.observe(topic, payload, now)
         return self._fleet_events(now)
 
     def _epoch(self, now: float) -> float:
         """``now`` (monotonic) as epoch seconds, for mission records."""
         return now + self._epoch_offset
-
-    def _observe_fleet(self, topic: str, payload: bytes, now: float) -> None:
-        """Units, and the engine: the registry knows every heartbeat's base topic and age, and
-        plans only for units on the direct execution level."""
-        try:
-            message = decode(topic, payload)
-        except MessageError as exc:
-            log.debug("ignoring %s: %s", topic, exc)
-            return
-        try:
-            self.fleet.observe(topic, message, now)
-        except InputError as exc:
-            log.debug("fleet ignored %s: %s", topic, exc)
-        if topic.endswith("/sensor/speed"):
-            self._learn_speed(topic, message, now)
 
     def _fleet_events(self, now: float) -> Effects:
         """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
@@ -275,114 +271,33 @@ class ServiceCore:
                 effects.extend(self._unit_lost(event, now))
         return effects
 
-    def _learn_speed(self, topic: str, message: Any, now: float) -> None:
-        parsed = parse_unit_topic(topic)
-        value = getattr(message, "value", message)
-        if parsed is None or isinstance(value, bool) or not isinstance(value, int | float):
-            return
-        cls = self.learner.observe_speed(parsed.name, float(value), now)
-        if cls is not None:
-            log.info("unit %s: learnt its %s speed, %.2f m/s (plans use it from now on)",
-                     parsed.name, cls, self.learner.learnt(parsed.name)[cls])
-
     # ------------------------------------------------------------------ fleet views
 
     def units(self, now: float) -> tuple[UnitState, ...]:
-        """The units to plan for (the registry leaves out engines and delegators), with the
-        speeds learnt from their flights."""
-        return self.learner.apply(self.fleet.snapshot(now))
+        """The units to plan for, with learnt speeds (`FleetView.units`)."""
+        return self.view.units(now)
 
     def speed_sources(self, units: Iterable[UnitState]) -> dict[str, str]:
-        """Per unit: ``learnt``, ``profile`` or ``default`` (`delegation.learning`)."""
-        return {u.name: self.learner.source(u.name, self.fleet.has_profile_speeds(u.name))
-                for u in units}
+        return self.view.speed_sources(units)
 
     def engine_base(self, now: float) -> str | None:
         """The engine's base topic while its heartbeat is fresh, else None."""
         return self.engine.base(now)
 
     def agents(self, now: float) -> list[dict[str, Any]]:
-        """The live units for ``list-agents`` (those that can be delegated to)."""
-        units = {u.name: u for u in self.units(now)}
-        sources = self.speed_sources(units.values())
-        return [{**row, "speeds": units[row["name"]].speeds, "speeds-source": sources[row["name"]]}
-                for row in self.fleet.agents(now, alive_only=True) if row["name"] in units]
+        """The live units for ``list-agents``."""
+        return self.view.agents(now)
 
     def ready(self, units: Iterable[str], engine: bool, now: float) -> bool:
         """True once the named units (and the engine, with ``engine``) are live as seen here."""
-        if engine and self.engine_base(now) is None:
-            return False
-        return set(units) <= {u.name for u in self.units(now) if u.alive}
+        return self.view.ready(units, engine, now)
 
     def plannable(
         self, now: float, exclude: Iterable[str] = (), mission: str = ""
     ) -> tuple[tuple[UnitState, ...], tuple[str, ...]]:
-        """The units to plan a mission with, and notes naming those left out: battery below
-        ``min_battery``, ``exclude`` (a lost or failing unit being re-delegated from). A unit busy
-        in another running mission is planned from when and where it becomes free
-        (``commitments: wait``, said in the notes), or left out (``exclude``, or when its end is
-        not known)."""
-        mode = self.config.commitments
-        busy = self._committed(mission) if mode != "share" else {}
-        skip = set(exclude)
-        units: list[UnitState] = []
-        notes: list[str] = []
-        for unit in self.units(now):
-            if unit.name in skip:
-                notes.append(f"{unit.name}: left out (lost or failed a task of this mission)")
-            elif unit.battery is not None and unit.battery < self.config.min_battery:
-                notes.append(f"{unit.name}: left out, battery {unit.battery:.0%} is below "
-                             f"{self.config.min_battery:.0%}")
-            elif unit.name in busy:
-                free = self._free_at(unit, busy[unit.name], now) if mode == "wait" else None
-                if free is None:
-                    notes.append(f"{unit.name}: left out, busy in mission {busy[unit.name]}")
-                    continue
-                units.append(replace(unit, available_at=free[0], position=free[1]))
-                notes.append(f"{unit.name}: busy in mission {busy[unit.name]}, planned from when "
-                             f"and where it becomes free (in {free[0]:.0f} s)")
-            else:
-                units.append(unit)
-        return tuple(units), tuple(notes)
-
-    def _free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
-        """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
-        that mission's plan; None when the plan does not say (a re-delegated tree)."""
-        m = self.book.find(root)
-        if m is None:
-            return None
-        mine = [a for a in m.plan.get("assignments", [])
-                if a.get("execunit") == unit.execunit and m.node_status.get(
-                    a.get("node-uuid", "")) not in TERMINAL]
-        if not mine or any(a.get("node-uuid") not in m.current_nodes for a in mine):
-            return None
-        last = max(mine, key=lambda a: float(a.get("end", 0.0)))
-        began = m.started_at if m.started_at is not None else self._epoch(now)
-        wait = max(0.0, began + float(last.get("end", 0.0)) - self._epoch(now))
-        node = next((n for _, n in walk(parse_tree(m.current_tst))
-                     if n.node_uuid == last.get("node-uuid")), None)
-        points = ([node.params.get("waypoint")] if node is not None and node.name == "move-to"
-                  else list(node.params.get("waypoints", [])) if node is not None
-                  and node.name == "move-path" else [])
-        try:
-            where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
-        except ValueError:
-            where_then = unit.position
-        return wait, where_then
-
-    def _committed(self, but: str = "") -> dict[str, str]:
-        """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
-        busy: dict[str, str] = {}
-        for m in self.book:
-            if m.ended or m.root_uuid == but:
-                continue
-            if m.status is MissionStatus.PLANNED and not self.engine.starting(m.root_uuid):
-                continue  # planned only (start: false)
-            for uid in m.current_nodes:
-                info, status = m.nodes[uid], m.node_status.get(uid)
-                if info.is_task and info.execunit and status not in TERMINAL:
-                    busy.setdefault(info.execunit.strip("/"), m.root_uuid)
-        return busy
+        """The units to plan a mission with, and notes naming those left out
+        (`FleetView.plannable`)."""
+        return self.view.plannable(now, exclude, mission)
 
     # ------------------------------------------------------------------ commands
 
@@ -586,10 +501,7 @@ class ServiceCore:
                                         if plan.source else None),
                               received=to_dict(job.tree), command=job.key,
                               owner=self.desk.caller(job.key)))
-        for _, node in walk(plan.tst):
-            cls = speed_class(node)
-            if cls and node.node_uuid and isinstance(node.execunit, str):
-                self._task_class[node.node_uuid] = (node.execunit.strip("/"), cls)
+        self.view.planned(plan.tst)
         effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self.desk.respond("delegation", job.key, DelegationResponse(
@@ -644,12 +556,7 @@ class ServiceCore:
         )
         if mission is None:
             return Effects()  # a tree someone else gave the engine
-        task = self._task_class.get(fb.node_uuid)
-        if task is not None and fb.status == "running":
-            self.learner.task_started(task[0], fb.node_uuid, task[1], now)
-        elif task is not None and fb.status in TERMINAL_NODE_STATUSES:
-            self.learner.task_ended(task[0], fb.node_uuid, now)
-            del self._task_class[fb.node_uuid]
+        self.view.task_feedback(fb, now)
         effects = Effects()
         view = mission.operator
         if view is None or view.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
@@ -708,7 +615,7 @@ class ServiceCore:
 
     def on_tick(self, now: float) -> Effects:
         """Answer ``failed`` the engine commands that were never answered."""
-        self._log_silent(now)
+        self.view.log_silent(now)
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
@@ -728,18 +635,6 @@ class ServiceCore:
         self._offline_since = None
         self.fleet.grace(now, self.config.reconnect_grace)
         return Effects()
-
-    def _log_silent(self, now: float) -> None:
-        """Log the units whose heartbeat stopped (appearing and rebooting are logged as the
-        registry notices them)."""
-        alive = {u.name for u in self.fleet.snapshot(now) if u.alive}
-        for name in sorted(self._alive - alive):
-            seen = self.fleet.last_seen(name)
-            ago = f" (last message {now - seen:.0f} s ago)" if seen is not None else ""
-            log.warning("unit %s fell silent%s", name, ago)
-        for name in sorted(alive - self._alive):
-            log.debug("unit %s is live", name)
-        self._alive = alive
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
@@ -941,4 +836,4 @@ class ServiceCore:
             return set()
         known = {u.name for u in job.units if u.available_at > 0.0}
         used = {a.execunit.strip("/") for a in plan.assignments}
-        return (used & set(self._committed())) - known
+        return (used & set(self.view.committed())) - known
