@@ -51,7 +51,6 @@ from delegation.errors import InputError, InputProblem
 from delegation.fleet import FleetEvent, FleetEventKind, FleetRegistry, UnitState
 from delegation.learning import SpeedLearner, input_warnings
 from delegation.messages import (
-    FINAL_MISSION_STATUSES,
     TERMINAL_NODE_STATUSES,
     CancelMission,
     Delegate,
@@ -80,6 +79,7 @@ from delegation.runtime.commands import (
 )
 from delegation.runtime.core import Effects, JobDone, Outgoing, heartbeat
 from delegation.service.access import client_of, may_manage
+from delegation.service.cancels import Cancels
 from delegation.service.commands import CommandDesk, Topics
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineAnswer, EngineLink
@@ -96,6 +96,7 @@ from delegation.service.jobs import (
     internal_error,
     plan_options,
 )
+from delegation.service.lifecycle import Epoch, Lifecycle
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
 from delegation.service.operator_view import OperatorView
 from delegation.service.redelegation import (
@@ -164,13 +165,14 @@ class ServiceCore:
         self._replanned: dict[CommandKey, int] = {}
         self._replans: dict[str, Replan] = {}
         self._offline_since: float | None = None
-        #: Cancels the engine accepted, waiting for the mission to end: root -> (key, deadline).
-        self._cancels: dict[str, list[tuple[CommandKey, float]]] = {}
-        #: Epoch seconds minus ``now`` (learnt from `status`): mission records are epoch stamps.
-        self._epoch_offset = 0.0
+        #: ``now`` as epoch seconds (the offset learnt from `status`): mission records' stamps.
+        self._epoch = Epoch()
         self.topics = Topics.under(self.config.base_topic)
         self.desk = CommandDesk(self.config, CommandLog(), self.topics)
         self.view = FleetView(self.config, self.fleet, self._book, self.engine, self._epoch)
+        self.lifecycle = Lifecycle(self._book, self.desk,
+                                   Cancels(self.config.engine, self.config.cancel_timeout),
+                                   self._epoch)
 
     @property
     def name(self) -> str:
@@ -191,7 +193,7 @@ class ServiceCore:
 
     @book.setter
     def book(self, book: MissionBook) -> None:
-        self._book = self.view.book = book
+        self._book = self.view.book = self.lifecycle.book = book
 
     @property
     def learner(self) -> SpeedLearner:
@@ -252,10 +254,6 @@ class ServiceCore:
             return self._from_engine(topic, payload, now)
         self.view.observe(topic, payload, now)
         return self._fleet_events(now)
-
-    def _epoch(self, now: float) -> float:
-        """``now`` (monotonic) as epoch seconds, for mission records."""
-        return now + self._epoch_offset
 
     def _fleet_events(self, now: float) -> Effects:
         """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
@@ -389,20 +387,20 @@ class ServiceCore:
                                      f"({mission.status.value})"))
         if mission.status is MissionStatus.PLANNED and not self.engine.starting(mission.root_uuid):
             out = self.desk.respond("delegation", key,
-                                DelegationResponse(response="ok", response_to=key[1]))
-            return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
-                                               "cancelled before it started"))
+                                    DelegationResponse(response="ok", response_to=key[1]))
+            return out.extend(self.lifecycle.set_status(
+                mission.root_uuid, MissionStatus.ABORTED, now, "cancelled before it started"))
         problem = self.engine.problem(now)
         if problem or mission.redelegating:
             # Nothing to wait for: no engine runs the tree (or its replacement is not sent yet).
             why = f"cancelled ({problem})" if problem else "cancelled while re-delegating"
             out = self.desk.respond("delegation", key,
-                                DelegationResponse(response="ok", response_to=key[1]))
+                                    DelegationResponse(response="ok", response_to=key[1]))
             replan = self._replans.pop(mission.root_uuid, None)
             if replan is not None:  # the old tree may still run on a live engine
                 out.extend(self._abort_tree(replan.old_root, now))
-            return out.extend(self._set_status(mission.root_uuid, MissionStatus.ABORTED, now,
-                                               why))
+            return out.extend(self.lifecycle.set_status(
+                mission.root_uuid, MissionStatus.ABORTED, now, why))
         model = SignalTstTree(node_uuid=mission.current_root, signal="$abort",
                               sender=self.config.name)
         return self._to_engine("cancel", key, "delegation", model, now, mission.root_uuid)
@@ -502,13 +500,13 @@ class ServiceCore:
                               received=to_dict(job.tree), command=job.key,
                               owner=self.desk.caller(job.key)))
         self.view.planned(plan.tst)
-        effects = self._lifecycle([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
+        effects = self.lifecycle.publish([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
         if not job.start:
             return effects.extend(self.desk.respond("delegation", job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, plan=plan_json)))
         problem = self.engine.problem(now)
         if problem:
-            effects.extend(self._set_status(root_uuid, MissionStatus.FAILED, now, problem))
+            effects.extend(self.lifecycle.set_status(root_uuid, MissionStatus.FAILED, now, problem))
             return effects.extend(self.desk.fail(job.face, job.key, job.com_uuid, problem))
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
         effects.extend(self._to_engine("start", job.key, job.face, start, now, root_uuid,
@@ -570,7 +568,7 @@ class ServiceCore:
                 effects.send(self.topics.tst_feedback, TstFeedback(
                     node_uuid=uid, root_flag=uid == view.root, status=status,
                     fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
-        effects.extend(self._lifecycle(events))
+        effects.extend(self.lifecycle.publish(events))
         if retry is not None:
             effects.extend(self._redelegate(mission, retry[0], retry[1], now))
         return effects
@@ -598,7 +596,7 @@ class ServiceCore:
         req = got.request
         effects = Effects()
         if got.mission_status is not None:
-            effects.extend(self._set_status(req.root_uuid, got.mission_status, now,
+            effects.extend(self.lifecycle.set_status(req.root_uuid, got.mission_status, now,
                                             got.fail_reason))
         if req.key[0] == INTERNAL:
             return effects  # the service's own command (re-delegation): nobody to answer
@@ -606,8 +604,7 @@ class ServiceCore:
         if mission is not None and not mission.ended \
                 and getattr(got.answer, "response", "") == "ok":
             # Answered when the engine confirms (the root ends), or `pending` at the deadline.
-            self._cancels.setdefault(req.root_uuid, []).append(
-                (req.key, now + self.config.cancel_timeout))
+            self.lifecycle.wait_cancel(req.root_uuid, req.key, now)
             return effects
         return effects.extend(self.desk.respond(req.face, req.key, got.answer))
 
@@ -619,7 +616,7 @@ class ServiceCore:
         effects = Effects()
         for got in self.engine.expire(now):
             effects.extend(self._engine_answer(got, now))
-        effects.extend(self._cancel_deadlines(now))
+        effects.extend(self.lifecycle.cancel_deadlines(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
         return effects.extend(self._fleet_events(now))
@@ -639,7 +636,7 @@ class ServiceCore:
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
         c = self.config
-        self._epoch_offset = stamp - now
+        self._epoch.offset = stamp - now
         active = [m.root_uuid for m in self.book if not m.ended
                   and m.status is not MissionStatus.PLANNED]
         tst_info = TstExecutionInfo(name=c.name, rate=c.rate, stamp=stamp, trees_executing=active)
@@ -650,58 +647,6 @@ class ServiceCore:
             Outgoing.of(self.identity.topic("tst_execution_info"), tst_info, QOS_PERIODIC),
             Outgoing.of(self.identity.topic("delegation_info"), info, QOS_PERIODIC),
         ]
-
-    def _set_status(
-        self, root_uuid: str, status: MissionStatus, now: float, fail_reason: str = ""
-    ) -> Effects:
-        """Move a mission on (`MissionBook.set_status`) and publish the change, if any."""
-        event = self.book.set_status(root_uuid, status, self._epoch(now), fail_reason)
-        return self._lifecycle([event] if event else [])
-
-    def _cancel_deadlines(self, now: float) -> Effects:
-        """Cancels whose abort the engine did not confirm in time: answered ``pending``."""
-        effects = Effects()
-        for root, waiting in list(self._cancels.items()):
-            due = [(k, d) for k, d in waiting if d <= now]
-            for key, _ in due:
-                why = (f"$abort accepted by engine {self.config.engine} but not confirmed within "
-                       f"{self.config.cancel_timeout:g} s; the mission ends when the engine "
-                       f"reports it (query-mission)")
-                effects.extend(self.desk.respond("delegation", key, DelegationResponse(
-                    response="pending", response_to=key[1], fail_reason=why)))
-            rest = [w for w in waiting if w not in due]
-            if rest:
-                self._cancels[root] = rest
-            else:
-                del self._cancels[root]
-        return effects
-
-    def _cancels_answered(self, e: LifecycleEvent) -> Effects:
-        """A mission ended: answer the cancels waiting for it."""
-        effects = Effects()
-        for key, _ in self._cancels.pop(e.root_uuid, []):
-            if e.status is MissionStatus.ABORTED:
-                answer = DelegationResponse(response="ok", response_to=key[1])
-            else:
-                answer = DelegationResponse(
-                    response="failed", response_to=key[1],
-                    fail_reason=f"mission {e.root_uuid} ended {e.status.value} before the "
-                                f"abort took effect" + (f": {e.fail_reason}" if e.fail_reason
-                                                        else ""))
-            effects.extend(self.desk.respond("delegation", key, answer))
-        return effects
-
-    def _lifecycle(self, events: Iterable[LifecycleEvent]) -> Effects:
-        effects = Effects()
-        for e in events:
-            effects.send(self.topics.delegation_feedback,
-                         DelegationFeedback(root_uuid=e.root_uuid, status=e.status.value,
-                                            fail_reason=e.fail_reason))
-            if e.status in FINAL_MISSION_STATUSES:
-                effects.extend(self._cancels_answered(e))
-            log.info("mission %s %s%s", e.root_uuid, e.status.value,
-                     f": {e.fail_reason}" if e.fail_reason else "")
-        return effects
 
     # ------------------------------------------------------------- faults (docs/protocol.md §11)
 
@@ -718,7 +663,7 @@ class ServiceCore:
             if m.ended or m.status is MissionStatus.PLANNED:
                 continue
             self._replans.pop(m.root_uuid, None)
-            effects.extend(self._set_status(m.root_uuid, MissionStatus.FAILED, now, why))
+            effects.extend(self.lifecycle.set_status(m.root_uuid, MissionStatus.FAILED, now, why))
         return effects
 
     def _unit_lost(self, event: FleetEvent, now: float) -> Effects:
@@ -826,8 +771,8 @@ class ServiceCore:
 
     def _abort_and_fail(self, mission: Mission, root: str, reason: str, now: float) -> Effects:
         effects = self._abort_tree(root, now)
-        return effects.extend(self._set_status(mission.root_uuid, MissionStatus.FAILED, now,
-                                               reason))
+        return effects.extend(self.lifecycle.set_status(
+                mission.root_uuid, MissionStatus.FAILED, now, reason))
 
     def _clash(self, plan: Any, job: Job) -> set[str]:
         """Units a start plan uses that got busy in a mission started meanwhile (the plan did
