@@ -32,7 +32,7 @@ from delegation.runtime.core import Effects, Outgoing
 from delegation.service.access import Caller, caller_of, may_manage, refusal
 from delegation.service.config import ServiceConfig
 from delegation.service.faces import Face, failure
-from delegation.service.missions import Mission
+from delegation.service.missions import Mission, MissionBook
 
 log = logging.getLogger(__name__)
 
@@ -212,6 +212,17 @@ class CommandDesk:
         """When the command ``key`` arrived (``default`` when the log does not know)."""
         entry = self.commands.get(key)
         return entry.received if entry is not None else default
+
+    def missions_page(self, book: MissionBook, key: CommandKey, offset: int, limit: int
+                      ) -> tuple[list[dict[str, Any]], int]:
+        """(a page of the missions the caller of ``key`` may see, how many there are): an
+        operator sees every one, anyone else their own and the anonymous ones."""
+        caller = self.caller(key)
+        if caller in self.config.operators:
+            return book.page(offset, limit)
+        every, _ = book.page(0, 1 << 30)
+        mine = [s for s in every if may_manage(str(s.get("owner") or ""), caller, ())]
+        return mine[offset:offset + limit], len(mine)
 
     def authorise(self, command: str, mission: Mission, key: CommandKey) -> Mission:
         """The mission, if the caller may touch it; else ``InputError`` saying whose it is."""

@@ -12,14 +12,26 @@ import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from delegation.messages import FINAL_MISSION_STATUSES, DelegationFeedback, MissionStatus
+from delegation.allocation import OBJECTIVES, STRATEGIES
+from delegation.messages import (
+    FINAL_MISSION_STATUSES,
+    DelegationFeedback,
+    DelegationInfo,
+    MissionStatus,
+    TstExecutionInfo,
+)
 from delegation.runtime.commands import CommandKey
-from delegation.runtime.core import Effects
+from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
 from delegation.service.cancels import Cancels
 from delegation.service.commands import CommandDesk
+from delegation.service.config import ServiceConfig
 from delegation.service.missions import LifecycleEvent, MissionBook
+from delegation.topics import QOS_PERIODIC
 
 log = logging.getLogger(__name__)
+
+#: The levels the service's heartbeat announces.
+LEVELS = ("tst execution", "delegation")
 
 
 @dataclass(slots=True)
@@ -74,3 +86,18 @@ class Lifecycle:
         for key, answer in self.cancels.due(now):
             effects.extend(self.desk.respond("delegation", key, answer))
         return effects
+
+
+def status_messages(config: ServiceConfig, identity: Identity, book: MissionBook,
+                    stamp: float) -> list[Outgoing]:
+    """Heartbeat, ``tst_execution_info`` (the trees executing) and ``delegation_info``."""
+    c = config
+    active = [m.root_uuid for m in book if not m.ended and m.status is not MissionStatus.PLANNED]
+    tst_info = TstExecutionInfo(name=c.name, rate=c.rate, stamp=stamp, trees_executing=active)
+    info = DelegationInfo(name=c.name, rate=c.rate, stamp=stamp, strategies=list(STRATEGIES),
+                          objectives=list(OBJECTIVES), missions_active=len(active))
+    return [
+        heartbeat(identity, LEVELS, stamp),
+        Outgoing.of(identity.topic("tst_execution_info"), tst_info, QOS_PERIODIC),
+        Outgoing.of(identity.topic("delegation_info"), info, QOS_PERIODIC),
+    ]
