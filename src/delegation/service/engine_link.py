@@ -26,7 +26,7 @@ from delegation.messages import (
     new_com_uuid,
 )
 from delegation.runtime.commands import CommandKey
-from delegation.runtime.core import Effects, Outgoing
+from delegation.runtime.core import Outgoing
 from delegation.service.config import ServiceConfig
 from delegation.service.faces import Face, failure
 
@@ -195,17 +195,3 @@ class EngineLink:
                                                                f"{resp.fail_reason}"))
         return EngineAnswer(req, TstResponse(response=resp.response, response_to=caller))
 
-
-def to_engine(
-    engine: EngineLink,
-    kind: RequestKind,
-    key: CommandKey,
-    face: Face,
-    model: WireModel,
-    now: float,
-    root_uuid: str = "",
-    plan: dict[str, Any] | None = None,
-) -> Effects:
-    """Send a command to the engine (`EngineLink.send`); the caller is answered when the engine
-    answers."""
-    return Effects(publish=[engine.send(kind, key, face, model, now, root_uuid, plan)])

@@ -12,6 +12,7 @@ for the engine's confirmation (`delegation.service.cancels`).
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 from delegation.errors import InputError, InputProblem
 from delegation.messages import (
@@ -28,7 +29,7 @@ from delegation.runtime.commands import CommandKey
 from delegation.runtime.core import Effects
 from delegation.service.commands import CommandDesk
 from delegation.service.config import ServiceConfig
-from delegation.service.engine_link import EngineAnswer, EngineLink, to_engine
+from delegation.service.engine_link import EngineAnswer, EngineLink
 from delegation.service.fleet_view import FleetView
 from delegation.service.lifecycle import Lifecycle
 from delegation.service.missions import MissionBook
@@ -38,19 +39,17 @@ from delegation.service.repair import INTERNAL, Repair
 log = logging.getLogger(__name__)
 
 
+@dataclass(eq=False)
 class EngineUse:
     """The engine's feedback and answers, applied; ``cancel-mission`` sent to it."""
 
-    def __init__(self, config: ServiceConfig, book: MissionBook, desk: CommandDesk,
-                 view: FleetView, engine: EngineLink, lifecycle: Lifecycle,
-                 repair: Repair) -> None:
-        self.config = config
-        self.book = book
-        self.desk = desk
-        self.view = view
-        self.engine = engine
-        self.lifecycle = lifecycle
-        self.repair = repair
+    config: ServiceConfig
+    book: MissionBook
+    desk: CommandDesk
+    view: FleetView
+    engine: EngineLink
+    lifecycle: Lifecycle
+    repair: Repair
 
     def signal(self, cmd: SignalTstNode | SignalTstTree | SignalUnit, key: CommandKey,
                now: float) -> Effects:
@@ -63,7 +62,7 @@ class EngineUse:
                                              for n in mission.nodes.values()):
                     self.desk.authorise(cmd.command, mission, key)
             model = SignalUnit(unit=cmd.unit, signal=cmd.signal, sender=self.config.name)
-            return to_engine(self.engine, "signal", key, "tst", model, now)
+            return Effects(publish=[self.engine.send("signal", key, "tst", model, now)])
         found = self.book.of_node(cmd.node_uuid)
         if found is None:
             raise InputError(InputProblem(
@@ -72,7 +71,8 @@ class EngineUse:
         self.desk.authorise(cmd.command, found, key)
         node: WireModel = type(cmd)(node_uuid=cmd.node_uuid, signal=cmd.signal,
                                     sender=self.config.name)
-        return to_engine(self.engine, "signal", key, "tst", node, now, found.root_uuid)
+        return Effects(publish=[self.engine.send("signal", key, "tst", node, now,
+                                                 found.root_uuid)])
 
     def receive(self, topic: str, payload: bytes, now: float) -> Effects:
         """One message from the engine: feedback (from where its tree was sent only), or the
@@ -180,4 +180,5 @@ class EngineUse:
                 mission.root_uuid, MissionStatus.ABORTED, now, why))
         model = SignalTstTree(node_uuid=mission.current_root, signal="$abort",
                               sender=self.config.name)
-        return to_engine(self.engine, "cancel", key, "delegation", model, now, mission.root_uuid)
+        return Effects(publish=[self.engine.send("cancel", key, "delegation", model, now,
+                                                 mission.root_uuid)])

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from delegation.allocation import Plan
@@ -22,7 +22,7 @@ from delegation.runtime.commands import CommandKey
 from delegation.runtime.core import Effects
 from delegation.service.commands import CommandDesk
 from delegation.service.config import ServiceConfig
-from delegation.service.engine_link import EngineLink, to_engine
+from delegation.service.engine_link import EngineLink
 from delegation.service.faces import Face
 from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import (
@@ -54,20 +54,20 @@ class Timing:
     planning: float
 
 
+@dataclass(eq=False)
 class Planning:
     """Commands' trees to planning jobs, and finished plans to answers and missions."""
 
-    def __init__(self, config: ServiceConfig, book: MissionBook, desk: CommandDesk,
-                 view: FleetView, engine: EngineLink, lifecycle: Lifecycle) -> None:
-        self.config = config
-        self.book = book
-        self.desk = desk
-        self.view = view
-        self.engine = engine
-        self.lifecycle = lifecycle
-        self.timings: deque[Timing] = deque(maxlen=10_000)
-        self._job_ids = 0
-        self._replanned: dict[CommandKey, int] = {}
+    config: ServiceConfig
+    book: MissionBook
+    desk: CommandDesk
+    view: FleetView
+    engine: EngineLink
+    lifecycle: Lifecycle
+    timings: deque[Timing] = field(default_factory=lambda: deque(maxlen=10_000))
+    _job_ids: int = field(default=0, init=False)
+    #: Start plans made again around a unit that got busy meanwhile, by command.
+    _replanned: dict[CommandKey, int] = field(default_factory=dict, init=False)
 
     def next_id(self) -> int:
         """A new job id (jobs run in arrival order)."""
@@ -175,8 +175,8 @@ class Planning:
             effects.extend(self.lifecycle.set_status(root_uuid, MissionStatus.FAILED, now, problem))
             return effects.extend(self.desk.fail(job.face, job.key, job.com_uuid, problem))
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
-        effects.extend(to_engine(self.engine, "start", job.key, job.face, start, now, root_uuid,
-                                 plan=plan_json))
+        effects.publish.append(self.engine.send("start", job.key, job.face, start, now, root_uuid,
+                                                plan_json))
         log.info("mission %s sent to engine %s", root_uuid, self.config.engine)
         self.timings.append(Timing(root_uuid, job.received, now, seconds))
         return effects

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import logging
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from delegation.errors import InputError
 from delegation.fleet import FleetEvent, FleetEventKind
 from delegation.messages import DelegationFeedback, MissionStatus, SignalTstTree, StartTst
 from delegation.runtime.core import Effects
 from delegation.service.config import ServiceConfig
-from delegation.service.engine_link import EngineLink, to_engine
+from delegation.service.engine_link import EngineLink
 from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.lifecycle import Lifecycle
@@ -52,19 +52,18 @@ class Replan:
     units: frozenset[str]
 
 
+@dataclass(eq=False)
 class Repair:
     """Re-delegation of a lost or failing unit's tasks; missions failed with a lost engine."""
 
-    def __init__(self, config: ServiceConfig, book: MissionBook, view: FleetView,
-                 engine: EngineLink, lifecycle: Lifecycle, planning: Planning) -> None:
-        self.config = config
-        self.book = book
-        self.view = view
-        self.engine = engine
-        self.lifecycle = lifecycle
-        self.planning = planning
-        #: Missions whose re-delegation is being planned, by root uuid.
-        self.replans: dict[str, Replan] = {}
+    config: ServiceConfig
+    book: MissionBook
+    view: FleetView
+    engine: EngineLink
+    lifecycle: Lifecycle
+    planning: Planning
+    #: Missions whose re-delegation is being planned, by root uuid.
+    replans: dict[str, Replan] = field(default_factory=dict)
 
     def forget(self, root_uuid: str, now: float) -> Effects:
         """The mission ends while re-delegating (cancelled): abort its old tree, still running
@@ -177,8 +176,9 @@ class Repair:
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = self.abort_tree(replan.old_root, now)
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
-        effects.extend(to_engine(self.engine, "start", (INTERNAL, f"{new_root}#start"),
-                                 "delegation", start, now, mission.root_uuid, plan=plan_json))
+        effects.publish.append(self.engine.send("start", (INTERNAL, f"{new_root}#start"),
+                                                "delegation", start, now, mission.root_uuid,
+                                                plan_json))
         effects.send(self.lifecycle.desk.topics.delegation_feedback, DelegationFeedback(
             root_uuid=mission.root_uuid, status=MissionStatus.RE_DELEGATED.value,
             fail_reason=replan.why, tasks=moved))
@@ -193,8 +193,8 @@ class Repair:
         if not root or self.engine.problem(now):
             return Effects()
         model = SignalTstTree(node_uuid=root, signal="$abort", sender=self.config.name)
-        return to_engine(self.engine, "signal", (INTERNAL, f"{root}#abort"), "delegation", model,
-                         now)
+        abort = self.engine.send("signal", (INTERNAL, f"{root}#abort"), "delegation", model, now)
+        return Effects(publish=[abort])
 
     def abort_and_fail(self, mission: Mission, root: str, reason: str, now: float) -> Effects:
         """``$abort`` the tree ``root`` and end the mission ``failed`` with ``reason``."""
