@@ -103,3 +103,13 @@ def test_a_task_flown_teaches_its_speed_class() -> None:
     assert view.speed_sources(view.units(40.0)) == {"u0": "learnt"}
     [row] = view.agents(40.0)
     assert row["name"] == "u0" and row["speeds-source"] == "learnt"
+
+
+def test_a_node_is_found_in_the_stored_tree_under_either_common_key() -> None:
+    from delegation.service.fleet_view import _node_in
+
+    tree = {"name": "seq", "common-params": {"node-uuid": "r"}, "children": [
+        {"name": "move-path", "common-params": {"node-uuid": "p"},
+         "params": {"waypoints": [1, 2]}}]}
+    assert _node_in(tree, "p") == ("move-path", {"waypoints": [1, 2]})
+    assert _node_in(tree, "r") == ("seq", {}) and _node_in(tree, "x") == ("", {})

@@ -23,7 +23,7 @@ from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineLink
 from delegation.service.missions import MissionBook
 from delegation.topics import parse_unit_topic
-from delegation.tst.node import TstNode, parse_tree, walk
+from delegation.tst.node import COMMON_KEYS, TstNode, walk
 
 log = logging.getLogger(__name__)
 
@@ -178,11 +178,9 @@ class FleetView:
         last = max(mine, key=lambda a: float(a.get("end", 0.0)))
         began = m.started_at if m.started_at is not None else self.epoch(now)
         wait = max(0.0, began + float(last.get("end", 0.0)) - self.epoch(now))
-        node = next((n for _, n in walk(parse_tree(m.current_tst))
-                     if n.node_uuid == last.get("node-uuid")), None)
-        points = ([node.params.get("waypoint")] if node is not None and node.name == "move-to"
-                  else list(node.params.get("waypoints", [])) if node is not None
-                  and node.name == "move-path" else [])
+        name, params = _node_in(m.current_tst, str(last.get("node-uuid")))
+        points = ([params.get("waypoint")] if name == "move-to"
+                  else list(params.get("waypoints", [])) if name == "move-path" else [])
         try:
             where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
         except ValueError:
@@ -202,3 +200,18 @@ class FleetView:
                 if info.is_task and info.execunit and status not in TERMINAL:
                     busy.setdefault(info.execunit.strip("/"), m.root_uuid)
         return busy
+
+
+def _node_in(tree: dict[str, Any], node_uuid: str) -> tuple[str, dict[str, Any]]:
+    """(name, params) of the node ``node_uuid`` in an instantiated tree as stored (JSON), or
+    ("", {}): read without building the tree, as it is asked for every busy unit per plan."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        common: dict[str, Any] = next(
+            (node[k] for k in COMMON_KEYS if isinstance(node.get(k), dict)), {})
+        if common.get("node-uuid") == node_uuid:
+            params = node.get("params")
+            return str(node.get("name", "")), params if isinstance(params, dict) else {}
+        stack.extend(c for c in node.get("children") or () if isinstance(c, dict))
+    return "", {}
