@@ -116,10 +116,10 @@ class ServiceCore:
         self.view = FleetView(c, self.fleet, book, self.engine, self._epoch)
         self.lifecycle = Lifecycle(book, self.desk, Cancels(c.engine, c.cancel_timeout),
                                    self._epoch)
-        self.planning = Planning(c, book, self.desk, self.view, self.engine, self.lifecycle)
-        self.repair = Repair(c, book, self.view, self.engine, self.lifecycle, self.planning)
-        self.engine_use = EngineUse(c, book, self.desk, self.view, self.engine, self.lifecycle,
-                                    self.repair)
+        shared = (c, book, self.desk, self.view, self.engine, self.lifecycle)
+        self.planning = Planning(*shared)
+        self.repair = Repair(*shared, planning=self.planning)
+        self.engine_use = EngineUse(*shared, repair=self.repair)
 
     @property
     def name(self) -> str:

@@ -27,12 +27,8 @@ from delegation.messages import (
 )
 from delegation.runtime.commands import CommandKey
 from delegation.runtime.core import Effects
-from delegation.service.commands import CommandDesk
-from delegation.service.config import ServiceConfig
-from delegation.service.engine_link import EngineAnswer, EngineLink
-from delegation.service.fleet_view import FleetView
-from delegation.service.lifecycle import Lifecycle
-from delegation.service.missions import MissionBook
+from delegation.service.engine_link import EngineAnswer
+from delegation.service.planning import MissionPart
 from delegation.service.redelegation import first_origin
 from delegation.service.repair import INTERNAL, Repair
 
@@ -40,15 +36,9 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(eq=False)
-class EngineUse:
+class EngineUse(MissionPart):
     """The engine's feedback and answers, applied; ``cancel-mission`` sent to it."""
 
-    config: ServiceConfig
-    book: MissionBook
-    desk: CommandDesk
-    view: FleetView
-    engine: EngineLink
-    lifecycle: Lifecycle
     repair: Repair
 
     def signal(self, cmd: SignalTstNode | SignalTstTree | SignalUnit, key: CommandKey,

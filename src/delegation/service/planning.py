@@ -55,8 +55,8 @@ class Timing:
 
 
 @dataclass(eq=False)
-class Planning:
-    """Commands' trees to planning jobs, and finished plans to answers and missions."""
+class MissionPart:
+    """What each part of the core that acts on missions works with (shared, one of each)."""
 
     config: ServiceConfig
     book: MissionBook
@@ -64,6 +64,12 @@ class Planning:
     view: FleetView
     engine: EngineLink
     lifecycle: Lifecycle
+
+
+@dataclass(eq=False)
+class Planning(MissionPart):
+    """Commands' trees to planning jobs, and finished plans to answers and missions."""
+
     timings: deque[Timing] = field(default_factory=lambda: deque(maxlen=10_000))
     _job_ids: int = field(default=0, init=False)
     #: Start plans made again around a unit that got busy meanwhile, by command.

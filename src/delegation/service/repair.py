@@ -19,13 +19,9 @@ from delegation.errors import InputError
 from delegation.fleet import FleetEvent, FleetEventKind
 from delegation.messages import DelegationFeedback, MissionStatus, SignalTstTree, StartTst
 from delegation.runtime.core import Effects
-from delegation.service.config import ServiceConfig
-from delegation.service.engine_link import EngineLink
-from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
-from delegation.service.lifecycle import Lifecycle
-from delegation.service.missions import Mission, MissionBook, node_infos
-from delegation.service.planning import Planning
+from delegation.service.missions import Mission, node_infos
+from delegation.service.planning import MissionPart, Planning
 from delegation.service.redelegation import (
     Remaining,
     first_origin,
@@ -53,14 +49,9 @@ class Replan:
 
 
 @dataclass(eq=False)
-class Repair:
+class Repair(MissionPart):
     """Re-delegation of a lost or failing unit's tasks; missions failed with a lost engine."""
 
-    config: ServiceConfig
-    book: MissionBook
-    view: FleetView
-    engine: EngineLink
-    lifecycle: Lifecycle
     planning: Planning
     #: Missions whose re-delegation is being planned, by root uuid.
     replans: dict[str, Replan] = field(default_factory=dict)
@@ -179,7 +170,7 @@ class Repair:
         effects.publish.append(self.engine.send("start", (INTERNAL, f"{new_root}#start"),
                                                 "delegation", start, now, mission.root_uuid,
                                                 plan_json))
-        effects.send(self.lifecycle.desk.topics.delegation_feedback, DelegationFeedback(
+        effects.send(self.desk.topics.delegation_feedback, DelegationFeedback(
             root_uuid=mission.root_uuid, status=MissionStatus.RE_DELEGATED.value,
             fail_reason=replan.why, tasks=moved))
         log.info("mission %s re-delegated: %s", mission.root_uuid,
