@@ -142,27 +142,34 @@ def input_warnings(tree: TstNode, units: Sequence[UnitState],
 
     names = {u.name for u in units} | set(known)
     positions = [u.position for u in units]
-    warnings = []
-    for path, node in walk(tree):
+    warnings: list[tuple[int, str]] = []  # (walk order, text): aliases and distances interleave
+    tasks: list[tuple[int, str, int]] = []  # (walk order, where, how many points)
+    points: list[GeoPoint] = []
+    for order, (path, node) in enumerate(walk(tree)):
         unit = node.execunit
         if isinstance(unit, str) and unit.strip() and unit not in ("*",) \
                 and not unit.startswith("/") and unit in names:
-            warnings.append(
+            warnings.append((order,
                 f"{where(path, node)}: execunit {unit!r} is an alias (any capable unit, the same "
                 f"for every node with that alias), not the unit /{unit}; write '/{unit}' to ask "
-                "for that unit")
+                "for that unit"))
         if node.is_control or not units:
             continue
         try:
             geometry = task_geometry(node)
         except (KeyError, ValueError, TypeError, InputError):
             continue
-        points: list[GeoPoint] = [*geometry.points, *(p for a in geometry.areas for p in a)]
-        if not points:
-            continue
-        nearest = float(great_circle_matrix_m(points, positions).min())
-        if nearest > FAR_M:
-            warnings.append(
-                f"{where(path, node)}: {nearest / 1000:,.0f} km from the nearest unit; "
-                "latitude and longitude swapped, or the wrong site?")
-    return warnings
+        mine = [*geometry.points, *(p for a in geometry.areas for p in a)]
+        if mine:
+            tasks.append((order, where(path, node), len(mine)))
+            points.extend(mine)
+    if points:  # one distance matrix for every task's points (a call per task cost more)
+        distances = great_circle_matrix_m(points, positions).min(axis=1)
+        start = 0
+        for order, place, count in tasks:
+            nearest = float(distances[start:start + count].min())
+            start += count
+            if nearest > FAR_M:
+                warnings.append((order, f"{place}: {nearest / 1000:,.0f} km from the nearest "
+                                        "unit; latitude and longitude swapped, or the wrong site?"))
+    return [text for _, text in sorted(warnings, key=lambda w: w[0])]

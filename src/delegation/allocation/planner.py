@@ -19,8 +19,8 @@ from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError, InputProblem
-from delegation.tst import TstNode, tree_problems, with_defaults, with_uuids
-from delegation.tst.validate import DEFAULT_LIMITS, Limits
+from delegation.tst import TstNode, with_defaults, with_uuids
+from delegation.tst.validate import DEFAULT_LIMITS, Limits, ValidatedTree, validate_tree
 
 if TYPE_CHECKING:
     from delegation.fleet import UnitState
@@ -53,7 +53,7 @@ def check_options(strategy: str, objective: str, time_limit: float) -> None:
 
 
 def plan_mission(
-    tree: TstNode,
+    tree: TstNode | ValidatedTree,
     units: Sequence[UnitState],
     *,
     strategy: str = "auction",
@@ -67,15 +67,14 @@ def plan_mission(
     """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
 
     Never raises for infeasibility (those tasks go to ``unassigned``); raises ``InputError`` for an
-    unknown strategy or objective or a tree that is not valid. ``stages``, when given, receives
-    the seconds each stage took (``validation``, ``problem``, ``strategy``, ``sent-tree``): the
-    breakdown ``benchmarks/auction_speed.py`` prints.
+    unknown strategy or objective or a tree that is not valid (a `ValidatedTree` was checked by
+    the validator already, with its own limits, and is not checked again). ``stages``, when
+    given, receives the seconds each stage took (``validation``, ``problem``, ``strategy``,
+    ``sent-tree``): the breakdown ``benchmarks/auction_speed.py`` prints.
     """
     clock = time.perf_counter()
     check_options(strategy, objective, time_limit)
-    problems = tree_problems(tree, limits)
-    if problems:
-        raise InputError(problems)
+    tree = (tree if isinstance(tree, ValidatedTree) else validate_tree(tree, limits)).root
     warnings = plausibility_notes(tree, units)
     for warning in warnings:
         log.warning("implausible input: %s", warning)

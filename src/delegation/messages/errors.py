@@ -111,7 +111,9 @@ def json_value(
         raise MessageError(InputProblem(where, field, f"invalid JSON: {reason}")) from None
     except ValueError as exc:  # integers too long to convert
         raise MessageError(InputProblem(where, "", f"invalid JSON: {exc}")) from None
-    if max_depth is not None and json_depth(value) > max_depth:
+    # Nesting needs an opening bracket per level: text with few of them is not walked.
+    if max_depth is not None and text.count("[") + text.count("{") > max_depth \
+            and json_depth(value) > max_depth:
         raise MessageError(InputProblem(where, "", f"JSON nested deeper than {max_depth} levels"))
     return value
 

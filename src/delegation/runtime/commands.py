@@ -37,6 +37,15 @@ _SCAN_BYTES = 4096
 _COM_UUID = re.compile(rb'"com-uuid"\s*:\s*"([^"\\]{1,%d})"' % MAX_COM_UUID)
 
 
+def com_uuid_in(value: object) -> str | None:
+    """The ``com-uuid`` of a decoded command: a non-empty string of at most ``MAX_COM_UUID``
+    characters, else None."""
+    if not isinstance(value, dict):
+        return None
+    com = value.get("com-uuid")
+    return com if isinstance(com, str) and 0 < len(com) <= MAX_COM_UUID else None
+
+
 def com_uuid_of(payload: bytes, max_bytes: int | None = None) -> str | None:
     """The ``com-uuid`` of a raw command, if it has a non-empty string one of at most
     ``MAX_COM_UUID`` characters (no other validation: a command too broken to decode is still
@@ -51,12 +60,8 @@ def com_uuid_of(payload: bytes, max_bytes: int | None = None) -> str | None:
             raw = json.loads(payload)
         except (ValueError, UnicodeDecodeError, RecursionError):
             raw = None
-    if isinstance(raw, dict):
-        value = raw.get("com-uuid")
-        ok = isinstance(value, str) and 0 < len(value) <= MAX_COM_UUID
-        return value if ok and isinstance(value, str) else None
     if raw is not None:
-        return None
+        return com_uuid_in(raw)
     match = _COM_UUID.search(payload[:_SCAN_BYTES])
     if match is None:
         return None
@@ -66,6 +71,13 @@ def com_uuid_of(payload: bytes, max_bytes: int | None = None) -> str | None:
         return None
 
 
+def value_digest(value: object) -> str:
+    """`payload_digest` of a command already decoded (the one decode of the message): the digest
+    of its canonical JSON, so key order and spacing do not make a re-send another command."""
+    canonical = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+
+
 def payload_digest(payload: bytes, max_bytes: int | None = None) -> str:
     """What a command said, for telling a re-send from another command reusing its com-uuid:
     the digest of its canonical JSON (key order and spacing do not matter), or of its bytes
@@ -73,11 +85,9 @@ def payload_digest(payload: bytes, max_bytes: int | None = None) -> str:
     if max_bytes is not None and len(payload) > max_bytes:
         return hashlib.sha256(payload).hexdigest()
     try:
-        canonical = json.dumps(json.loads(payload), sort_keys=True, separators=(",", ":"))
-        data = canonical.encode("utf-8")
+        return value_digest(json.loads(payload))
     except (ValueError, UnicodeDecodeError, RecursionError, TypeError):
-        data = payload
-    return hashlib.sha256(data).hexdigest()
+        return hashlib.sha256(payload).hexdigest()
 
 
 class CommandState(StrEnum):

@@ -1,7 +1,11 @@
 """The delegation service: an MQTT unit that turns partial trees into running missions.
 
 * `core` — `ServiceCore`: every decision, pure (messages, ticks, finished jobs and ``now`` in;
-  `Effects` out). Tested message by message without a broker.
+  `Effects` out). Tested message by message without a broker. It dispatches to its parts, each
+  pure and tested alone: `commands` (decode once, re-sends, answers, authorisation),
+  `fleet_view` (units, learnt speeds, commitments), `planning` (jobs, plans to missions),
+  `engine_use` (the engine's feedback and answers, signals, cancels), `repair` (re-delegation,
+  lost engines), `lifecycle` and `cancels` (status changes published, cancels settled).
 * `engine_link` — the commands the core sends the engine and the waiting for their answers.
 * `jobs` — planning jobs and their typed results (`run_job` runs on the unit's worker).
 * `missions` — the mission book.

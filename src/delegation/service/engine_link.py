@@ -194,3 +194,4 @@ class EngineLink:
             return EngineAnswer(req, failure(req.face, caller, f"engine {engine}: "
                                                                f"{resp.fail_reason}"))
         return EngineAnswer(req, TstResponse(response=resp.response, response_to=caller))
+

@@ -19,7 +19,7 @@ from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
 from delegation.tst.node import TstNode, walk, where
-from delegation.tst.validate import DEFAULT_LIMITS, Limits
+from delegation.tst.validate import DEFAULT_LIMITS, Limits, ValidatedTree
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +68,8 @@ class Job:
     kind: Literal["plan", "bids"]
     key: CommandKey
     face: Face
-    #: Validated, with a node-uuid on every node.
-    tree: TstNode
+    #: Validated (once: the planner does not check it again), a node-uuid on every node.
+    tree: ValidatedTree
     units: tuple[UnitState, ...]
     options: PlanOptions
     engine: str
@@ -85,7 +85,7 @@ class Job:
     speed_sources: Mapping[str, str] = field(default_factory=dict)
     #: Suspicious input (`delegation.learning.input_warnings`), added to the plan's notes.
     warnings: tuple[str, ...] = ()
-    #: The physical ranges the tree was validated with (the planner checks it again).
+    #: The physical ranges the tree was validated with.
     limits: Limits = DEFAULT_LIMITS
 
     @property
@@ -122,7 +122,7 @@ def run_job(job: Job) -> JobResult:
     """Run one job (on the planner worker). Never raises."""
     try:
         if job.kind == "bids":
-            return BidsDone(compute_bids(job.tree, job.units))
+            return BidsDone(compute_bids(job.tree.root, job.units))
         plan = plan_mission(
             job.tree,
             job.units,

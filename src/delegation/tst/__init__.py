@@ -29,9 +29,11 @@ from delegation.tst.node import (
     without_node_uuids,
 )
 from delegation.tst.validate import (
+    ValidatedTree,
     parse_and_validate,
     read_geopoint,
     tree_problems,
+    validate_tree,
     with_defaults,
 )
 
@@ -48,6 +50,7 @@ __all__ = [
     "SpeedClass",
     "TaskSpec",
     "TstNode",
+    "ValidatedTree",
     "classify_execunit",
     "is_vehicle_task",
     "leaves",
@@ -59,6 +62,7 @@ __all__ = [
     "task_spec",
     "to_dict",
     "tree_problems",
+    "validate_tree",
     "walk",
     "where",
     "with_defaults",

@@ -7,7 +7,9 @@ kept); everything else wrong is reported with the node and the field.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,7 +18,15 @@ from shapely.geometry import LinearRing, Polygon
 from delegation.errors import InputError, InputProblem, short_repr
 from delegation.geo import GeoPoint
 from delegation.tst.catalogue import CATALOGUE, SPEED_CLASSES, ParamType, TaskSpec
-from delegation.tst.node import TstNode, classify_execunit, map_tree, parse_tree, walk, where
+from delegation.tst.node import (
+    TstNode,
+    classify_execunit,
+    map_tree,
+    parse_tree,
+    walk,
+    where,
+    with_uuids,
+)
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
@@ -282,11 +292,46 @@ def tree_problems(root: TstNode, limits: Limits = DEFAULT_LIMITS) -> list[InputP
 
 def parse_and_validate(data: Any, limits: Limits = DEFAULT_LIMITS) -> TstNode:
     """Parse a tree and check it against the catalogue; raise ``InputError`` with every problem."""
-    root = parse_tree(data)
+    return validate_tree(parse_tree(data), limits).root
+
+
+#: Held by every `ValidatedTree` the validator made (a tree made otherwise is refused).
+_VALIDATOR = object()
+
+
+@dataclass(frozen=True, slots=True)
+class ValidatedTree:
+    """A tree the validator checked against the catalogue and ``limits`` (`validate_tree`):
+    whoever receives one (the planner) need not check it again. Made here only."""
+
+    root: TstNode
+    limits: Limits = DEFAULT_LIMITS
+    made_by: object = dataclasses.field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.made_by is not _VALIDATOR:
+            raise TypeError("a ValidatedTree is made by validate_tree only")
+
+    @property
+    def node_uuid(self) -> str | None:
+        return self.root.node_uuid
+
+    @property
+    def name(self) -> str:
+        return self.root.name
+
+    def with_uuids(self, new_uuid: Callable[[], str] | None = None) -> ValidatedTree:
+        """The same tree with a ``node-uuid`` on every node (fresh uuids keep it valid)."""
+        return ValidatedTree(with_uuids(self.root, new_uuid), self.limits, _VALIDATOR)
+
+
+def validate_tree(tree: Any, limits: Limits = DEFAULT_LIMITS) -> ValidatedTree:
+    """A tree (a `TstNode` or its JSON) checked once; ``InputError`` with every problem."""
+    root = tree if isinstance(tree, TstNode) else parse_tree(tree)
     problems = tree_problems(root, limits)
     if problems:
         raise InputError(problems)
-    return root
+    return ValidatedTree(root, limits, _VALIDATOR)
 
 
 def with_defaults(root: TstNode) -> TstNode:

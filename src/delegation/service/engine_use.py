@@ -1,0 +1,174 @@
+"""The service's use of the engine (pure): what the engine's feedback and answers mean for the
+missions and the callers, and cancels.
+
+Feedback moves the mission book on, is relayed to the operator (in the tree the operator sent:
+control nodes the sent tree regrouped are derived from their children), times the learner's
+tasks, and a task failing on its unit is re-delegated within its retry budget before the
+engine's root ``failed`` could end the mission. An answer to a command sent for a caller moves
+the mission on and then answers the caller; an accepted ``$abort`` of a ``cancel-mission`` waits
+for the engine's confirmation (`delegation.service.cancels`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from delegation.errors import InputError, InputProblem
+from delegation.messages import (
+    CancelMission,
+    DelegationResponse,
+    MissionStatus,
+    SignalTstNode,
+    SignalTstTree,
+    SignalUnit,
+    TstFeedback,
+    WireModel,
+)
+from delegation.runtime.commands import CommandKey
+from delegation.runtime.core import Effects
+from delegation.service.engine_link import EngineAnswer
+from delegation.service.planning import MissionPart
+from delegation.service.redelegation import first_origin
+from delegation.service.repair import INTERNAL, Repair
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(eq=False)
+class EngineUse(MissionPart):
+    """The engine's feedback and answers, applied; ``cancel-mission`` sent to it."""
+
+    repair: Repair
+
+    def signal(self, cmd: SignalTstNode | SignalTstTree | SignalUnit, key: CommandKey,
+               now: float) -> Effects:
+        """A signal on the TST face, forwarded to the engine if the caller may touch every
+        mission it affects (answered when the engine answers)."""
+        if isinstance(cmd, SignalUnit):
+            unit = cmd.unit.strip("/")
+            for mission in self.book:
+                if not mission.ended and any(n.execunit.strip("/") == unit
+                                             for n in mission.nodes.values()):
+                    self.desk.authorise(cmd.command, mission, key)
+            model = SignalUnit(unit=cmd.unit, signal=cmd.signal, sender=self.config.name)
+            return Effects(publish=[self.engine.send("signal", key, "tst", model, now)])
+        found = self.book.of_node(cmd.node_uuid)
+        if found is None:
+            raise InputError(InputProblem(
+                cmd.command, "node-uuid",
+                f"{cmd.node_uuid!r} is not a node of any mission of {self.config.name}"))
+        self.desk.authorise(cmd.command, found, key)
+        node: WireModel = type(cmd)(node_uuid=cmd.node_uuid, signal=cmd.signal,
+                                    sender=self.config.name)
+        return Effects(publish=[self.engine.send("signal", key, "tst", node, now,
+                                                 found.root_uuid)])
+
+    def receive(self, topic: str, payload: bytes, now: float) -> Effects:
+        """One message from the engine: feedback (from where its tree was sent only), or the
+        answer to a command sent to it."""
+        got = self.engine.receive(topic, payload)
+        if isinstance(got, TstFeedback):
+            mission = self.book.of_node(got.node_uuid)
+            bound = self.view.fleet.base_topic(self.config.engine)
+            if mission is not None and not self.engine.sent_from(mission.root_uuid, topic, bound):
+                log.warning("ignoring feedback on %s for %s: mission %s was sent to %s",
+                            topic, got.node_uuid, mission.root_uuid,
+                            self.engine.sent_to.get(mission.root_uuid, "no engine"))
+                return Effects()
+            return self.feedback(got, now)
+        if isinstance(got, EngineAnswer):
+            return self.answer(got, now)
+        return Effects()
+
+    def feedback(self, fb: TstFeedback, now: float) -> Effects:
+        """Node statuses: the mission book moves on, the operator hears it (in the tree it
+        sent), the learner times the task; a task failing on its unit is re-delegated."""
+        # A task failing on its unit is re-delegated (within its retry budget) before the
+        # engine's root ``failed`` that follows could end the mission.
+        retry = self._failed_task(fb)
+        mission, events = self.book.observe_feedback(
+            fb.node_uuid, fb.status, fb.root_flag, fb.fail_reason, self.lifecycle.epoch(now)
+        )
+        if mission is None:
+            return Effects()  # a tree someone else gave the engine
+        self.view.task_feedback(fb, now)
+        effects = Effects()
+        operator = mission.operator
+        if operator is None or operator.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
+            effects.send(self.desk.topics.tst_feedback, TstFeedback(
+                node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
+                fail_reason=fb.fail_reason))
+        if operator is not None and operator.relayed(fb.node_uuid):
+            # The operator's control nodes the sent tree regrouped away: derived from their
+            # children (docs/protocol.md §8).
+            for uid, status in operator.changes(fb.node_uuid, mission.node_status):
+                effects.send(self.desk.topics.tst_feedback, TstFeedback(
+                    node_uuid=uid, root_flag=uid == operator.root, status=status,
+                    fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
+        effects.extend(self.lifecycle.publish(events))
+        if retry is not None:
+            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now))
+        return effects
+
+    def _failed_task(self, fb: TstFeedback) -> tuple[str, str] | None:
+        """(unit, why) when ``fb`` is a task of a running mission's current tree failing on its
+        unit with retry budget left, else None."""
+        if fb.status != "failed":
+            return None
+        mission = self.book.of_node(fb.node_uuid)
+        if mission is None or mission.ended or mission.redelegating:
+            return None
+        info = mission.nodes.get(fb.node_uuid)
+        if info is None or not info.is_task or fb.node_uuid not in mission.current_nodes:
+            return None
+        if mission.retries.get(first_origin(mission.origin, fb.node_uuid), 0) \
+                >= self.config.max_retries:
+            return None  # the budget is spent: the failure ends the mission as usual
+        unit = info.execunit.strip("/")
+        why = f"{info.path} ({info.name}) failed on /{unit}: {fb.fail_reason or 'failed'}"
+        return unit, why
+
+    def answer(self, got: EngineAnswer, now: float) -> Effects:
+        """The mission moves on (if it does), then the caller gets its answer."""
+        req = got.request
+        effects = Effects()
+        if got.mission_status is not None:
+            effects.extend(self.lifecycle.set_status(req.root_uuid, got.mission_status, now,
+                                                     got.fail_reason))
+        if req.key[0] == INTERNAL:
+            return effects  # the service's own command (re-delegation): nobody to answer
+        mission = self.book.find(req.root_uuid) if req.kind == "cancel" else None
+        if mission is not None and not mission.ended \
+                and getattr(got.answer, "response", "") == "ok":
+            # Answered when the engine confirms (the root ends), or `pending` at the deadline.
+            self.lifecycle.wait_cancel(req.root_uuid, req.key, now)
+            return effects
+        return effects.extend(self.desk.respond(req.face, req.key, got.answer))
+
+    def cancel(self, cmd: CancelMission, key: CommandKey, now: float) -> Effects:
+        """``cancel-mission``: aborted at once when no engine runs its tree, else the engine
+        is asked to ``$abort`` it (answered when it confirms, or ``pending``)."""
+        mission = self.desk.authorise(cmd.command, self.book.get(cmd.root_uuid), key)
+        if mission.ended:
+            raise InputError(InputProblem("cancel-mission", "root-uuid",
+                                          f"mission {cmd.root_uuid} already ended "
+                                          f"({mission.status.value})"))
+        if mission.status is MissionStatus.PLANNED and not self.engine.starting(mission.root_uuid):
+            out = self.desk.respond("delegation", key,
+                                    DelegationResponse(response="ok", response_to=key[1]))
+            return out.extend(self.lifecycle.set_status(
+                mission.root_uuid, MissionStatus.ABORTED, now, "cancelled before it started"))
+        problem = self.engine.problem(now)
+        if problem or mission.redelegating:
+            # Nothing to wait for: no engine runs the tree (or its replacement is not sent yet).
+            why = f"cancelled ({problem})" if problem else "cancelled while re-delegating"
+            out = self.desk.respond("delegation", key,
+                                    DelegationResponse(response="ok", response_to=key[1]))
+            out.extend(self.repair.forget(mission.root_uuid, now))  # its old tree may run
+            return out.extend(self.lifecycle.set_status(
+                mission.root_uuid, MissionStatus.ABORTED, now, why))
+        model = SignalTstTree(node_uuid=mission.current_root, signal="$abort",
+                              sender=self.config.name)
+        return Effects(publish=[self.engine.send("cancel", key, "delegation", model, now,
+                                                 mission.root_uuid)])

@@ -1,0 +1,217 @@
+"""The fleet as the service plans with it (pure: ``now`` is passed in).
+
+The registry's units with the speeds learnt from their flights, the rows of ``list-agents``, and
+which units a new plan may use: battery, units excluded by a re-delegation, and units busy in
+another running mission (left out, or planned from when and where they become free, by the
+``commitments`` setting). Speed learning is fed here too: speed sensors, and the start and end of
+every task whose speed class is known.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from dataclasses import replace
+from typing import Any
+
+from delegation.errors import InputError, MessageError
+from delegation.fleet import FleetRegistry, UnitState
+from delegation.geo import GeoPoint
+from delegation.learning import SpeedLearner, speed_class
+from delegation.messages import TERMINAL_NODE_STATUSES, MissionStatus, TstFeedback, decode
+from delegation.service.config import ServiceConfig
+from delegation.service.engine_link import EngineLink
+from delegation.service.missions import MissionBook
+from delegation.topics import parse_unit_topic
+from delegation.tst.node import COMMON_KEYS, TstNode, walk
+
+log = logging.getLogger(__name__)
+
+#: Node statuses after which a task no longer holds its unit.
+TERMINAL = TERMINAL_NODE_STATUSES
+
+
+class FleetView:
+    """Units to plan for and what is known of them (the registry, learnt speeds, commitments)."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        fleet: FleetRegistry,
+        book: MissionBook,
+        engine: EngineLink,
+        epoch: Callable[[float], float],
+    ) -> None:
+        self.config = config
+        self.fleet = fleet
+        self.book = book
+        self.engine = engine
+        #: ``now`` as epoch seconds (mission records are epoch stamps).
+        self.epoch = epoch
+        #: Speeds learnt from the units' flights (`delegation.learning`).
+        self.learner = SpeedLearner()
+        self._task_class: dict[str, tuple[str, str]] = {}  # node-uuid -> (unit, speed class)
+        self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
+
+    # ---- what the units say
+
+    def observe(self, topic: str, payload: bytes, now: float) -> None:
+        """Units, and the engine: the registry knows every heartbeat's base topic and age, and
+        plans only for units on the direct execution level."""
+        try:
+            message = decode(topic, payload)
+        except MessageError as exc:
+            log.debug("ignoring %s: %s", topic, exc)
+            return
+        try:
+            self.fleet.observe(topic, message, now)
+        except InputError as exc:
+            log.debug("fleet ignored %s: %s", topic, exc)
+        if topic.endswith("/sensor/speed"):
+            self._learn_speed(topic, message, now)
+
+    def _learn_speed(self, topic: str, message: Any, now: float) -> None:
+        parsed = parse_unit_topic(topic)
+        value = getattr(message, "value", message)
+        if parsed is None or isinstance(value, bool) or not isinstance(value, int | float):
+            return
+        cls = self.learner.observe_speed(parsed.name, float(value), now)
+        if cls is not None:
+            log.info("unit %s: learnt its %s speed, %.2f m/s (plans use it from now on)",
+                     parsed.name, cls, self.learner.learnt(parsed.name)[cls])
+
+    def planned(self, tree: TstNode) -> None:
+        """Note the speed class of every task of a planned tree, to learn from its flight."""
+        for _, node in walk(tree):
+            cls = speed_class(node)
+            if cls and node.node_uuid and isinstance(node.execunit, str):
+                self._task_class[node.node_uuid] = (node.execunit.strip("/"), cls)
+
+    def task_feedback(self, fb: TstFeedback, now: float) -> None:
+        """A task of a planned tree started or ended: the learner times it."""
+        task = self._task_class.get(fb.node_uuid)
+        if task is not None and fb.status == "running":
+            self.learner.task_started(task[0], fb.node_uuid, task[1], now)
+        elif task is not None and fb.status in TERMINAL:
+            self.learner.task_ended(task[0], fb.node_uuid, now)
+            del self._task_class[fb.node_uuid]
+
+    def log_silent(self, now: float) -> None:
+        """Log the units whose heartbeat stopped (appearing and rebooting are logged as the
+        registry notices them)."""
+        alive = {u.name for u in self.fleet.snapshot(now) if u.alive}
+        for name in sorted(self._alive - alive):
+            seen = self.fleet.last_seen(name)
+            ago = f" (last message {now - seen:.0f} s ago)" if seen is not None else ""
+            log.warning("unit %s fell silent%s", name, ago)
+        for name in sorted(alive - self._alive):
+            log.debug("unit %s is live", name)
+        self._alive = alive
+
+    # ---- views
+
+    def units(self, now: float) -> tuple[UnitState, ...]:
+        """The units to plan for (the registry leaves out engines and delegators), with the
+        speeds learnt from their flights."""
+        return self.learner.apply(self.fleet.snapshot(now))
+
+    def speed_sources(self, units: Iterable[UnitState]) -> dict[str, str]:
+        """Per unit: ``learnt``, ``profile`` or ``default`` (`delegation.learning`)."""
+        return {u.name: self.learner.source(u.name, self.fleet.has_profile_speeds(u.name))
+                for u in units}
+
+    def agents(self, now: float) -> list[dict[str, Any]]:
+        """The live units for ``list-agents`` (those that can be delegated to)."""
+        units = {u.name: u for u in self.units(now)}
+        sources = self.speed_sources(units.values())
+        return [{**row, "speeds": units[row["name"]].speeds, "speeds-source": sources[row["name"]]}
+                for row in self.fleet.agents(now, alive_only=True) if row["name"] in units]
+
+    def ready(self, units: Iterable[str], engine: bool, now: float) -> bool:
+        """True once the named units (and the engine, with ``engine``) are live as seen here."""
+        if engine and self.engine.base(now) is None:
+            return False
+        return set(units) <= {u.name for u in self.units(now) if u.alive}
+
+    def plannable(
+        self, now: float, exclude: Iterable[str] = (), mission: str = ""
+    ) -> tuple[tuple[UnitState, ...], tuple[str, ...]]:
+        """The units to plan a mission with, and notes naming those left out: battery below
+        ``min_battery``, ``exclude`` (a lost or failing unit being re-delegated from). A unit busy
+        in another running mission is planned from when and where it becomes free
+        (``commitments: wait``, said in the notes), or left out (``exclude``, or when its end is
+        not known)."""
+        mode = self.config.commitments
+        busy = self.committed(mission) if mode != "share" else {}
+        skip = set(exclude)
+        units: list[UnitState] = []
+        notes: list[str] = []
+        for unit in self.units(now):
+            if unit.name in skip:
+                notes.append(f"{unit.name}: left out (lost or failed a task of this mission)")
+            elif unit.battery is not None and unit.battery < self.config.min_battery:
+                notes.append(f"{unit.name}: left out, battery {unit.battery:.0%} is below "
+                             f"{self.config.min_battery:.0%}")
+            elif unit.name in busy:
+                free = self.free_at(unit, busy[unit.name], now) if mode == "wait" else None
+                if free is None:
+                    notes.append(f"{unit.name}: left out, busy in mission {busy[unit.name]}")
+                    continue
+                units.append(replace(unit, available_at=free[0], position=free[1]))
+                notes.append(f"{unit.name}: busy in mission {busy[unit.name]}, planned from when "
+                             f"and where it becomes free (in {free[0]:.0f} s)")
+            else:
+                units.append(unit)
+        return tuple(units), tuple(notes)
+
+    def free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
+        """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
+        that mission's plan; None when the plan does not say (a re-delegated tree)."""
+        m = self.book.find(root)
+        if m is None:
+            return None
+        mine = [a for a in m.plan.get("assignments", [])
+                if a.get("execunit") == unit.execunit and m.node_status.get(
+                    a.get("node-uuid", "")) not in TERMINAL]
+        if not mine or any(a.get("node-uuid") not in m.current_nodes for a in mine):
+            return None
+        last = max(mine, key=lambda a: float(a.get("end", 0.0)))
+        began = m.started_at if m.started_at is not None else self.epoch(now)
+        wait = max(0.0, began + float(last.get("end", 0.0)) - self.epoch(now))
+        name, params = _node_in(m.current_tst, str(last.get("node-uuid")))
+        points = ([params.get("waypoint")] if name == "move-to"
+                  else list(params.get("waypoints", [])) if name == "move-path" else [])
+        try:
+            where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
+        except ValueError:
+            where_then = unit.position
+        return wait, where_then
+
+    def committed(self, but: str = "") -> dict[str, str]:
+        """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
+        busy: dict[str, str] = {}
+        for m in self.book:
+            if m.ended or m.root_uuid == but:
+                continue
+            if m.status is MissionStatus.PLANNED and not self.engine.starting(m.root_uuid):
+                continue  # planned only (start: false)
+            for uid in m.current_nodes:
+                info, status = m.nodes[uid], m.node_status.get(uid)
+                if info.is_task and info.execunit and status not in TERMINAL:
+                    busy.setdefault(info.execunit.strip("/"), m.root_uuid)
+        return busy
+
+
+def _node_in(tree: dict[str, Any], node_uuid: str) -> tuple[str, dict[str, Any]]:
+    """(name, params) of the node ``node_uuid`` in an instantiated tree as stored (JSON), or
+    ("", {}): read without building the tree, as it is asked for every busy unit per plan."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        common: dict[str, Any] = next(
+            (node[k] for k in COMMON_KEYS if isinstance(node.get(k), dict)), {})
+        if common.get("node-uuid") == node_uuid:
+            params = node.get("params")
+            return str(node.get("name", "")), params if isinstance(params, dict) else {}
+        stack.extend(c for c in node.get("children") or () if isinstance(c, dict))
+    return "", {}

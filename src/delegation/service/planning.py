@@ -1,0 +1,197 @@
+"""Planning jobs: from a command's tree to a job, from a finished job to a mission (pure).
+
+The tree and the options are validated here, once on the service's path, so bad input is
+answered at once; the planner receives the `ValidatedTree` and does not check it again. A
+finished plan is answered (``ok``, ``failed`` naming the nodes nobody can take), recorded as a
+mission, and with ``start`` sent to the engine. A start plan that used a unit which got busy in a
+mission started meanwhile is planned again around it (at most ``MAX_REPLANS`` times).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+from delegation.allocation import Plan
+from delegation.errors import InputError, InputProblem
+from delegation.learning import input_warnings
+from delegation.messages import DelegationResponse, MissionStatus, StartTst
+from delegation.runtime.commands import CommandKey
+from delegation.runtime.core import Effects
+from delegation.service.commands import CommandDesk
+from delegation.service.config import ServiceConfig
+from delegation.service.engine_link import EngineLink
+from delegation.service.faces import Face
+from delegation.service.fleet_view import FleetView
+from delegation.service.jobs import (
+    Job,
+    PlanOptions,
+    infeasible_reason,
+    plan_options,
+)
+from delegation.service.lifecycle import Lifecycle
+from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.operator_view import OperatorView
+from delegation.tst.node import to_dict
+from delegation.tst.validate import validate_tree
+
+log = logging.getLogger(__name__)
+
+#: How often a start plan is made again because a unit it uses got busy meanwhile.
+MAX_REPLANS = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Timing:
+    """When a mission's command arrived and when its instantiated tree left for the engine, and
+    how much of that the planner itself took."""
+
+    root_uuid: str
+    received: float
+    sent: float
+    planning: float
+
+
+@dataclass(eq=False)
+class MissionPart:
+    """What each part of the core that acts on missions works with (shared, one of each)."""
+
+    config: ServiceConfig
+    book: MissionBook
+    desk: CommandDesk
+    view: FleetView
+    engine: EngineLink
+    lifecycle: Lifecycle
+
+
+@dataclass(eq=False)
+class Planning(MissionPart):
+    """Commands' trees to planning jobs, and finished plans to answers and missions."""
+
+    timings: deque[Timing] = field(default_factory=lambda: deque(maxlen=10_000))
+    _job_ids: int = field(default=0, init=False)
+    #: Start plans made again around a unit that got busy meanwhile, by command.
+    _replanned: dict[CommandKey, int] = field(default_factory=dict, init=False)
+
+    def next_id(self) -> int:
+        """A new job id (jobs run in arrival order)."""
+        self._job_ids += 1
+        return self._job_ids
+
+    def options(
+        self, strategy: str | None, objective: str | None, time_limit: float | None
+    ) -> PlanOptions:
+        """The options asked for, this service's defaults elsewhere; ``InputError`` if bad."""
+        c = self.config
+        return plan_options(strategy, objective, time_limit,
+                            defaults=PlanOptions(c.strategy, c.objective, c.time_limit),
+                            max_time_limit=c.max_time_limit)
+
+    def job(
+        self,
+        face: Face,
+        key: CommandKey,
+        raw_tree: dict[str, Any],
+        now: float,
+        options: PlanOptions,
+        *,
+        start: bool,
+        source: str,
+        kind: Literal["plan", "bids"] = "plan",
+    ) -> Effects:
+        """Validate the tree (once, here: a bad one is answered at once) and hand it to the
+        planner as a job."""
+        tree = validate_tree(raw_tree, self.config.limits).with_uuids()
+        if kind == "plan":
+            conflicts = self.book.conflicts(tree.root)
+            if conflicts:
+                raise InputError(conflicts)
+            problem = self.engine.problem(now) if start else None
+            if problem:
+                raise InputError(InputProblem("engine", "", problem))
+        job_id = self.next_id()
+        view = self.view
+        units, notes = view.plannable(now) if kind == "plan" else (view.units(now), ())
+        warnings = tuple(input_warnings(tree.root, units, view.fleet.names())) if kind == "plan" \
+            else ()
+        for w in warnings:
+            log.warning("mission %s: %s", tree.node_uuid, w)
+        log.info("mission %s (%s) received on %s (%s%s): %d units to plan for", tree.node_uuid,
+                 tree.name, face, source, ", start" if start else "", len(units))
+        job = Job(id=job_id, kind=kind, key=key, face=face, tree=tree,
+                  units=units, options=options, engine=self.config.engine,
+                  start=start, source=source, received=self.desk.received(key, now),
+                  speed_sources=view.speed_sources(units), warnings=warnings, notes=notes,
+                  limits=self.config.limits)
+        return Effects(jobs=[job])
+
+    def planned(self, job: Job, plan: Plan, now: float, seconds: float) -> Effects:
+        """A plan was made for a command: plan again around a clash, refuse it when infeasible,
+        else record the mission and answer it (with ``start``, once the engine accepts)."""
+        plan_json = {**plan.to_json(), "notes": list(plan.notes)}
+        clash = self._clash(plan, job) if job.start and plan.feasible else set()
+        if clash and self._replanned.get(job.key, 0) < MAX_REPLANS:
+            # A unit it uses got busy in a mission started meanwhile: plan again around it.
+            self._replanned[job.key] = self._replanned.get(job.key, 0) + 1
+            job_id = self.next_id()
+            units, notes = self.view.plannable(now)
+            return Effects(jobs=[replace(job, id=job_id, units=units, notes=notes)])
+        self._replanned.pop(job.key, None)
+        log.info("mission %s planned: %s/%s, %s, makespan %.0f s, units %s", plan.tst.node_uuid,
+                 plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
+                 plan.makespan or 0.0,
+                 ", ".join(sorted({a.execunit for a in plan.assignments})) or "none")
+        for note in plan.notes:
+            log.info("mission %s: %s", plan.tst.node_uuid, note)
+        if not plan.feasible:
+            reason = infeasible_reason(plan, job.tree.root)
+            log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
+            if job.face == "tst":
+                return self.desk.fail("tst", job.key, job.com_uuid, reason)
+            return self.desk.respond("delegation", job.key, DelegationResponse(
+                response="failed", response_to=job.com_uuid, fail_reason=reason, plan=plan_json))
+        conflicts = self.book.conflicts(plan.tst)
+        if conflicts:  # a twin command with the same tree was planned meanwhile
+            return self.desk.fail(job.face, job.key, job.com_uuid,
+                                  InputError(conflicts).fail_reason)
+        return self._record(job, plan, plan_json, now, seconds)
+
+    def _record(self, job: Job, plan: Plan, plan_json: dict[str, Any], now: float,
+                seconds: float) -> Effects:
+        """A feasible plan becomes a mission: answered ``ok``, or sent to the engine."""
+        root_uuid = plan.tst.node_uuid or ""
+        self.book.add(Mission(root_uuid=root_uuid, source=job.source,
+                              created=self.lifecycle.epoch(now),
+                              tst=plan_json["tst"], plan=plan_json,
+                              nodes={**(node_infos(plan.source) if plan.source else {}),
+                                     **node_infos(plan.tst)},
+                              operator=(OperatorView.of(plan.source, plan.tst)
+                                        if plan.source else None),
+                              received=to_dict(job.tree.root), command=job.key,
+                              owner=self.desk.caller(job.key)))
+        self.view.planned(plan.tst)
+        effects = self.lifecycle.publish([LifecycleEvent(root_uuid, MissionStatus.PLANNED)])
+        if not job.start:
+            return effects.extend(self.desk.respond("delegation", job.key, DelegationResponse(
+                response="ok", response_to=job.com_uuid, plan=plan_json)))
+        problem = self.engine.problem(now)
+        if problem:
+            effects.extend(self.lifecycle.set_status(root_uuid, MissionStatus.FAILED, now, problem))
+            return effects.extend(self.desk.fail(job.face, job.key, job.com_uuid, problem))
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        effects.publish.append(self.engine.send("start", job.key, job.face, start, now, root_uuid,
+                                                plan_json))
+        log.info("mission %s sent to engine %s", root_uuid, self.config.engine)
+        self.timings.append(Timing(root_uuid, job.received, now, seconds))
+        return effects
+
+    def _clash(self, plan: Plan, job: Job) -> set[str]:
+        """Units a start plan uses that got busy in a mission started meanwhile (the plan did
+        not know: it used them as free now)."""
+        if self.config.commitments == "share":
+            return set()
+        known = {u.name for u in job.units if u.available_at > 0.0}
+        used = {a.execunit.strip("/") for a in plan.assignments}
+        return (used & set(self.view.committed())) - known

@@ -1,0 +1,194 @@
+"""Repair: a unit lost, rebooted or failing a task, or the engine gone (pure; docs/protocol.md
+§11).
+
+A unit lost (heartbeat stopped, or a new agent-uuid) or answering ``failed`` has its unfinished
+tasks re-delegated: what remains of the mission is planned without it (a job), then the old tree
+is aborted and the new one started, and the operator is told which task moved where
+(`delegation.service.redelegation` computes the remaining tree). A task re-delegated
+``max_retries`` times, or one nobody can take, fails the mission naming it. An engine lost or
+restarted fails its missions with the reason: the trees it executed are gone with it.
+"""
+
+from __future__ import annotations
+
+import logging
+import uuid
+from dataclasses import dataclass, field
+
+from delegation.errors import InputError
+from delegation.fleet import FleetEvent, FleetEventKind
+from delegation.messages import DelegationFeedback, MissionStatus, SignalTstTree, StartTst
+from delegation.runtime.core import Effects
+from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
+from delegation.service.missions import Mission, node_infos
+from delegation.service.planning import MissionPart, Planning
+from delegation.service.redelegation import (
+    Remaining,
+    first_origin,
+    moved_tasks,
+    remaining_tree,
+    unfinished_on,
+)
+from delegation.tst.node import parse_tree, walk, where
+from delegation.tst.validate import validate_tree
+
+log = logging.getLogger(__name__)
+
+#: The `CommandKey` face of the service's own engine commands (re-delegation): never answered.
+INTERNAL = "internal"
+
+
+@dataclass(frozen=True, slots=True)
+class Replan:
+    """A re-delegation being planned: what remains, why, and the tree it replaces."""
+
+    remaining: Remaining
+    why: str
+    old_root: str
+    units: frozenset[str]
+
+
+@dataclass(eq=False)
+class Repair(MissionPart):
+    """Re-delegation of a lost or failing unit's tasks; missions failed with a lost engine."""
+
+    planning: Planning
+    #: Missions whose re-delegation is being planned, by root uuid.
+    replans: dict[str, Replan] = field(default_factory=dict)
+
+    def forget(self, root_uuid: str, now: float) -> Effects:
+        """The mission ends while re-delegating (cancelled): abort its old tree, still running
+        on a live engine, and drop the replan."""
+        replan = self.replans.pop(root_uuid, None)
+        return self.abort_tree(replan.old_root, now) if replan is not None else Effects()
+
+    def engine_gone(self, event: FleetEvent, now: float) -> Effects:
+        """The engine's heartbeat stopped, or it came back with a new agent-uuid: the trees it
+        executed are gone with it, so its missions end ``failed`` saying so (never a wait)."""
+        engine = self.config.engine
+        if event.kind is FleetEventKind.LOST:
+            why = f"engine {engine} lost (no heartbeat): the trees it executed are gone"
+        else:
+            why = f"engine {engine} restarted (new agent-uuid): the trees it executed are gone"
+        effects = Effects()
+        for m in self.book:
+            if m.ended or m.status is MissionStatus.PLANNED:
+                continue
+            self.replans.pop(m.root_uuid, None)
+            effects.extend(self.lifecycle.set_status(m.root_uuid, MissionStatus.FAILED, now, why))
+        return effects
+
+    def unit_lost(self, event: FleetEvent, now: float) -> Effects:
+        """A unit lost or rebooted: re-delegate its unfinished tasks in every running mission."""
+        why = (f"/{event.name} lost (no heartbeat)" if event.kind is FleetEventKind.LOST
+               else f"/{event.name} rebooted (new agent-uuid): its tasks are gone")
+        effects = Effects()
+        for m in self.book:
+            if m.ended or m.redelegating or m.status not in (MissionStatus.STARTED,
+                                                             MissionStatus.RUNNING):
+                continue
+            if unfinished_on(parse_tree(m.current_tst), m.node_status, event.name):
+                effects.extend(self.redelegate(m, event.name, why, now))
+        return effects
+
+    def redelegate(self, mission: Mission, unit: str, why: str, now: float) -> Effects:
+        """Plan what ``mission`` still has to do without ``unit`` (a job); the mission waits for
+        it (``redelegating``: no root status ends it meanwhile)."""
+        tree = parse_tree(mission.current_tst)
+        # Every unit of the tree that is gone too (e.g. lost while this was being planned).
+        lost = {unit} | {n.execunit.strip("/") for _, n in walk(tree) if not n.is_control
+                         and isinstance(n.execunit, str) and n.execunit.startswith("/")
+                         and not self.view.fleet.is_alive(n.execunit, now)}
+        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()))
+        if remaining is None:
+            return Effects()
+        paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
+        for uid in remaining.freed:
+            old = remaining.origin[uid]
+            if mission.retries.get(first_origin(mission.origin, old), 0) >= self.config.max_retries:
+                reason = (f"{why}; {paths.get(old, old)} was re-delegated "
+                          f"{self.config.max_retries} times already (retry budget)")
+                return self.abort_and_fail(mission, mission.current_root, reason, now)
+        try:  # made of a valid tree, but checked like any tree the planner gets
+            checked = validate_tree(remaining.tree, self.config.limits)
+        except InputError as exc:
+            return self.abort_and_fail(mission, mission.current_root, f"{why}; {exc.fail_reason}",
+                                       now)
+        old_root = mission.current_root
+        mission.current_root = ""  # re-delegating
+        units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
+        self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost))
+        options = self.planning.options(mission.plan.get("strategy"),
+                                        mission.plan.get("objective"), None)
+        job = Job(id=self.planning.next_id(), kind="plan",
+                  key=(INTERNAL, f"{mission.root_uuid}#{mission.redelegations + 1}"),
+                  face="delegation", tree=checked, units=units, options=options,
+                  engine=self.config.engine, start=True, source="redelegate", received=now,
+                  notes=notes, redelegate=mission.root_uuid)
+        log.info("mission %s: re-delegating %d task(s): %s", mission.root_uuid,
+                 len(remaining.freed), why)
+        return Effects(jobs=[job])
+
+    def redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
+        """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
+        or fail the mission naming the unit and the tasks nobody can take."""
+        replan = self.replans.pop(job.redelegate, None)
+        mission = self.book.find(job.redelegate)
+        if replan is None or mission is None or mission.ended:
+            return Effects()  # cancelled or ended meanwhile
+        if isinstance(result, JobFailed):
+            return self.abort_and_fail(mission, replan.old_root, f"{replan.why}; {result.reason}",
+                                        now)
+        if not isinstance(result, PlanDone):
+            return self.abort_and_fail(mission, replan.old_root,
+                                        internal_error(result).reason, now)
+        plan = result.plan
+        origin = replan.remaining.origin
+        if not plan.feasible:
+            paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
+            parts = [f"{paths.get(origin.get(u.node_uuid, ''), u.name)}: {u.reason}"
+                     for u in plan.unassigned]
+            reason = f"{replan.why}; nobody can take " + "; ".join(parts)
+            return self.abort_and_fail(mission, replan.old_root, reason, now)
+        if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
+               for uid in origin):
+            # A task finished while this was planned: plan again without it (never run twice).
+            mission.current_root = replan.old_root
+            return self.redelegate(mission, next(iter(replan.units)), replan.why, now)
+        problem = self.engine.problem(now)
+        if problem:
+            return self.abort_and_fail(mission, replan.old_root, f"{replan.why}; {problem}", now)
+        plan_json = {**plan.to_json(), "notes": list(plan.notes)}
+        new_root = plan.tst.node_uuid or ""
+        self.book.replace_tree(mission, plan_json["tst"], new_root, node_infos(plan.tst), origin)
+        moved = moved_tasks(plan.tst, replan.remaining)
+        for uid in replan.remaining.freed:
+            first = first_origin(mission.origin, uid)
+            mission.retries[first] = mission.retries.get(first, 0) + 1
+        effects = self.abort_tree(replan.old_root, now)
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        effects.publish.append(self.engine.send("start", (INTERNAL, f"{new_root}#start"),
+                                                "delegation", start, now, mission.root_uuid,
+                                                plan_json))
+        effects.send(self.desk.topics.delegation_feedback, DelegationFeedback(
+            root_uuid=mission.root_uuid, status=MissionStatus.RE_DELEGATED.value,
+            fail_reason=replan.why, tasks=moved))
+        log.info("mission %s re-delegated: %s", mission.root_uuid,
+                 ", ".join(f"{t['path']} -> {t['unit']}" for t in moved))
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
+        return effects
+
+    def abort_tree(self, root: str, now: float) -> Effects:
+        """``$abort`` a tree the service gave the engine (no caller waits for the answer)."""
+        if not root or self.engine.problem(now):
+            return Effects()
+        model = SignalTstTree(node_uuid=root, signal="$abort", sender=self.config.name)
+        abort = self.engine.send("signal", (INTERNAL, f"{root}#abort"), "delegation", model, now)
+        return Effects(publish=[abort])
+
+    def abort_and_fail(self, mission: Mission, root: str, reason: str, now: float) -> Effects:
+        """``$abort`` the tree ``root`` and end the mission ``failed`` with ``reason``."""
+        effects = self.abort_tree(root, now)
+        return effects.extend(self.lifecycle.set_status(mission.root_uuid, MissionStatus.FAILED,
+                                                        now, reason))

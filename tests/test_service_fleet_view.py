@@ -1,0 +1,115 @@
+"""The fleet view alone (`delegation.service.fleet_view`): the units a plan may use, busy units
+planned from when and where they become free, speeds learnt from flights."""
+
+from __future__ import annotations
+
+import json
+
+from delegation.fleet import FleetRegistry
+from delegation.messages import (
+    DirectExecutionInfo,
+    HeartBeat,
+    MissionStatus,
+    TaskAvailable,
+    TstFeedback,
+    encode,
+)
+from delegation.service.config import ServiceConfig
+from delegation.service.engine_link import EngineLink
+from delegation.service.fleet_view import FleetView
+from delegation.service.missions import Mission, MissionBook, node_infos
+from delegation.tst.node import parse_tree
+
+PREFIX = "t"
+
+
+def _topic(name: str, rest: str) -> str:
+    return f"{PREFIX}/unit/air/simulation/{name}/{rest}"
+
+
+def _view(**config: object) -> FleetView:
+    c = ServiceConfig(prefix=PREFIX, **config)  # type: ignore[arg-type]
+    fleet = FleetRegistry()
+    return FleetView(c, fleet, MissionBook(), EngineLink(c, fleet), lambda now: now + 1000.0)
+
+
+def _feed(view: FleetView, name: str, lat: float, now: float, battery: float | None = None
+          ) -> None:
+    hb = HeartBeat(agent_type="air", agent_uuid=f"uuid-{name}", name=name, rate=1.0, stamp=now,
+                   levels=["sensor", "direct execution"])
+    dei = DirectExecutionInfo(name=name, rate=1.0, stamp=now,
+                              tasks_available=[TaskAvailable(name="move-to")])
+    pos = {"latitude": lat, "longitude": 16.68, "altitude": 10.0}
+    view.observe(_topic(name, "heartbeat"), encode(hb), now)
+    view.observe(_topic(name, "direct_execution_info"), encode(dei), now)
+    view.observe(_topic(name, "sensor/position"), json.dumps(pos).encode(), now)
+    if battery is not None:
+        view.observe(_topic(name, "sensor/battery"), json.dumps(battery).encode(), now)
+
+
+def _busy_mission(view: FleetView, unit: str) -> None:
+    tree = {"name": "move-to", "common_params": {"node-uuid": "t1", "execunit": f"/{unit}"},
+            "params": {"waypoint": {"latitude": 57.8, "longitude": 16.7, "altitude": 20.0}}}
+    plan = {"assignments": [{"node-uuid": "t1", "execunit": f"/{unit}", "end": 120.0}]}
+    view.book.add(Mission(root_uuid="t1", source="delegate", created=1000.0, tst=tree, plan=plan,
+                          nodes=node_infos(parse_tree(tree)), status=MissionStatus.RUNNING,
+                          started_at=1000.0))
+
+
+def test_units_leave_out_low_battery_and_excluded_ones_naming_them() -> None:
+    view = _view(min_battery=0.3)
+    for name, battery in (("u0", 0.9), ("u1", 0.1), ("u2", None)):
+        _feed(view, name, 57.76, 0.0, battery)
+    units, notes = view.plannable(1.0, exclude={"u2"})
+    assert [u.name for u in units] == ["u0"]
+    assert any("u1: left out, battery 10%" in n for n in notes)
+    assert any(n.startswith("u2: left out (lost") for n in notes)
+    assert view.ready({"u0", "u1"}, engine=False, now=1.0)
+    assert not view.ready({"u0"}, engine=True, now=1.0)  # no engine heard
+
+
+def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
+    view = _view()  # commitments: wait
+    _feed(view, "u0", 57.76, 0.0)
+    _busy_mission(view, "u0")
+    assert view.committed() == {"u0": "t1"} and view.committed(but="t1") == {}
+    [unit], notes = view.plannable(20.0)
+    # Started at epoch 1000, ends 120 s later; now is epoch 1020: free in 100 s, at its waypoint.
+    assert unit.available_at == 100.0 and unit.position.latitude == 57.8
+    assert "busy in mission t1, planned from when and where it becomes free" in notes[0]
+    assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
+
+
+def test_exclude_commitments_leave_the_busy_unit_out() -> None:
+    view = _view(commitments="exclude")
+    _feed(view, "u0", 57.76, 0.0)
+    _busy_mission(view, "u0")
+    assert view.plannable(20.0) == ((), ("u0: left out, busy in mission t1",))
+
+
+def test_a_task_flown_teaches_its_speed_class() -> None:
+    view = _view()
+    _feed(view, "u0", 57.76, 0.0)
+    tree = parse_tree({"name": "move-to", "common_params": {"node-uuid": "n1", "execunit": "/u0"},
+                       "params": {"speed": "fast", "waypoint": {"latitude": 57.77,
+                                                                "longitude": 16.68,
+                                                                "altitude": 10.0}}})
+    view.planned(tree)
+    view.task_feedback(TstFeedback(node_uuid="n1", status="running"), 1.0)
+    for t in range(2, 40):  # the speed sensor while it flies
+        view.observe(_topic("u0", "sensor/speed"), json.dumps(9.5).encode(), float(t))
+    view.task_feedback(TstFeedback(node_uuid="n1", status="succeeded"), 40.0)
+    _feed(view, "u0", 57.76, 40.0)  # still live
+    assert view.speed_sources(view.units(40.0)) == {"u0": "learnt"}
+    [row] = view.agents(40.0)
+    assert row["name"] == "u0" and row["speeds-source"] == "learnt"
+
+
+def test_a_node_is_found_in_the_stored_tree_under_either_common_key() -> None:
+    from delegation.service.fleet_view import _node_in
+
+    tree = {"name": "seq", "common-params": {"node-uuid": "r"}, "children": [
+        {"name": "move-path", "common-params": {"node-uuid": "p"},
+         "params": {"waypoints": [1, 2]}}]}
+    assert _node_in(tree, "p") == ("move-path", {"waypoints": [1, 2]})
+    assert _node_in(tree, "r") == ("seq", {}) and _node_in(tree, "x") == ("", {})

@@ -1,0 +1,77 @@
+"""Planning jobs alone (`delegation.service.planning`): the tree validated once into a job, a
+plan answered or recorded, a clash planned again around the busy unit."""
+
+from __future__ import annotations
+
+import pytest
+
+from delegation.errors import InputError
+from delegation.messages import MissionStatus
+from delegation.runtime.core import Effects
+from delegation.service import ServiceConfig, ServiceCore, run_job
+from delegation.service.jobs import PlanDone
+from delegation.service.planning import MAX_REPLANS
+from delegation.tst.validate import ValidatedTree
+from test_service_core import feed_engine, feed_unit, on, partial_tree
+
+KEY = ("delegation", "c-1")
+
+
+def _core(**config: object) -> ServiceCore:
+    c = ServiceCore(ServiceConfig(prefix="t", **config))  # type: ignore[arg-type]
+    feed_unit(c, "dji0", 57.7605, 16.6815, ["move-to"], 100.0)
+    feed_unit(c, "dji1", 57.7600, 16.6800, ["move-to"], 100.0)
+    feed_engine(c, 100.0)
+    c.desk.arrive("delegation", b'{"command": "ping", "com-uuid": "c-1"}', 100.5)
+    return c
+
+
+def _job(core: ServiceCore, start: bool = False) -> Effects:
+    return core.planning.job("delegation", KEY, partial_tree(), 101.0,
+                             core.planning.options(None, None, None), start=start,
+                             source="delegate")
+
+
+def test_a_job_carries_the_validated_tree_units_and_when_the_command_came() -> None:
+    core = _core()
+    [job] = _job(core).jobs
+    assert isinstance(job.tree, ValidatedTree) and job.tree.node_uuid == "root-1"
+    assert {u.name for u in job.units} == {"dji0", "dji1"} and job.received == 100.5
+    assert job.id == 1 and core.planning.next_id() == 2
+
+
+def test_bad_input_is_refused_before_any_job() -> None:
+    core = _core()
+    with pytest.raises(InputError, match="strategy"):
+        core.planning.options("fastest", None, None)
+    tree = partial_tree()
+    tree["children"][0]["params"] = {}
+    with pytest.raises(InputError, match="waypoint"):
+        core.planning.job("delegation", KEY, tree, 101.0, core.planning.options(None, None, None),
+                          start=False, source="delegate")
+
+
+def test_a_plan_without_start_is_recorded_and_answered_ok() -> None:
+    core = _core()
+    [job] = _job(core).jobs
+    result = run_job(job)
+    assert isinstance(result, PlanDone)
+    out = core.planning.planned(job, result.plan, 101.1, 0.01)
+    [answer] = on(out, "delegation/response")
+    assert answer["response"] == "ok" and answer["plan"]["tst"]["common_params"]["node-uuid"]
+    assert core.book.get("root-1").status is MissionStatus.PLANNED
+    assert core.book.get("root-1").command == KEY
+
+
+def test_a_start_plan_using_a_unit_busy_meanwhile_is_planned_again() -> None:
+    core = _core(commitments="exclude")
+    [job] = _job(core, start=True).jobs
+    result = run_job(job)
+    assert isinstance(result, PlanDone)
+    used = {a.execunit.strip("/") for a in result.plan.assignments}
+    core.view.committed = lambda but="": dict.fromkeys(used, "other")  # type: ignore[method-assign]
+    for attempt in range(MAX_REPLANS):
+        again = core.planning.planned(job, result.plan, 101.1, 0.01)
+        assert [j.id for j in again.jobs] == [2 + attempt] and again.publish == []
+    sent = core.planning.planned(job, result.plan, 101.2, 0.01)  # the budget is spent: sent
+    assert on(sent, "op0/tst/command") and core.timings[-1].received == 100.5
