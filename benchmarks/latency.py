@@ -14,7 +14,9 @@ Measured:
 3. ``plan_mission`` alone (in this process, no broker, no service threads around it) on trees of
    the same shapes and the same units, and on small missions (a ``conc`` of 2-5 move-tos, what a
    burst sends): the planner's own cost, apart from what sharing the interpreter costs it in the
-   service. ``--planner-only`` measures only this (no broker).
+   service. ``--planner-only`` measures only this (no broker). The units are idle here; in the
+   service they are busy with the earlier missions (the stand-in engine never ends one), so the
+   in-service plans also fit each task after the units' current work (more bids simulated).
 
 Targets: start-tst p50 < 50 ms and p99 < 150 ms; ping p50 < 5 ms.
 
