@@ -18,16 +18,14 @@ import pytest
 
 import delegation.allocation.auction.flat as flat
 import delegation.allocation.auction.stacked as stacked
-from allocation_helpers import SHAPES, move_to, problem_for, random_instance, unit
+from allocation_helpers import SHAPES, problem_for, random_instance
 from delegation.allocation import problem as problem_module
 from delegation.allocation.auction import auction
 from delegation.allocation.auction.general import _GeneralAuction, _suffix_minima
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import route_points
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.strategies import Objective
 from delegation.coverage import _close
-from delegation.tst import parse_tree
 
 CASES = [(seed, shape, objective) for seed in range(3) for shape in SHAPES
          for objective in ("makespan", "total")]
@@ -122,53 +120,3 @@ def test_closed_ring_test_equals_allclose() -> None:
     for a in itertools.product(values, repeat=2):
         for b in itertools.product(values, repeat=2):
             assert _close(list(a), list(b)) == bool(np.allclose(a, b)), (a, b)
-
-
-def _route_points_row_by_row(
-    problem: Problem, u: int, route: list[int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``route_points`` as it was written first: numpy rows one at a time."""
-    n = len(route)
-    prev_xy = np.empty((n + 1, 2))
-    prev_xy[0] = problem.unit_xy[u]
-    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
-    for k in range(n):
-        prev_xy[k + 1] = end[k] if travels[k] else prev_xy[k]
-    next_xy = np.zeros((n + 1, 2))
-    next_speed = np.full(n + 1, np.inf)
-    if problem.has_home[u]:
-        next_xy[n] = problem.home_xy[u]
-        next_speed[n] = problem.home_speed[u]
-    for k in range(n - 1, -1, -1):
-        if travels[k]:
-            next_xy[k] = start[k]
-            next_speed[k] = problem.speed[u, route[k]]
-        else:
-            next_xy[k] = next_xy[k + 1]
-            next_speed[k] = next_speed[k + 1]
-    return prev_xy, next_xy, next_speed
-
-
-def test_route_points_from_lists_equal_row_by_row() -> None:
-    """Routes through travelling, in-place (take-off) and unit-dependent (go-home) tasks, for
-    units with and without a home."""
-    tree = parse_tree({"name": "conc", "children": [
-        move_to(100, 200), move_to(-300, 50, speed="fast"), move_to(700, -20),
-        {"name": "take-off", "common_params": {"execunit": "*"}, "params": {}},
-        {"name": "go-home", "common_params": {"execunit": "*"}, "params": {}},
-        move_to(-50, -600, speed="slow"),
-    ]})
-    tasks = ("move-to", "take-off", "go-home")
-    units = [unit("a", 0, 0, home=True, tasks=tasks), unit("b", 500, 500, tasks=tasks),
-             unit("c", -200, 300, speed=8.0, home=True, tasks=tasks)]
-    problem = problem_for(tree, units)
-    for u in range(problem.n_units):
-        for n in range(problem.n_tasks + 1):
-            for route in itertools.permutations(range(problem.n_tasks), n):
-                if n > 3 and sum(route) % 7:
-                    continue  # (a sample of the long routes)
-                got = route_points(problem, u, list(route))
-                want = _route_points_row_by_row(problem, u, list(route))
-                for a, b in zip(got, want, strict=True):
-                    np.testing.assert_array_equal(a, b)
-

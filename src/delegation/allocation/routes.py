@@ -24,25 +24,24 @@ def route_points(
     inf where nothing follows (open route), so the travel to "next" costs nothing there.
     """
     n = len(route)
+    prev_xy = np.empty((n + 1, 2))
+    prev_xy[0] = problem.unit_xy[u]
     start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
-    starts, ends, moves = start.tolist(), end.tolist(), travels.tolist()
-    # In Python lists, then one array each (the same numbers; row by row cost more than them).
-    prev = [problem.unit_xy[u].tolist()]
     for k in range(n):
-        prev.append(ends[k] if moves[k] else prev[k])
-    nxt: list[list[float]] = [[0.0, 0.0]] * (n + 1)
-    speed: list[float] = [np.inf] * (n + 1)
+        prev_xy[k + 1] = end[k] if travels[k] else prev_xy[k]
+    next_xy = np.zeros((n + 1, 2))
+    next_speed = np.full(n + 1, np.inf)
     if problem.has_home[u]:
-        nxt[n] = problem.home_xy[u].tolist()
-        speed[n] = float(problem.home_speed[u])
-    unit_speed = problem.speed[u].tolist()
+        next_xy[n] = problem.home_xy[u]
+        next_speed[n] = problem.home_speed[u]
     for k in range(n - 1, -1, -1):
-        if moves[k]:
-            nxt[k], speed[k] = starts[k], unit_speed[route[k]]
+        if travels[k]:
+            next_xy[k] = start[k]
+            next_speed[k] = problem.speed[u, route[k]]
         else:
-            nxt[k], speed[k] = nxt[k + 1], speed[k + 1]
-    return (np.array(prev, dtype=float).reshape(n + 1, 2),
-            np.array(nxt, dtype=float).reshape(n + 1, 2), np.array(speed, dtype=float))
+            next_xy[k] = next_xy[k + 1]
+            next_speed[k] = next_speed[k + 1]
+    return prev_xy, next_xy, next_speed
 
 
 def xy_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:

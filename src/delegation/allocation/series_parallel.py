@@ -206,16 +206,14 @@ def tree_makespan(problem: Problem, orders: Sequence[Sequence[int]], start: np.n
 
 def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, np.ndarray]:
     """Makespan, start and end per task of running ``root`` (earliest times; the durations are
-    fixed because every unit's order is in the tree's). In plain Python floats (the same
-    arithmetic as numpy's scalars, without their cost: best_decomposition calls this per try)."""
+    fixed because every unit's order is in the tree's)."""
     n = len(graph.duration)
-    duration, home = graph.duration.tolist(), graph.home.tolist()
-    start, end = [0.0] * n, [0.0] * n
+    start, end = np.zeros(n), np.zeros(n)
     finish: dict[int, float] = {}  # how long each node runs, from its children's
     nodes = _preorder(root)
     for node in reversed(nodes):
         if node.kind == "task":
-            finish[id(node)] = duration[int(node.tasks[0])]
+            finish[id(node)] = graph.duration[int(node.tasks[0])]
         elif node.kind == "conc":
             finish[id(node)] = max(finish[id(c)] for c in node.children)
         else:
@@ -226,8 +224,8 @@ def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, n
         b = begin[id(node)]
         if node.kind == "task":
             t = int(node.tasks[0])
-            start[t], end[t] = b, b + duration[t]
-            span = max(span, end[t] + home[t])
+            start[t], end[t] = b, b + graph.duration[t]
+            span = max(span, end[t] + graph.home[t])
         elif node.kind == "conc":
             for c in node.children:
                 begin[id(c)] = b
@@ -235,7 +233,7 @@ def sp_times(root: SpNode, graph: PrecedenceGraph) -> tuple[float, np.ndarray, n
             for c in node.children:
                 begin[id(c)] = b
                 b += finish[id(c)]
-    return span, np.array(start, dtype=float), np.array(end, dtype=float)
+    return span, start, end
 
 
 def decompose(graph: PrecedenceGraph, rng: np.random.Generator | None = None) -> SpNode:

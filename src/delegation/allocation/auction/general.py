@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -333,14 +332,13 @@ class _GeneralAuction:
             return np.zeros(0)
         match self.objective:
             case Objective.MAKESPAN:
-                times = _BoundTimes.of(self.current, self.node_of, self.base)
-                return np.array([self._finish_bound(u, int(cols[j]), times) for u, j in bids])
+                return np.array([self._finish_bound(u, int(cols[j])) for u, j in bids])
             case Objective.TOTAL:
                 ts = cols[np.array([j for _, j in bids], dtype=int)]
                 us = np.array([u for u, _ in bids], dtype=int)
                 return np.asarray(self.current.total_time + self.delta[us, ts])
 
-    def _finish_bound(self, u: int, t: int, times: _BoundTimes) -> float:
+    def _finish_bound(self, u: int, t: int) -> float:
         """A lower bound on when unit ``u`` finishes with ``t`` at any position it may take.
 
         Nothing before the position moves (those tasks wait for nothing ``t`` waits for: its
@@ -348,19 +346,19 @@ class _GeneralAuction:
         the end of the task before it; then the unit does ``t`` and the rest of its route one
         after another: their travel and work, ``costs`` more than they took before.
         """
-        route = self.routes[u]
+        current, route = self.current, self.routes[u]
         column = self.costs[u][:, t].tolist()
         low = int(self.low[u, t]) if self.has_pred[t] else 0
-        act = times.act[t]
+        act = float(current.node_act[self.node_of[t]]) if current.node_act is not None else 0.0
         before = self.ready[u]
-        rest = times.used[u] if route else times.base[u]
-        end, spent = times.end, times.spent
+        rest = float(current.unit_used[u]) if route else float(self.base[u])
+        end, travel, work = current.end, current.travel_time, current.work_time
         best = np.inf
         for q, added in enumerate(column):
             if q > 0:
                 k = route[q - 1]
-                before = end[k]
-                rest -= spent[k]
+                before = float(end[k])
+                rest -= float(travel[k] + work[k])
             if q >= low and added < np.inf:
                 best = min(best, max(act, before) + added + rest)
         return best
@@ -455,27 +453,6 @@ class _GeneralAuction:
         self.allowed[:, t] = False
         self.delta[:, t] = np.inf
         self.pending[self.before[t]] -= 1
-
-
-@dataclass(frozen=True, slots=True)
-class _BoundTimes:
-    """What ``_finish_bound`` reads of the current schedule, as Python floats once per round
-    (instead of numpy scalars per bid): per task its activation, end and travel + work; per
-    unit its battery use and its way home alone."""
-
-    act: list[float]
-    end: list[float]
-    spent: list[float]
-    used: list[float]
-    base: list[float]
-
-    @staticmethod
-    def of(current: Schedule, node_of: np.ndarray, base: np.ndarray) -> _BoundTimes:
-        act = (current.node_act[node_of].tolist() if current.node_act is not None
-               else [0.0] * len(node_of))
-        return _BoundTimes(act, current.end.tolist(),
-                           (current.travel_time + current.work_time).tolist(),
-                           current.unit_used.tolist(), base.tolist())
 
 
 def _suffix_minima(table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
