@@ -12,10 +12,11 @@ Measured:
    figure (message taken off its queue -> tree handed to paho) from its timings.
 2. ``ping`` on ``delegation/command`` -> ``pong`` on ``delegation/response``, 200 round trips.
 3. ``plan_mission`` alone (in this process, no broker, no service threads around it) on trees of
-   the same shapes and the same units, and on small missions (a ``conc`` of 2-5 move-tos, what a
-   burst sends): the planner's own cost, apart from what sharing the interpreter costs it in the
-   service. ``--planner-only`` measures only this (no broker). The units are idle here; in the
-   service they are busy with the earlier missions (the stand-in engine never ends one), so the
+   the same shapes and the same units, and on ``small`` missions (a ``conc`` of 2-5 move-tos,
+   what a burst sends): the planner's own cost, apart from what sharing the interpreter costs it
+   in the service; wall clock and CPU time (the CPU figure holds on a loaded machine).
+   ``--planner-only`` measures only this (no broker). The units are idle here; in the service
+   they are busy with the earlier missions (the stand-in engine never ends one), so the
    in-service plans also fit each task after the units' current work (more bids simulated).
 
 Targets: start-tst p50 < 50 ms and p99 < 150 ms; ping p50 < 5 ms.
@@ -148,16 +149,20 @@ def make_small(rng: random.Random) -> dict[str, Any]:
             "children": children}
 
 
-def planner_alone(units: list[Any], trees: list[dict[str, Any]], strategy: str) -> list[float]:
-    """Milliseconds of ``plan_mission`` per tree, in this process (after one warm-up plan)."""
+def planner_alone(
+    units: list[Any], trees: list[dict[str, Any]], strategy: str
+) -> tuple[list[float], list[float]]:
+    """Milliseconds of ``plan_mission`` per tree in this process (after one warm-up plan): wall
+    clock, and this thread's CPU time (what other processes on a loaded machine do not change)."""
     nodes = [parse_tree(tree) for tree in trees]
     plan_mission(nodes[0], units, strategy=strategy)
-    out = []
+    wall, cpu = [], []
     for node in nodes:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         plan_mission(node, units, strategy=strategy)
-        out.append((time.perf_counter() - t0) * 1000)
-    return out
+        cpu.append((time.thread_time() - c0) * 1000)
+        wall.append((time.perf_counter() - t0) * 1000)
+    return wall, cpu
 
 
 def pct(values: list[float], q: float) -> float:
@@ -188,13 +193,13 @@ def main(argv: list[str] | None = None) -> int:
     rng = random.Random(args.seed)
     shapes = ("mixed", "flat") if args.shape == "both" else (args.shape,)
     alone_units = make_units(args.units, random.Random(args.seed))
-    for shape in shapes:
-        trees = [make_tree(args.tasks, rng, shape) for _ in range(args.missions)]
-        print(line(f"[{shape}] plan_mission alone", planner_alone(alone_units, trees,
-                                                                  args.strategy)))
-    small = [make_small(rng) for _ in range(args.missions)]
-    print(line("[small: 2-5 move-tos] plan_mission alone", planner_alone(alone_units, small,
-                                                                        args.strategy)))
+    alone = {shape: [make_tree(args.tasks, rng, shape) for _ in range(args.missions)]
+             for shape in shapes}
+    alone["small"] = [make_small(rng) for _ in range(args.missions)]
+    for shape, trees in alone.items():
+        wall, cpu = planner_alone(alone_units, trees, args.strategy)
+        print(line(f"[{shape}] plan_mission alone", wall))
+        print(line(f"[{shape}] plan_mission alone, CPU", cpu))
     if args.planner_only:
         return 0
     rng = random.Random(args.seed)
