@@ -11,10 +11,18 @@ Measured:
    with the ``auction`` strategy, over 100 missions run one after another. Also the service's own
    figure (message taken off its queue -> tree handed to paho) from its timings.
 2. ``ping`` on ``delegation/command`` -> ``pong`` on ``delegation/response``, 200 round trips.
+3. ``plan_mission`` alone (in this process, no broker, no service threads around it) on trees of
+   the same shapes and the same units, and on ``small`` missions (a ``conc`` of 2-5 move-tos,
+   what a burst sends): the planner's own cost, apart from what sharing the interpreter costs it
+   in the service; wall clock and CPU time (the CPU figure holds on a loaded machine).
+   ``--planner-only`` measures only this (no broker). The units are idle here; in the service
+   they are busy with the earlier missions (the stand-in engine never ends one), so the
+   in-service plans also fit each task after the units' current work (more bids simulated).
 
 Targets: start-tst p50 < 50 ms and p99 < 150 ms; ping p50 < 5 ms.
 
     .venv/bin/python benchmarks/latency.py [--missions 100] [--tasks 20] [--units 10]
+        [--shape mixed|flat|both] [--planner-only]
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import time
 import uuid
 from typing import Any
 
+from delegation.allocation import plan_mission
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.local import LocalSystem
@@ -38,6 +47,7 @@ from delegation.runtime.mqtt import Message, MqttClient
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import ServiceConfig
 from delegation.topics import unit_base_topic
+from delegation.tst import parse_tree
 
 PREFIX = "bench"
 ORIGIN = GeoPoint(latitude=57.7605, longitude=16.6815)
@@ -128,6 +138,33 @@ def make_tree(n: int, rng: random.Random, shape: str = "mixed") -> dict[str, Any
             "children": [{"name": "seq", "children": children[:half]}, *children[half:]]}
 
 
+def make_small(rng: random.Random) -> dict[str, Any]:
+    """A burst's mission: a ``conc`` of 2-5 move-tos."""
+    frame = LocalFrame(ORIGIN.latitude, ORIGIN.longitude)
+    children = [{"name": "move-to", "common_params": {"execunit": "*"},
+                 "params": {"waypoint": frame.geopoint(rng.uniform(-1500, 1500),
+                                                       rng.uniform(-1500, 1500), 30.0).to_wire()}}
+                for _ in range(rng.randint(2, 5))]
+    return {"name": "conc", "common_params": {"node-uuid": str(uuid.uuid4())},
+            "children": children}
+
+
+def planner_alone(
+    units: list[Any], trees: list[dict[str, Any]], strategy: str
+) -> tuple[list[float], list[float]]:
+    """Milliseconds of ``plan_mission`` per tree in this process (after one warm-up plan): wall
+    clock, and this thread's CPU time (what other processes on a loaded machine do not change)."""
+    nodes = [parse_tree(tree) for tree in trees]
+    plan_mission(nodes[0], units, strategy=strategy)
+    wall, cpu = [], []
+    for node in nodes:
+        t0, c0 = time.perf_counter(), time.thread_time()
+        plan_mission(node, units, strategy=strategy)
+        cpu.append((time.thread_time() - c0) * 1000)
+        wall.append((time.perf_counter() - t0) * 1000)
+    return wall, cpu
+
+
 def pct(values: list[float], q: float) -> float:
     ordered = sorted(values)
     k = min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))
@@ -150,7 +187,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--shape", choices=("mixed", "flat", "both"), default="both",
                         help="mixed: conc of a 10-task seq and 10 tasks; flat: conc of 20 tasks")
+    parser.add_argument("--planner-only", action="store_true",
+                        help="only plan_mission in this process (no broker, no service)")
     args = parser.parse_args(argv)
+    rng = random.Random(args.seed)
+    shapes = ("mixed", "flat") if args.shape == "both" else (args.shape,)
+    alone_units = make_units(args.units, random.Random(args.seed))
+    alone = {shape: [make_tree(args.tasks, rng, shape) for _ in range(args.missions)]
+             for shape in shapes}
+    alone["small"] = [make_small(rng) for _ in range(args.missions)]
+    for shape, trees in alone.items():
+        wall, cpu = planner_alone(alone_units, trees, args.strategy)
+        print(line(f"[{shape}] plan_mission alone", wall))
+        print(line(f"[{shape}] plan_mission alone, CPU", cpu))
+    if args.planner_only:
+        return 0
     rng = random.Random(args.seed)
 
     broker = PrivateMosquitto().start()
@@ -199,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                                                "tst": make_tree(args.tasks, rng)})
 
         results: dict[str, tuple[list[float], list[float], list[float], int]] = {}
-        for shape in ("mixed", "flat") if args.shape == "both" else (args.shape,):
+        for shape in shapes:
             wire_ms: list[float] = []
             failed = 0
             first_timing = len(service.timings)

@@ -3,8 +3,9 @@
 Each shortcut is checked against the computation it replaces, on generated trees of every shape:
 the bid bound prunes only bids that cannot win (the same plan as simulating the whole shortlist),
 the stacked tables rebid as the unit-by-unit ones do, the first tables of all units at once equal
-``recompute`` unit by unit, suffix minima equal ``np.argmin`` over the allowed positions, the LCA
-table equals the ancestry comparison, and the closed-ring test equals ``np.allclose``.
+``recompute`` unit by unit (in the general auction and the flat one), suffix minima equal
+``np.argmin`` over the allowed positions, the LCA table equals the ancestry comparison, and the
+closed-ring test equals ``np.allclose``.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 import numpy as np
 import pytest
 
+import delegation.allocation.auction.flat as flat
 import delegation.allocation.auction.stacked as stacked
 from allocation_helpers import SHAPES, problem_for, random_instance
 from delegation.allocation import problem as problem_module
@@ -72,6 +74,20 @@ def test_first_tables_at_once_equal_recompute_unit_by_unit(shape: str, homes: bo
         np.testing.assert_array_equal(at_once.costs[u], one_by_one.costs[u])
     np.testing.assert_array_equal(at_once.delta, one_by_one.delta)
     np.testing.assert_array_equal(at_once.pos, one_by_one.pos)
+
+
+@pytest.mark.parametrize("homes", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("objective", ["makespan", "total"])
+def test_flat_first_bids_at_once_equal_recompute_unit_by_unit(
+    seed: int, objective: str, homes: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert _instance(seed, "conc", homes).plain  # (what the flat auction plans)
+    fast = auction(_instance(seed, "conc", homes), objective)
+    monkeypatch.setattr(flat, "first_insertion_costs", lambda problem: None)
+    slow = auction(_instance(seed, "conc", homes), objective)
+    _same(fast, slow)
+    np.testing.assert_array_equal(fast.start, slow.start)
 
 
 def test_suffix_minima_are_argmin_over_the_positions_left() -> None:

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import pytest
 
-from delegation.fleet import make_unit
-from delegation.geo import GeoPoint
+from delegation.costs import task_geometry
+from delegation.fleet import UnitState, make_unit
+from delegation.geo import GeoPoint, great_circle_matrix_m
 from delegation.learning import (
+    FAR_M,
     SpeedLearner,
     input_warnings,
     speed_class,
     speed_notes,
 )
+from delegation.tst.node import TstNode, walk
 from delegation.tst.validate import parse_and_validate
 
 HERE = GeoPoint(latitude=57.76, longitude=16.68)
@@ -81,6 +84,50 @@ def test_warnings_for_a_bare_unit_name_and_far_away_tasks() -> None:
     near = parse_and_validate({"name": "move-to", "common_params": {"execunit": "/dji0"},
                                "params": {"waypoint": {"latitude": 57.761, "longitude": 16.681}}})
     assert input_warnings(near, [DJI]) == []
+
+
+def _far_tasks_one_matrix_each(tree: TstNode, units: list[UnitState]) -> list[float]:
+    """The nearest-unit distance of every task with points, one distance matrix per task (as
+    ``input_warnings`` first measured it)."""
+    positions = [u.position for u in units]
+    out = []
+    for _, node in walk(tree):
+        if node.is_control:
+            continue
+        g = task_geometry(node)
+        points = [*g.points, *(p for a in g.areas for p in a)]
+        if points:
+            out.append(float(great_circle_matrix_m(points, positions).min()))
+    return out
+
+
+def test_one_distance_matrix_warns_as_a_matrix_per_task() -> None:
+    """Far and near tasks of every geometry (points, paths, areas, in place), aliases between
+    them: the same warnings, in the tree's order, with the same distances as task by task."""
+    far = {"latitude": 16.67, "longitude": 57.76}  # swapped
+    near = {"latitude": 57.761, "longitude": 16.681}
+    tree = parse_and_validate({"name": "seq", "children": [
+        {"name": "move-to", "common_params": {"execunit": "dji0"}, "params": {"waypoint": far}},
+        {"name": "conc", "children": [
+            {"name": "move-path", "params": {"waypoints": [near, far]}},
+            {"name": "search-area", "common_params": {"execunit": "dji0"},
+             "params": {"area": [far, {"latitude": 16.68, "longitude": 57.76},
+                                 {"latitude": 16.68, "longitude": 57.77}]}},
+            {"name": "take-off", "common_params": {"execunit": "dji0"}, "params": {}},
+            {"name": "move-to", "params": {"waypoint": near}},
+        ]},
+        {"name": "move-to", "params": {"waypoint": {"latitude": 59.0, "longitude": 18.0}}},
+    ]})
+    usv = make_unit("usv0", "surface", GeoPoint(latitude=57.7, longitude=16.6), ["move-to"])
+    warnings = input_warnings(tree, [DJI, usv])
+    assert [w.split(":")[0] for w in warnings] == [
+        "root/children[0] (move-to)", "root/children[0] (move-to)",  # alias, far
+        "root/children[1]/children[1] (search-area)", "root/children[1]/children[1] (search-area)",
+        "root/children[1]/children[2] (take-off)",  # alias (in place: never far)
+    ]  # (the move-path has a near point; the last move-to is 150 km away)
+    distances = _far_tasks_one_matrix_each(tree, [DJI, usv])
+    far_ones = [f"{d / 1000:,.0f} km from the nearest unit" for d in distances if d > FAR_M]
+    assert [w.split(": ", 1)[1].split(";")[0] for w in warnings if "km from" in w] == far_ones
 
 
 def test_the_service_plans_with_what_it_learnt() -> None:

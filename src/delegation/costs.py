@@ -419,20 +419,59 @@ def cost_tables(
     """
     units_t = tuple(units)
     tasks_t = tuple(tasks)
-    n_u, n_t = len(units_t), len(tasks_t)
     geoms = [task_geometry(node) for node in tasks_t]
-
     if frame is None:
-        pts: list[GeoPoint] = [u.position for u in units_t]
-        pts += [u.home for u in units_t if u.home is not None]
-        for g in geoms:
-            pts += _geo_points(g)
-        frame = LocalFrame.around(pts)
+        frame = _frame_around(units_t, geoms)
+    unit_xy, home_xy, task_xy = _points_xy(units_t, geoms, frame)
+    speed = _speed_table(units_t, tasks_t)
+    listed = _listed_table(units_t, tasks_t)
+    width = _width_table(units_t, geoms)
+    start_xy, end_xy, work_distance = _task_ends_and_work(geoms, task_xy, width, listed)
+    open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(len(geoms))
+    fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(len(geoms))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        work_time = np.where(work_distance > 0.0, work_distance / speed, 0.0) + fixed_time[None, :]
+    work_time = np.where(open_ended[None, :], 0.0, work_time)
+    kinds = [g.kind for g in geoms]
+    tables = CostTables(
+        units=units_t, tasks=tasks_t, frame=frame, unit_xy=unit_xy, home_xy=home_xy,
+        start_xy=start_xy, end_xy=end_xy, speed=speed, work_time=work_time,
+        work_distance=work_distance,
+        travels=np.array([k != "inplace" for k in kinds], dtype=bool).reshape(len(kinds)),
+        open_ended=open_ended,
+        capable=np.zeros(speed.shape, dtype=bool),
+        endurance=np.array(
+            [math.inf if u.remaining_endurance is None else u.remaining_endurance
+             for u in units_t], dtype=float,
+        ).reshape(len(units_t)),
+        listed=listed,
+        need_time=np.zeros(speed.shape),
+        to_home=np.array([k == "home" for k in kinds], dtype=bool).reshape(len(kinds)),
+        width=width,
+        exclude_busy=exclude_busy,
+    )
+    _fill_capability(tables)
+    return tables
 
-    # Every point in one conversion (a call per task cost more than the arithmetic).
-    homes = [(i, u.home) for i, u in enumerate(units_t) if u.home is not None]
+
+def _frame_around(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> LocalFrame:
+    """The frame centred on every unit, home and task point."""
+    pts: list[GeoPoint] = [u.position for u in units]
+    pts += [u.home for u in units if u.home is not None]
+    for g in geoms:
+        pts += _geo_points(g)
+    return LocalFrame.around(pts)
+
+
+def _points_xy(
+    units: Sequence[UnitState], geoms: Sequence[TaskGeometry], frame: LocalFrame
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """(U, 2) unit positions, (U, 2) homes (NaN: none) and each task's points, in ``frame``:
+    every point in one conversion (a call per task cost more than the arithmetic)."""
+    n_u = len(units)
+    homes = [(i, u.home) for i, u in enumerate(units) if u.home is not None]
     task_points = [_geo_points(g) for g in geoms]
-    every = [u.position for u in units_t] + [h for _, h in homes]
+    every = [u.position for u in units] + [h for _, h in homes]
     every += [p for pts_t in task_points for p in pts_t]
     every_xy = frame.points_xy(every).reshape(len(every), 2)
     unit_xy = every_xy[:n_u].copy()
@@ -441,43 +480,55 @@ def cost_tables(
         home_xy[[i for i, _ in homes]] = every_xy[n_u : n_u + len(homes)]
     bounds = np.cumsum([n_u + len(homes)] + [len(pts_t) for pts_t in task_points])
     task_xy = [every_xy[a:b] for a, b in itertools.pairwise(bounds.tolist())]
+    return unit_xy, home_xy, task_xy
 
-    # Unit-independent task facts.
-    kinds = [g.kind for g in geoms]
-    travels = np.array([k not in ("inplace",) for k in kinds], dtype=bool).reshape(n_t)
-    to_home = np.array([k == "home" for k in kinds], dtype=bool).reshape(n_t)
-    open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(n_t)
-    fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(n_t)
-    start_xy = np.full((n_t, 2), np.nan)
-    end_xy = np.full((n_t, 2), np.nan)
-    path_len = np.zeros(n_t)
 
-    # Speeds: (U, 3) per class, then (U, T) per task.
+def _speed_table(units: Sequence[UnitState], tasks: Sequence[TstNode]) -> np.ndarray:
+    """(U, T) m/s: the unit's speed for the task's class, or the explicit m/s capped at fast."""
+    n_u, n_t = len(units), len(tasks)
     unit_speeds = np.array(
-        [[float(u.speeds[k]) for k in SPEED_KEYS] for u in units_t], dtype=float
+        [[float(u.speeds[k]) for k in SPEED_KEYS] for u in units], dtype=float
     ).reshape(n_u, 3)
-    specs = [_speed_choice(n.params.get("speed"), f"{n.name}: params.speed") for n in tasks_t]
+    specs = [_speed_choice(n.params.get("speed"), f"{n.name}: params.speed") for n in tasks]
     cls = np.array([s[0] for s in specs], dtype=int).reshape(n_t)
     explicit = np.array([s[1] for s in specs], dtype=float).reshape(n_t)
     speed = unit_speeds[:, np.clip(cls, 0, 2)]
-    speed = np.where(cls[None, :] < 0, np.minimum(explicit[None, :], unit_speeds[:, 2:3]), speed)
+    return np.asarray(
+        np.where(cls[None, :] < 0, np.minimum(explicit[None, :], unit_speeds[:, 2:3]), speed)
+    )
 
-    # Capability by listing: one column per distinct task name.
-    names = sorted({n.name for n in tasks_t})
+
+def _listed_table(units: Sequence[UnitState], tasks: Sequence[TstNode]) -> np.ndarray:
+    """(U, T) the unit lists the task in tasks-available (one column per distinct name)."""
+    names = sorted({n.name for n in tasks})
     name_col = {name: i for i, name in enumerate(names)}
-    offers = np.array([[name in u.tasks for name in names] for u in units_t], dtype=bool)
-    offers = offers.reshape(n_u, len(names))
-    listed = offers[:, [name_col[n.name] for n in tasks_t]].reshape(n_u, n_t)
+    offers = np.array([[name in u.tasks for name in names] for u in units], dtype=bool)
+    offers = offers.reshape(len(units), len(names))
+    return np.asarray(offers[:, [name_col[n.name] for n in tasks]].reshape(len(units), len(tasks)))
 
-    # Sweep widths: (U,) footprint against (T,) detection swath.
-    footprint = np.array([_footprint_or_nan(u) for u in units_t], dtype=float).reshape(n_u)
+
+def _width_table(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> np.ndarray:
+    """(U, T) sweep width: the unit's footprint against the task's detection swath; NaN where
+    the task is no search or the unit has no usable footprint (it cannot search)."""
+    footprint = np.array([_footprint_or_nan(u) for u in units], dtype=float).reshape(len(units))
     detect = np.array(
         [detection_width(g.target_size) if g.kind == "areas" else np.nan for g in geoms]
-    ).reshape(n_t)
+    ).reshape(len(geoms))
     width = np.minimum(footprint[:, None], detect[None, :])
-    width = np.where(width > 0.0, width, np.nan)  # no usable footprint: cannot search
+    return np.asarray(np.where(width > 0.0, width, np.nan))
 
-    work_distance = np.zeros((n_u, n_t))
+
+def _task_ends_and_work(
+    geoms: Sequence[TaskGeometry], task_xy: Sequence[np.ndarray], width: np.ndarray,
+    listed: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(T, 2) where each task starts and ends (NaN: depends on the unit, or in place) and (U, T)
+    the distance its work covers (inf: a search the unit cannot sweep)."""
+    n_t = len(geoms)
+    start_xy = np.full((n_t, 2), np.nan)
+    end_xy = np.full((n_t, 2), np.nan)
+    path_len = np.zeros(n_t)
+    work_distance = np.zeros(width.shape)
     for t, g in enumerate(geoms):
         if g.kind == "point":
             start_xy[t] = end_xy[t] = task_xy[t][0]
@@ -486,67 +537,49 @@ def cost_tables(
             start_xy[t], end_xy[t] = xy[0], xy[-1]
             path_len[t] = path_length(xy)
         elif g.kind == "areas":
-            polygons = _polygons_from(g, task_xy[t])
-            col = width[:, t]
-            ref = _reference_width(col, listed[:, t])
-            for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
-                path = _sweep_xy(polygons, w)
-                work_distance[col == w, t] = path_length(path)
-                if w == ref:
-                    start_xy[t], end_xy[t] = path[0], path[-1]
-            if np.isnan(start_xy[t]).any():  # no unit at all: a nominal sweep for the geometry
-                path = _sweep_xy(polygons, detection_width(g.target_size))
-                start_xy[t], end_xy[t] = path[0], path[-1]
+            start_xy[t], end_xy[t] = _sweep_work(g, task_xy[t], width[:, t], listed[:, t],
+                                                 work_distance[:, t])
     work_distance += path_len[None, :]
-    searches = np.array([k == "areas" for k in kinds], dtype=bool).reshape(n_t)
+    searches = np.array([g.kind == "areas" for g in geoms], dtype=bool).reshape(n_t)
     work_distance[np.isnan(width) & searches[None, :]] = np.inf
+    return start_xy, end_xy, work_distance
 
-    with np.errstate(divide="ignore", invalid="ignore"):
-        work_time = np.where(work_distance > 0.0, work_distance / speed, 0.0) + fixed_time[None, :]
-    work_time = np.where(open_ended[None, :], 0.0, work_time)
 
-    endurance = np.array(
-        [math.inf if u.remaining_endurance is None else u.remaining_endurance for u in units_t],
-        dtype=float,
-    ).reshape(n_u)
-    alive = np.array([u.alive for u in units_t], dtype=bool).reshape(n_u)
-    busy = np.array([u.busy for u in units_t], dtype=bool).reshape(n_u)
+def _sweep_work(
+    g: TaskGeometry, xy: np.ndarray, col: np.ndarray, listed: np.ndarray, out: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One search task: each unit's sweep length into ``out`` (one coverage path per distinct
+    width ``col``); the start and end of the sweep at the reference width (``CostTables``)."""
+    polygons = _polygons_from(g, xy)
+    ref = _reference_width(col, listed)
+    ends: tuple[np.ndarray, np.ndarray] | None = None
+    for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
+        path = _sweep_xy(polygons, w)
+        out[col == w] = path_length(path)
+        if w == ref:
+            ends = path[0], path[-1]
+    if ends is None:  # no unit at all: a nominal sweep for the geometry
+        path = _sweep_xy(polygons, detection_width(g.target_size))
+        ends = path[0], path[-1]
+    return ends
 
-    tables = CostTables(
-        units=units_t,
-        tasks=tasks_t,
-        frame=frame,
-        unit_xy=unit_xy,
-        home_xy=home_xy,
-        start_xy=start_xy,
-        end_xy=end_xy,
-        speed=speed,
-        work_time=work_time,
-        work_distance=work_distance,
-        travels=travels,
-        open_ended=open_ended,
-        capable=np.zeros((n_u, n_t), dtype=bool),
-        endurance=endurance,
-        listed=listed,
-        need_time=np.zeros((n_u, n_t)),
-        to_home=to_home,
-        width=width,
-        exclude_busy=exclude_busy,
-    )
 
-    # Time the task alone needs: there, the work, and home again where the unit has a home.
+def _fill_capability(tables: CostTables) -> None:
+    """``need_time`` (travel there, the work, and home again where the unit has a home) and
+    ``capable`` (listed, alive, not busy where excluded, within endurance), in place."""
+    units = tables.units
+    alive = np.array([u.alive for u in units], dtype=bool).reshape(len(units))
+    busy = np.array([u.busy for u in units], dtype=bool).reshape(len(units))
     with np.errstate(divide="ignore", invalid="ignore"):
         back = tables.dist_end_to_home().T  # (U, T), NaN where no home / in place
         back = np.where(np.isnan(back), 0.0, back)
-        need = (tables.dist_unit_to_start() + back) / speed + work_time
+        need = (tables.dist_unit_to_start() + back) / tables.speed + tables.work_time
     need_time = np.where(np.isfinite(need), need, np.inf)
-
-    capable = listed & alive[:, None] & (need_time <= endurance[:, None])
-    if exclude_busy:
+    capable = tables.listed & alive[:, None] & (need_time <= tables.endurance[:, None])
+    if tables.exclude_busy:
         capable &= ~busy[:, None]
     tables.need_time[...] = need_time
     tables.capable[...] = capable
-    return tables
 
 
 def _footprint_or_nan(unit: UnitState) -> float:

@@ -49,10 +49,12 @@ def instantiate(
         return found
 
     def fill(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
-        node = node.with_children(children)
         if not node.is_control:
+            if node.children:  # (a task with children is invalid; kept as given)
+                node = node.with_children(children)
             p = placements.get(node.node_uuid or "")
             return node.with_common_values({"execunit": "/" + p.unit}) if p else node
+        node = node.with_children(children)
         try:
             kind, _ = classify_execunit(node.execunit)
         except TypeError:

@@ -74,6 +74,29 @@ def insertion_costs(
     return np.asarray(cost)
 
 
+def first_insertion_costs(problem: Problem) -> np.ndarray | None:
+    """(U, T) ``insertion_costs`` of every task into every unit's empty route, for all units at
+    once (the same arithmetic, over units x tasks): the auctions' first bids. None where task
+    points depend on the unit (``go-home``) or there are no units: then unit by unit."""
+    if not problem.n_units or (problem.to_home is not None and bool(problem.to_home.any())):
+        return None
+    start, end, travels = problem.points_for(0, np.arange(problem.n_tasks))
+    prev = problem.unit_xy
+    # The way home comes next, at home speed (else nothing), as ``route_points`` says.
+    has_next = problem.has_home & np.isfinite(problem.home_speed)
+    after = np.where(problem.has_home[:, None], problem.home_xy, 0.0)
+    speed = np.where(has_next, problem.home_speed, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dx, dy = prev[:, 0][:, None] - start[:, 0][None, :], prev[:, 1][:, None] - start[:, 1]
+        into = np.sqrt(dx * dx + dy * dy) / problem.speed
+        dx, dy = after[:, 0][:, None] - end[:, 0][None, :], after[:, 1][:, None] - end[:, 1]
+        out = np.where(has_next[:, None], np.sqrt(dx * dx + dy * dy) / speed[:, None], 0.0)
+        old = np.where(has_next, np.hypot(after[:, 0] - prev[:, 0], after[:, 1] - prev[:, 1])
+                       / speed, 0.0)
+        cost = into + out - old[:, None]
+        return np.asarray(np.where(travels[None, :], cost, 0.0) + problem.work_time)
+
+
 def home_legs(problem: Problem) -> np.ndarray:
     """(U,) seconds from each unit to its home (0 without one): a route's cost before any task."""
     legs = np.zeros(problem.n_units)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import home_legs, insertion_costs
+from delegation.allocation.routes import first_insertion_costs, home_legs, insertion_costs
 from delegation.allocation.schedule import EPS
 from delegation.allocation.strategies import Objective
 
@@ -45,8 +45,13 @@ def flat_auction(
         delta[u, cand] = np.where(ok, add, np.inf)
         pos[u, cand] = best
 
-    for u in range(n_units):
-        recompute(u)
+    first = first_insertion_costs(problem)
+    if first is None:
+        for u in range(n_units):
+            recompute(u)
+    else:  # every route is empty: ``recompute`` of every unit at once (position 0)
+        ok = base[:, None] + first <= problem.endurance[:, None] * (1 + EPS) + EPS
+        delta[...] = np.where(allowed & ok, first, np.inf)
     makespan = 0.0
     for _ in range(int(open_tasks.sum())):
         current = np.where([bool(r) for r in routes], used, base)[:, None]

@@ -24,7 +24,12 @@ import numpy as np
 from delegation.allocation.auction.flat import bind_alias
 from delegation.allocation.auction.stacked import StackedTables
 from delegation.allocation.problem import Problem
-from delegation.allocation.routes import home_legs, insertion_costs, keeps_subtrees_whole
+from delegation.allocation.routes import (
+    first_insertion_costs,
+    home_legs,
+    insertion_costs,
+    keeps_subtrees_whole,
+)
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate
 from delegation.allocation.serialise import Serialisation, conc_paths
 from delegation.allocation.strategies import Objective
@@ -158,27 +163,12 @@ class _GeneralAuction:
         self.delta[u, free] = low[0, free]
 
     def _first_tables(self) -> bool:
-        """``recompute`` for every unit at once while routes are empty (the same arithmetic as
-        ``insertion_costs``, over units x tasks); False where task points depend on the unit
+        """``recompute`` for every unit at once while routes are empty
+        (``routes.first_insertion_costs``); False where task points depend on the unit
         (``go-home``): then unit by unit."""
-        problem = self.problem
-        if not self.n_units or (problem.to_home is not None and bool(problem.to_home.any())):
+        cost = first_insertion_costs(self.problem)
+        if cost is None:
             return False
-        start, end, travels = problem.points_for(0, np.arange(self.n_tasks))
-        prev = problem.unit_xy
-        # The way home comes next, at home speed (else nothing), as ``route_points`` says.
-        has_next = problem.has_home & np.isfinite(problem.home_speed)
-        after = np.where(problem.has_home[:, None], problem.home_xy, 0.0)
-        speed = np.where(has_next, problem.home_speed, 1.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dx, dy = prev[:, 0][:, None] - start[:, 0][None, :], prev[:, 1][:, None] - start[:, 1]
-            into = np.sqrt(dx * dx + dy * dy) / problem.speed
-            dx, dy = after[:, 0][:, None] - end[:, 0][None, :], after[:, 1][:, None] - end[:, 1]
-            out = np.where(has_next[:, None], np.sqrt(dx * dx + dy * dy) / speed[:, None], 0.0)
-            old = np.where(has_next, np.hypot(after[:, 0] - prev[:, 0], after[:, 1] - prev[:, 1])
-                           / speed, 0.0)
-            cost = into + out - old[:, None]
-            cost = np.where(travels[None, :], cost, 0.0) + problem.work_time
         table = np.where(self.allowed, cost, np.inf)
         first = np.zeros((1, self.n_tasks), dtype=int)
         for u in range(self.n_units):
