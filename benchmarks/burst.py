@@ -10,9 +10,11 @@ once, and reads the answers on its own response topic.
 
 Printed: answers/s (missions / first send -> last answer), p50/p99/max seconds from send to
 answer, the service's CPU per mission up to the last answer and up to the end of the run (all
-missions ended, or ``--settle`` seconds), the answers' kinds, and whether every command was
-answered exactly once (exit 1 otherwise). ``--profile OUT`` runs ``py-spy record`` on the service
-during the burst (``--format raw``: collapsed stacks, one line per stack with its sample count).
+missions ended, or ``--settle`` seconds; also net of what the idle service spends per second on
+the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
+kinds, and whether every command was answered exactly once on its client's topic (exit 1
+otherwise). ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
+the run (``--format raw --threads``: collapsed stacks, one line per stack with its sample count).
 
     PYTHONPATH=src python benchmarks/burst.py [--missions 500] [--clients 5] [--units 15]
 """
@@ -124,7 +126,7 @@ def profiler(pid: int, out: str) -> subprocess.Popen[bytes] | None:
         print("no py-spy: not profiling", file=sys.stderr)
         return None
     return subprocess.Popen([spy, "record", "--pid", str(pid), "--format", "raw", "-o", out,
-                             "--rate", "200", "--nonblocking"],
+                             "--rate", "200", "--nonblocking", "--threads"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -180,7 +182,9 @@ def report(args: argparse.Namespace, watch: Watch, sent: dict[str, float], cpu: 
               f"max {lat[-1]:.2f} s")
     print(f"service CPU: {cpu['answers'] * 1000 / n:.1f} ms/mission up to the last answer "
           f"({cpu['answers']:.2f} s), {cpu['end'] * 1000 / n:.1f} ms/mission to the end of the "
-          f"run ({cpu['end']:.2f} s)")
+          f"run ({cpu['end']:.2f} s), {cpu['end_net'] * 1000 / n:.1f} ms/mission to the end "
+          f"without the idle service's {cpu['idle'] * 1000:.0f} ms/s (the fleet's periodic "
+          f"messages)")
     once = counts.get(1, 0)
     print(f"answered exactly once: {once}/{n}; never {counts.get(0, 0)}, more than once "
           f"{sum(v for k, v in counts.items() if k > 1)}; on another client's topic {misrouted}; "
@@ -197,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speedup", type=float, default=50.0)
     ap.add_argument("--settle", type=float, default=120.0,
                     help="seconds after the last answer to wait for the missions to end")
+    ap.add_argument("--idle", type=float, default=3.0,
+                    help="seconds of the idle service measured before the burst")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--profile", metavar="OUT", help="py-spy raw profile of the service")
     args = ap.parse_args(argv)
@@ -224,19 +230,23 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if not watch.wait(lambda: watch.beats >= 3, 30):
                 raise SystemExit(f"the service did not start (see {tmp}/serve.log)")
+            idle0, i0 = cpu_seconds(proc.pid), time.monotonic()
+            watch.wait(lambda: False, args.idle)  # the fleet's periodic messages alone
+            idle = (cpu_seconds(proc.pid) - idle0) / (time.monotonic() - i0)
             if args.profile:
                 spy = profiler(proc.pid, args.profile)
             cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
             sent = publish_burst(settings, base, watch, bodies)
-            cpu = {"answers": cpu_seconds(proc.pid) - cpu0}
-            if spy is not None:
-                spy.send_signal(2)
-                spy.wait(30)
-                spy = None
+            cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle}
             watch.wait(lambda: all(watch.root_of.get(c) in watch.final for c in sent
                                    if watch.answers.get(c, [(0, "")])[0][1] == "started"),
                        args.settle)
             cpu["end"] = cpu_seconds(proc.pid) - cpu0
+            cpu["end_net"] = cpu["end"] - idle * (time.monotonic() - t0)
+            if spy is not None:
+                spy.send_signal(2)
+                spy.wait(30)
+                spy = None
             watch.wait(lambda: False, 1.0)  # late duplicates would come within a moment
         finally:
             if spy is not None:

@@ -5,6 +5,11 @@ The framework owns the lifecycle (`start`/`stop`); subclasses fill in small hook
 on the unit's thread, so a core needs no locks: other threads read it only through
 `CoreUnit.inspect` and `CoreUnit.wait_until`, which hold the lock the loop holds while it runs the
 core.
+
+The loop takes messages in batches: whatever is queued when it wakes (at most `BATCH_MAX`), one
+step of the core each, then `MqttUnit.end_batch`, where `CoreUnit` publishes the batch's messages
+in order (and a unit with a store commits once before that: `delegation.service.unit`). Jobs are
+queued as soon as a step asks for them.
 """
 
 from __future__ import annotations
