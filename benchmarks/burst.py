@@ -14,7 +14,8 @@ missions ended, or ``--settle`` seconds; also net of what the idle service spend
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
 kinds, and whether every command was answered exactly once on its client's topic (exit 1
 otherwise). ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
-the run (``--format raw --threads``: collapsed stacks, one line per stack with its sample count).
+the run or (``--profile-until answers``) to the last answer (``--format raw --threads``:
+collapsed stacks, one line per stack with its sample count).
 
     PYTHONPATH=src python benchmarks/burst.py [--missions 500] [--clients 5] [--units 15]
 """
@@ -205,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="seconds of the idle service measured before the burst")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--profile", metavar="OUT", help="py-spy raw profile of the service")
+    ap.add_argument("--profile-until", choices=("answers", "end"), default="end",
+                    help="profile the burst up to the last answer, or to the end of the run")
     args = ap.parse_args(argv)
     rng = random.Random(args.seed)
     config = ServiceConfig(prefix=PREFIX, name=NAME)
@@ -238,6 +241,10 @@ def main(argv: list[str] | None = None) -> int:
             cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
             sent = publish_burst(settings, base, watch, bodies)
             cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle}
+            if spy is not None and args.profile_until == "answers":
+                spy.send_signal(2)
+                spy.wait(30)
+                spy = None
             watch.wait(lambda: all(watch.root_of.get(c) in watch.final for c in sent
                                    if watch.answers.get(c, [(0, "")])[0][1] == "started"),
                        args.settle)
