@@ -189,14 +189,14 @@ def _dumps(value: Any) -> str:
 def _mission_write(m: Mission, change: Change) -> tuple[str, tuple[Any, ...]]:
     """The one statement that stores what ``change`` says changed of ``m``."""
     head = (m.status.value, m.ended_at, _dumps(m.summary()), _dumps(mission_state(m)))
+    if not change & (Change.NEW | Change.TREE):
+        return _UPDATE_STATE, (*head, m.root_uuid)
     tree = mission_tree(m)
     tree_json = _dumps(tree) if tree is not None else None
     if change & Change.NEW:
         return _INSERT_MISSION, (m.root_uuid, m.created, *head[:3], _dumps(mission_fixed(m)),
                                  head[3], tree_json)
-    if change & Change.TREE:
-        return _UPDATE_TREE, (*head, tree_json, m.root_uuid)
-    return _UPDATE_STATE, (*head, m.root_uuid)
+    return _UPDATE_TREE, (*head, tree_json, m.root_uuid)
 
 
 def lock_key(name: str) -> int:
