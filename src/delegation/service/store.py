@@ -240,25 +240,35 @@ class _SqlStore:
             for table, column, kind in _ADDED_COLUMNS:
                 self._add_column(table, column, kind)
 
-    def _add_column(self, table: str, column: str, kind: str) -> None:
-        """Add ``column`` to a table an earlier version created without it."""
+    def _has_column(self, table: str, column: str) -> bool:
         cur = self._conn.cursor()
         try:
             cur.execute(f"SELECT {column} FROM {table} WHERE 1 = 0")
             cur.fetchall()
             self._conn.commit()
-            return
+            return True
         except Exception:  # sqlite3's or psycopg's error: the column is missing
             self._conn.rollback()
+            return False
         finally:
             cur.close()
+
+    def _add_column(self, table: str, column: str, kind: str) -> None:
+        """Add ``column`` to a table an earlier version created without it (an instance that
+        starts at the same moment may add it first)."""
+        if self._has_column(table, column):
+            return
         log.info("state store: adding %s.%s", table, column)
         cur = self._conn.cursor()
         try:
             cur.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
+            self._conn.commit()
+        except Exception:
+            self._conn.rollback()
+            if not self._has_column(table, column):
+                raise
         finally:
             cur.close()
-        self._conn.commit()
 
     def save(self, missions: Sequence[tuple[Mission, Change]],
              commands: Sequence[CommandEntry]) -> None:
