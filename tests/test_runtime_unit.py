@@ -74,3 +74,41 @@ def test_core_unit_runs_a_core(
     finally:
         unit.stop()
     assert not unit.running
+
+
+@dataclass
+class RelayCore(EchoCore):
+    """Relays every ``x/in`` payload to ``x/out`` at once."""
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        return Effects().send(self.identity.topic("out"), payload)
+
+
+def test_queued_messages_are_one_batch_published_in_order(
+    mqtt_settings: BrokerSettings, prefix: str, collector: Callable[..., Any]
+) -> None:
+    from delegation.runtime.mqtt import Message
+
+    identity = Identity(name="relay0", agent_type="air", agent_uuid="u1", prefix=prefix)
+    batches: list[list[bytes]] = []
+
+    class Recording(CoreUnit[RelayCore]):
+        def apply(self, effects: Effects) -> None:
+            if effects.publish:
+                batches.append([o.payload for o in effects.publish])
+            super().apply(effects)
+
+    watch = collector(identity.topic("out"))
+    unit = Recording(mqtt_settings, RelayCore(identity), tick_interval=60.0)
+    unit.start()
+    try:
+        sent = [f"m{i}".encode() for i in range(20)]
+        with unit._state:  # the loop waits: all 20 are queued when it goes on
+            for payload in sent:
+                unit.call_soon(Message(identity.topic("in"), payload))
+        watch.wait_for(lambda _m: len(watch.messages) >= 20, timeout=5.0, what="20 relays")
+        assert [m.payload for m in watch.messages] == sent  # in order
+        assert [p for b in batches for p in b] == sent
+        assert len(batches) <= 2  # the first may go alone, the 19 queued behind it go together
+    finally:
+        unit.stop()

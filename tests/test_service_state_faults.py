@@ -328,3 +328,37 @@ def test_sqlite_second_instance_refuses_to_start(
     assert other_file.proc.wait(30) == 1
     assert f"another delegation service named {name!r} is live" in other_file.output()
     assert first.proc.poll() is None
+
+
+def test_after_kill_9_a_reused_com_uuid_is_refused_on_the_callers_topic(
+    mqtt_settings: BrokerSettings, prefix: str, state: str, collector: Callable[..., Any],
+    serves: Callable[[str, str], Serve],
+) -> None:
+    """Issue 23 item 5: the store keeps each command's digest, caller and reply topic, so after a
+    restart a different command reusing a com-uuid is refused (not given the other's answer), and
+    the answers still go to the caller's own response topic."""
+    name = f"svc{uuid.uuid4().hex[:6]}"
+    base = ServiceConfig(prefix=prefix, name=name).base_topic
+    mine, shared = f"{base}/delegation/response/alice", f"{base}/delegation/response"
+    watch = collector(f"{base}/#")
+
+    def ask(body: dict[str, Any], nth: int) -> dict[str, Any]:
+        watch.publish(f"{base}/delegation/command/alice", json.dumps(body).encode())
+        watch.wait_for(lambda _m: len(watch.json_on(mine)) >= nth, timeout=20,
+                       what=f"answer {nth} on alice's topic")
+        return watch.json_on(mine)[nth - 1]
+
+    first = serves(name, state)
+    first_uuid = _wait_new_heartbeat(watch, base, set(), timeout=30)
+    listed = ask({"com-uuid": "c-1", "command": "list-missions"}, 1)
+    assert listed["response"] == "ok" and listed["response-to"] == "c-1"
+    first.kill()
+    serves(name, state)
+    _wait_new_heartbeat(watch, base, {first_uuid}, timeout=30)
+
+    other = ask({"com-uuid": "c-1", "command": "list-agents"}, 2)
+    assert other["response"] == "failed", other
+    assert "reused for a different command" in other["fail-reason"]
+    again = ask({"com-uuid": "c-1", "command": "list-missions"}, 3)
+    assert again == listed  # the re-send: the stored answer, on alice's topic
+    assert not [d for d in watch.json_on(shared) if d.get("response-to") == "c-1"]

@@ -3,9 +3,11 @@ command log's dirty journals, retention and paging; no broker."""
 
 from __future__ import annotations
 
+import json
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -13,6 +15,7 @@ from delegation.messages import MissionStatus
 from delegation.runtime.commands import CommandLog, CommandState
 from delegation.runtime.core import Outgoing
 from delegation.service.missions import (
+    Change,
     Mission,
     MissionBook,
     NodeInfo,
@@ -85,7 +88,7 @@ def test_store_keeps_missions_and_exact_answers(store: Store) -> None:
     book.add(mission("r2", 20.0))
     book.set_status("r2", MissionStatus.SUCCEEDED, 30.0)
     store.save(book.drain_dirty(), log.drain_dirty())
-    assert book.dirty == set() and log.dirty == set()
+    assert not book.dirty and not log.dirty
 
     entry = store.load_command(key)
     assert entry is not None and entry.state is CommandState.DONE
@@ -131,7 +134,7 @@ def test_page_in_memory_without_a_store() -> None:
     book = MissionBook()
     for i in range(5):
         book.add(mission(f"r{i}", float(i)))
-    assert book.dirty == set()  # nobody drains a book without a store: nothing is noted
+    assert not book.dirty  # nobody drains a book without a store: nothing is noted
     page, total = book.page(3, 10)
     assert total == 5 and [p["root-uuid"] for p in page] == ["r3", "r4"]
 
@@ -227,3 +230,210 @@ def test_a_regrouped_and_re_delegated_mission_round_trips() -> None:
     assert back.operator.leaves == m.operator.leaves and back.operator.kept == m.operator.kept
     assert (back.current_root, back.redelegations) == ("r3-second", 1)
     assert (back.origin, back.retries, back.current_nodes) == ({"x": a}, {a: 1}, {"x"})
+
+
+# ---- what is written, and when (issue 19: the unchanging parts once, changes only when real)
+
+
+def _row(store: Store, root: str) -> tuple[str, str, str | None]:
+    assert isinstance(store, SqliteStore | PostgresStore)
+    rows = store._fetch("SELECT data, state, tree FROM missions WHERE root_uuid = ?", (root,))
+    return rows[0][0], rows[0][1], rows[0][2]
+
+
+def test_unchanging_parts_are_written_once_and_changes_only_when_real(store: Store) -> None:
+    book = MissionBook(archive=store)
+    m = mission("r1", 10.0)
+    m.tst = m.current_tst = {"name": "move-to", "common_params": {"node-uuid": "r1"}}
+    m.plan = {"strategy": "auction", "tst": m.tst}  # the plan carries the sent tree
+    book.add(m)
+    assert book.drain_dirty() == [(m, Change.NEW)]
+    store.save([(m, Change.NEW)], [])
+    data, state, tree = _row(store, "r1")
+    assert "tst" not in json.loads(data)["plan"] and tree is None  # the sent tree once
+    node = next(uid for uid, info in m.nodes.items() if info.is_task)
+
+    book.observe_feedback(node, "running", False, "", 12.0)  # already running since 11.0
+    assert not book.dirty  # a feedback that changes nothing is not written
+    book.observe_feedback(node, "succeeded", False, "", 13.0)
+    changed = book.drain_dirty()
+    assert changed == [(m, Change.STATE)]
+    store.save(changed, [])
+    data2, state2, _ = _row(store, "r1")
+    assert data2 == data and state2 != state  # only the moving part was rewritten
+    book.observe_feedback(node, "succeeded", False, "", 14.0)  # a re-sent final feedback
+    assert not book.dirty
+
+    loaded = store.load_mission("r1")
+    assert loaded is not None and loaded.plan["tst"] == m.tst
+    assert loaded.node_status[node] == "succeeded" and loaded.node_ended[node] == 13.0
+    assert loaded.to_json() == m.to_json()
+
+
+def test_a_re_delegated_tree_is_written_with_the_state(store: Store) -> None:
+    book = MissionBook(archive=store)
+    m = mission("r1", 10.0)
+    book.add(m)
+    store.save(book.drain_dirty(), [])
+    new = NodeInfo("n2", "move-to", "/u1", "root/children[0]", True)
+    tree = {"name": "move-to", "common_params": {"node-uuid": "n2"}}
+    book.replace_tree(m, tree, "n2", {"n2": new}, {"n2": "x"})
+    changed = book.drain_dirty()
+    assert changed == [(m, Change.TREE | Change.STATE)]
+    store.save(changed, [])
+    loaded = store.load_mission("r1")
+    assert loaded is not None
+    assert (loaded.current_tst, loaded.current_root, loaded.redelegations) == (tree, "n2", 1)
+    assert loaded.nodes["n2"] == new and loaded.origin == {"n2": "x"}
+    assert loaded.current_nodes == {"n2"}
+
+
+def test_a_store_of_the_earlier_schema_is_opened_and_read(tmp_path: Path) -> None:
+    """Tables made before the split (a mission's whole record in ``data``, no digest/caller):
+    columns are added, old rows read as before."""
+    import sqlite3
+
+    path = tmp_path / "old.sqlite"
+    m = mission("r1", 10.0)
+    conn = sqlite3.connect(path)
+    conn.execute("CREATE TABLE missions (root_uuid TEXT PRIMARY KEY, created DOUBLE PRECISION "
+                 "NOT NULL, status TEXT NOT NULL, ended DOUBLE PRECISION, summary TEXT NOT NULL, "
+                 "data TEXT NOT NULL)")
+    conn.execute("CREATE TABLE commands (face TEXT NOT NULL, com_uuid TEXT NOT NULL, state TEXT "
+                 "NOT NULL, received DOUBLE PRECISION NOT NULL, answer TEXT NOT NULL, "
+                 "PRIMARY KEY (face, com_uuid))")
+    conn.execute("INSERT INTO missions VALUES (?, ?, ?, ?, ?, ?)",
+                 ("r1", 10.0, "planned", None, json.dumps(m.summary()),
+                  json.dumps(mission_record(m))))
+    conn.execute("INSERT INTO commands VALUES ('delegation', 'c-1', 'done', 1.0, '[]')")
+    conn.commit()
+    conn.close()
+    store = SqliteStore(path)
+    try:
+        loaded = store.load_mission("r1")
+        assert loaded is not None and loaded.to_json() == m.to_json()
+        entry = store.load_command(("delegation", "c-1"))
+        assert entry is not None and (entry.digest, entry.caller, entry.reply_topic) == ("", "", "")
+        book = MissionBook(archive=store)
+        book.add(loaded)
+        store.save(book.drain_dirty(), [])
+        book.set_status("r1", MissionStatus.FAILED, 20.0, "x")
+        store.save(book.drain_dirty(), [])
+        again = store.load_mission("r1")
+        assert again is not None and again.status is MissionStatus.FAILED
+    finally:
+        store.close()
+
+
+# ---- who asked (issue 23, item 5)
+
+
+def test_the_command_log_keeps_digest_caller_and_reply_topic(store: Store) -> None:
+    log = CommandLog(archive=store)
+    key = ("delegation", "c-1")
+    entry = log.begin(key, 5.0, "d1")
+    entry.caller, entry.reply_topic = "alice", "p/delegation/response/alice"
+    store.save([], log.drain_dirty())
+    pending = store.load_command(key)
+    assert pending is not None and pending.state is CommandState.PENDING
+    assert (pending.digest, pending.caller, pending.reply_topic) == (
+        "d1", "alice", "p/delegation/response/alice")
+    log.finish(key, [Outgoing("p/delegation/response/alice", b"{}", 1)])
+    store.save([], log.drain_dirty())
+    again = CommandLog(archive=store)  # a new instance: the command left memory
+    seen = again.seen(key)
+    assert seen is not None and seen.state is CommandState.DONE
+    assert not seen.same_command("d2") and seen.same_command("d1")
+    assert [e.caller for e in store.commands(CommandState.DONE, 10)] == ["alice"]
+
+
+def test_restart_answers_on_the_callers_own_topic(tmp_path: Path) -> None:
+    """A command in progress when the instance died is answered on its caller's topic, and a
+    different command reusing its com-uuid is still refused."""
+    from delegation.runtime.commands import payload_digest
+    from delegation.runtime.settings import BrokerSettings
+    from delegation.service import DelegationService, ServiceConfig
+
+    config = ServiceConfig(name="svc")
+    reply = f"{config.base_topic}/delegation/response/alice"
+    store = SqliteStore(tmp_path / "s.sqlite")
+    log = CommandLog(archive=store)
+    body = b'{"com-uuid": "c-1", "command": "delegate", "tst": {"name": "move-to"}}'
+    entry = log.begin(("delegation", "c-1"), 1.0, payload_digest(body))
+    entry.caller, entry.reply_topic = "alice", reply
+    store.save([], log.drain_dirty())
+
+    service = DelegationService(BrokerSettings(host="127.0.0.1", port=1), config, store=store)
+    core = service.core
+    done = core.commands.get(("delegation", "c-1"))
+    assert done is not None and done.state is CommandState.DONE
+    assert [o.topic for o in done.answer] == [reply]
+    assert (done.caller, done.reply_topic) == ("alice", reply)
+    stored = store.load_command(("delegation", "c-1"))
+    assert stored is not None and [o.topic for o in stored.answer] == [reply]
+
+    other = b'{"com-uuid": "c-1", "command": "list-missions"}'
+    refused = core.on_message(f"{config.base_topic}/delegation/command/alice", other, 5.0)
+    assert [o.topic for o in refused.publish] == [reply]
+    assert "reused for a different command" in json.loads(refused.publish[0].payload)[
+        "fail-reason"]
+    again = core.on_message(f"{config.base_topic}/delegation/command/alice", body, 6.0)
+    assert again.publish == done.answer  # the re-send: the stored answer again
+    store.close()
+
+
+# ---- one commit per batch, answers published after it
+
+
+@pytest.mark.mqtt
+def test_a_batch_is_stored_in_one_commit_before_its_answers_go_out(
+    mqtt_settings: Any, prefix: str, collector: Any, tmp_path: Path
+) -> None:
+    from delegation.runtime.mqtt import Message
+    from delegation.service import DelegationService, ServiceConfig
+
+    class Recording(SqliteStore):
+        def __init__(self, path: Path) -> None:
+            super().__init__(path)
+            self.commits = 0
+            self.answered: set[str] = set()
+
+        def save(self, missions: Any, commands: Any) -> None:
+            super().save(missions, commands)
+            if missions or commands:
+                self.commits += 1
+                self.answered.update(e.key[1] for e in commands
+                                     if e.state is CommandState.DONE)
+
+    unstored: list[str] = []  # answers published before they were stored
+
+    class Checked(DelegationService):
+        def send(self, out: Outgoing) -> None:
+            if "/delegation/response" in out.topic:
+                com = json.loads(out.payload)["response-to"]
+                if com not in store.answered:
+                    unstored.append(com)
+            super().send(out)
+
+    config = ServiceConfig(prefix=prefix, name="svc")
+    store = Recording(tmp_path / "s.sqlite")
+    watch = collector(f"{config.base_topic}/delegation/response")
+    service = Checked(mqtt_settings, config, store=store)
+    service.start()
+    try:
+        coms = [f"c-{i}" for i in range(30)]
+        with service._state:  # the loop waits: the 30 pings are all queued when it goes on
+            before = store.commits
+            for com in coms:
+                body = {"com-uuid": com, "command": "ping"}
+                service.call_soon(Message(f"{config.base_topic}/delegation/command",
+                                          json.dumps(body).encode()))
+        watch.wait_for(lambda _m: {d.get("response-to") for d in watch.json_on(
+            f"{config.base_topic}/delegation/response")} >= set(coms), timeout=10,
+            what="the 30 answers")
+        assert store.commits - before <= 2  # one commit for the batch (a first one maybe alone)
+        assert unstored == []
+        assert store.answered >= set(coms)
+    finally:
+        service.stop()
+        store.close()

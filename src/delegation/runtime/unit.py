@@ -5,6 +5,11 @@ The framework owns the lifecycle (`start`/`stop`); subclasses fill in small hook
 on the unit's thread, so a core needs no locks: other threads read it only through
 `CoreUnit.inspect` and `CoreUnit.wait_until`, which hold the lock the loop holds while it runs the
 core.
+
+The loop takes messages in batches: whatever is queued when it wakes (at most `BATCH_MAX`), one
+step of the core each, then `MqttUnit.end_batch`, where `CoreUnit` publishes the batch's messages
+in order (and a unit with a store commits once before that: `delegation.service.unit`). Jobs are
+queued as soon as a step asks for them.
 """
 
 from __future__ import annotations
@@ -28,6 +33,11 @@ from delegation.runtime.settings import BrokerSettings
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC
 
 log = logging.getLogger(__name__)
+
+#: The most inbox items handled in one batch (between two `MqttUnit.end_batch`): a burst is
+#: stored in one commit, yet ticks still run between batches.
+BATCH_MAX = 256
+
 
 class _Stop:
     """Sentinel that ends a unit's loop."""
@@ -107,6 +117,10 @@ class MqttUnit:
 
     def on_stop(self) -> None:
         """Called on the unit's thread after the last message (still connected)."""
+
+    def end_batch(self) -> None:
+        """Called on the unit's thread after a batch of queued messages (and after a tick): a
+        unit that defers its output to this point sends it here."""
 
     # ---- lifecycle
 
@@ -217,20 +231,40 @@ class MqttUnit:
                 now = self.clock()
                 if now >= next_tick:
                     self._guard(lambda n=now: self.tick(n))  # type: ignore[misc]
+                    self._guard(self.end_batch)
                     next_tick = max(next_tick + self.tick_interval, now)
                 wait = max(0.0, next_tick - self.clock())
             try:
                 item = self._inbox.get(timeout=wait)
             except queue.Empty:
                 continue
-            if isinstance(item, _Stop):
+            if isinstance(item, _Stop) or self._batch(item):
                 break
+        self._guard(self.on_stop)
+        self._stopped.set()
+
+    def _batch(self, item: object) -> bool:
+        """Take ``item`` and whatever else is already queued (at most ``BATCH_MAX``), then end
+        the batch (`end_batch`: one commit and the batch's messages, for a unit that stores);
+        True when a stop was among them (it ends the loop after this batch)."""
+        stop, handled = False, 0
+        while True:
             if isinstance(item, Message):
                 self._guard(lambda m=item: self.handle(m))  # type: ignore[misc]
             else:
                 self._guard(lambda e=item: self.handle_event(e))  # type: ignore[misc]
-        self._guard(self.on_stop)
-        self._stopped.set()
+            handled += 1
+            if handled >= BATCH_MAX:
+                break  # the rest opens the next batch (a tick may run first)
+            try:
+                item = self._inbox.get_nowait()
+            except queue.Empty:
+                break
+            if isinstance(item, _Stop):
+                stop = True
+                break
+        self._guard(self.end_batch)
+        return stop
 
     def _guard(self, fn: Callable[[], None]) -> None:
         """Run a hook; an exception is logged and counted, never kills the loop."""
@@ -277,6 +311,8 @@ class CoreUnit(MqttUnit, Generic[C]):
         self._worker_thread: threading.Thread | None = None
         self._state = threading.Condition()
         self._next_status = 0.0
+        #: The current batch's effects, applied together at its end.
+        self._pending = Effects()
 
     # ---- reading the core from other threads
 
@@ -337,18 +373,28 @@ class CoreUnit(MqttUnit, Generic[C]):
     # ---- helpers
 
     def _run_core(self, step: Callable[[], Effects]) -> None:
+        """One step of the core; its effects wait for the end of the batch (`end_batch`)."""
         with self._state:
             try:
                 effects = step()
             finally:
                 self._state.notify_all()
+        self._pending.publish.extend(effects.publish)
+        self._queue(effects.jobs)  # a job publishes nothing: it may start before the batch ends
+
+    def end_batch(self) -> None:
+        """Apply the messages the batch's steps asked for, in their order, at once."""
+        effects, self._pending = self._pending, Effects()
         self.apply(effects)
 
     def apply(self, effects: Effects) -> None:
         """Publish the messages and queue the jobs of ``effects``."""
         for out in effects.publish:
             self.send(out)
-        for job in effects.jobs:
+        self._queue(effects.jobs)
+
+    def _queue(self, jobs: list[Any]) -> None:
+        for job in jobs:
             if self._worker is None:
                 log.error("%s: a job but no worker to run it: %r", self.name, job)
             else:

@@ -10,8 +10,9 @@ idempotency is `delegation.runtime.commands.CommandLog`, shared by every unit.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from enum import IntFlag
 from typing import Any, Protocol
 
 from delegation.errors import InputError, InputProblem
@@ -163,16 +164,44 @@ class Mission:
         }
 
 
-def mission_record(m: Mission) -> dict[str, Any]:
-    """Every field of a mission as JSON-able data (what the store keeps; `mission_from_record`
-    reads it back)."""
+class Change(IntFlag):
+    """What of a mission changed since it was last stored (the store writes only that part)."""
+
+    STATE = 1
+    """Status, times, node statuses, retries: `mission_state`."""
+    TREE = 2
+    """The tree the engine executes was replaced (a re-delegation): `mission_tree`."""
+    NEW = 4
+    """Not stored yet (or replaced): every part, the unchanging one (`mission_fixed`) too."""
+
+
+def _nodes(nodes: dict[str, NodeInfo]) -> list[list[Any]]:
+    return [[i.node_uuid, i.name, i.execunit, i.path, i.is_task] for i in nodes.values()]
+
+
+def mission_fixed(m: Mission) -> dict[str, Any]:
+    """What never changes once a mission exists: the trees received and sent, the plan (its
+    ``tst`` is the sent tree, kept once), the command, the owner. Written once."""
+    plan = m.plan
+    plan_tst = plan.get("tst") is m.tst
     return {
         "root-uuid": m.root_uuid,
         "source": m.source,
         "created": m.created,
         "tst": m.tst,
-        "plan": m.plan,
-        "nodes": [[i.node_uuid, i.name, i.execunit, i.path, i.is_task] for i in m.nodes.values()],
+        "plan": {k: v for k, v in plan.items() if k != "tst"} if plan_tst else plan,
+        "plan-tst": plan_tst,
+        "nodes": _nodes(m.nodes),
+        "received": m.received,
+        "command": list(m.command) if m.command else None,
+        "operator-view": m.operator is not None,  # rebuilt from `received` and `tst` on load
+        "owner": m.owner,
+    }
+
+
+def mission_state(m: Mission) -> dict[str, Any]:
+    """What moves while a mission runs (small: statuses and times)."""
+    return {
         "status": m.status.value,
         "fail-reason": m.fail_reason,
         "started": m.started_at,
@@ -180,28 +209,42 @@ def mission_record(m: Mission) -> dict[str, Any]:
         "node-status": m.node_status,
         "node-started": m.node_started,
         "node-ended": m.node_ended,
-        "received": m.received,
-        "command": list(m.command) if m.command else None,
-        # re-delegation: the tree the engine executes now, and where its nodes came from
         "current-root": m.current_root,
-        "current-tst": m.current_tst,
-        "current-nodes": sorted(m.current_nodes),
-        "origin": m.origin,
         "retries": m.retries,
         "redelegations": m.redelegations,
-        "operator-view": m.operator is not None,  # rebuilt from `received` and `tst` on load
-        "owner": m.owner,
     }
 
 
+def mission_tree(m: Mission) -> dict[str, Any] | None:
+    """The tree the engine executes after a re-delegation, its nodes and where they came from;
+    None while it is still the tree sent first."""
+    if (not m.redelegations and not m.origin and m.current_nodes == set(m.nodes)
+            and (m.current_tst is m.tst or m.current_tst == m.tst)):
+        return None
+    return {
+        "current-tst": m.current_tst,
+        "current-nodes": sorted(m.current_nodes),
+        "origin": m.origin,
+        "nodes": _nodes(m.nodes),  # the replacement trees' nodes joined the mission
+    }
+
+
+def mission_record(m: Mission) -> dict[str, Any]:
+    """Every field of a mission as JSON-able data (the three parts the store keeps, in one;
+    `mission_from_record` reads it back)."""
+    return {**mission_fixed(m), **mission_state(m), **(mission_tree(m) or {})}
+
+
 def mission_from_record(r: dict[str, Any]) -> Mission:
-    """The mission `mission_record` wrote."""
+    """The mission `mission_record` wrote (or the parts merged; a record of an earlier version,
+    with the plan's ``tst`` in it, reads the same)."""
     nodes = {n[0]: NodeInfo(n[0], n[1], n[2], n[3], bool(n[4])) for n in r["nodes"]}
     command = r.get("command")
     received = r.get("received")
+    plan = {**r["plan"], "tst": r["tst"]} if r.get("plan-tst") else r["plan"]
     return Mission(
         root_uuid=r["root-uuid"], source=r["source"], created=r["created"], tst=r["tst"],
-        plan=r["plan"], nodes=nodes, status=MissionStatus(r["status"]),
+        plan=plan, nodes=nodes, status=MissionStatus(r["status"]),
         fail_reason=r["fail-reason"], started_at=r["started"], ended_at=r["ended"],
         node_status=dict(r["node-status"]), node_started=dict(r["node-started"]),
         node_ended=dict(r["node-ended"]), received=received,
@@ -258,21 +301,29 @@ class MissionBook:
         self._missions: dict[str, Mission] = {}
         self._node_root: dict[str, str] = {}
         self.archive = archive
-        #: Root uuids of missions changed since the unit last drained them (to persist; kept only
-        #: with an archive, so a book nobody drains does not grow).
-        self.dirty: set[str] = set()
+        #: Root uuid -> what changed since the unit last drained it (to persist; kept only with
+        #: an archive, so a book nobody drains does not grow).
+        self.dirty: dict[str, Change] = {}
 
-    def touch(self, root_uuid: str) -> None:
-        """Note a mission as changed (every mutating method does; code that changes a `Mission`
-        in place must call it too)."""
+    def touch(self, root_uuid: str, change: Change = Change.STATE) -> None:
+        """Note what of a mission changed (every mutating method does, only when something did;
+        code that changes a `Mission` in place must call it too)."""
         if self.archive is not None and root_uuid in self._missions:
-            self.dirty.add(root_uuid)
+            self.dirty[root_uuid] = self.dirty.get(root_uuid, Change(0)) | change
 
-    def drain_dirty(self) -> list[Mission]:
-        """The missions changed since the last call (in memory), and forget the notes."""
-        changed = [self._missions[r] for r in sorted(self.dirty) if r in self._missions]
+    def drain_dirty(self) -> list[tuple[Mission, Change]]:
+        """The missions changed since the last call (in memory) with what changed, and forget
+        the notes."""
+        changed = [(self._missions[r], c) for r, c in sorted(self.dirty.items())
+                   if r in self._missions]
         self.dirty.clear()
         return changed
+
+    def undrain(self, changed: Iterable[tuple[Mission, Change]]) -> None:
+        """Note again what `drain_dirty` returned (it could not be stored: the next try writes
+        it)."""
+        for mission, change in changed:
+            self.touch(mission.root_uuid, change)
 
     def forget_ended(self, ended_before: float) -> list[str]:
         """Drop from memory the missions that ended before ``ended_before`` (they stay in the
@@ -332,7 +383,7 @@ class MissionBook:
         self._missions[mission.root_uuid] = mission
         for uid in mission.nodes:
             self._node_root[uid] = mission.root_uuid
-        self.touch(mission.root_uuid)
+        self.touch(mission.root_uuid, Change.NEW)
 
     def replace_tree(
         self, mission: Mission, tst: dict[str, Any], root: str, nodes: dict[str, NodeInfo],
@@ -347,7 +398,7 @@ class MissionBook:
             self._node_root[uid] = mission.root_uuid
         mission.current_root = root
         mission.redelegations += 1
-        self.touch(mission.root_uuid)
+        self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 
     def get(self, root_uuid: str) -> Mission:
         """The mission with this root uuid; ``InputError`` naming it if there is none."""
@@ -399,13 +450,8 @@ class MissionBook:
         mission = self.of_node(node_uuid)
         if mission is None:
             return None, []
-        self.touch(mission.root_uuid)
-        if mission.node_status.get(node_uuid) not in TERMINAL_NODE_STATUSES:
-            mission.node_status[node_uuid] = status
-        if status == "running":
-            mission.node_started.setdefault(node_uuid, now)
-        elif status in TERMINAL_NODE_STATUSES:
-            mission.node_ended.setdefault(node_uuid, now)
+        if _note_node(mission, node_uuid, status, now):
+            self.touch(mission.root_uuid)  # a repeated status (a re-sent feedback) changes nothing
         events: list[LifecycleEvent] = []
         # Only the root of the tree the engine executes for the mission now ends it.
         is_root = node_uuid == mission.current_root
@@ -432,6 +478,22 @@ class MissionBook:
             if ev:
                 events.append(ev)
         return mission, events
+
+
+def _note_node(mission: Mission, node_uuid: str, status: str, now: float) -> bool:
+    """A node's status (a final one stays) and its first ``running`` and first final times;
+    True when any of it changed."""
+    changed = False
+    old = mission.node_status.get(node_uuid)
+    if old not in TERMINAL_NODE_STATUSES and old != status:
+        mission.node_status[node_uuid] = status
+        changed = True
+    times = (mission.node_started if status == "running"
+             else mission.node_ended if status in TERMINAL_NODE_STATUSES else None)
+    if times is not None and node_uuid not in times:
+        times[node_uuid] = now
+        changed = True
+    return changed
 
 
 def failed_nodes_reason(mission: Mission) -> str:

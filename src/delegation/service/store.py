@@ -10,9 +10,20 @@ One schema, two back ends behind the `Store` protocol:
   one is active (the others stand by, `delegation.service.active`). Put the tables in a schema of
   your own with ``?options=-csearch_path%3DNAME`` in the DSN (the schema must exist).
 
-The unit (`delegation.service.unit`) writes the missions and commands a step changed in one
-transaction before it publishes that step's messages, so an answer that went out is on disk. The
-pure core never sees this module: it reads back through `MissionArchive` / `CommandArchive`.
+The unit (`delegation.service.unit`) writes what a batch of messages changed in one transaction
+before it publishes that batch's messages, so an answer that went out is stored. Of a mission only
+what changed is written (`Change`): its unchanging part once, its state on a real change, its tree
+when a re-delegation replaced it. A command keeps its digest, caller and reply topic, so after a
+restart a com-uuid reused for another command is still refused and answers go to the caller's own
+topic. The pure core never sees this module: it reads back through `MissionArchive` /
+`CommandArchive`.
+
+Why ``synchronous=FULL`` rather than ``NORMAL``: in WAL mode both keep every committed transaction
+across a crash of the process (the WAL frames are in the OS's cache when ``commit`` returns), but
+with ``NORMAL`` an OS crash or power cut can lose the last commits, whose answers may already have
+gone out (a re-send would then run the command again). ``FULL`` syncs the WAL at each commit; with
+one commit per batch the burst benchmark measured no difference in CPU or answers/s between the
+two (``benchmarks/burst.py``), so the stronger promise stays.
 """
 
 from __future__ import annotations
@@ -32,11 +43,22 @@ from typing import Any, Protocol
 from delegation.errors import DelegationError
 from delegation.runtime.commands import CommandEntry, CommandKey, CommandState
 from delegation.runtime.core import Outgoing
-from delegation.service.missions import Mission, mission_from_record, mission_record
+from delegation.service.missions import (
+    Change,
+    Mission,
+    mission_fixed,
+    mission_from_record,
+    mission_state,
+    mission_tree,
+)
 
 log = logging.getLogger(__name__)
 
-#: Tables (the same DDL for SQLite and PostgreSQL; times are epoch seconds).
+#: Tables (the same DDL for SQLite and PostgreSQL; times are epoch seconds). A mission is three
+#: JSON parts: ``data`` what never changes (written once: the trees, the plan, the command),
+#: ``state`` what moves (statuses, times: rewritten on a real change), ``tree`` the tree a
+#: re-delegation put in place (NULL until one). A command keeps what tells a re-send from another
+#: command reusing its com-uuid (``digest``) and whose it is (``caller``, ``reply_topic``).
 SCHEMA = (
     """CREATE TABLE IF NOT EXISTS missions (
         root_uuid TEXT PRIMARY KEY,
@@ -44,7 +66,9 @@ SCHEMA = (
         status TEXT NOT NULL,
         ended DOUBLE PRECISION,
         summary TEXT NOT NULL,
-        data TEXT NOT NULL)""",
+        data TEXT NOT NULL,
+        state TEXT,
+        tree TEXT)""",
     "CREATE INDEX IF NOT EXISTS missions_by_created ON missions (created, root_uuid)",
     "CREATE INDEX IF NOT EXISTS missions_by_status ON missions (status)",
     """CREATE TABLE IF NOT EXISTS commands (
@@ -53,20 +77,41 @@ SCHEMA = (
         state TEXT NOT NULL,
         received DOUBLE PRECISION NOT NULL,
         answer TEXT NOT NULL,
+        digest TEXT NOT NULL DEFAULT '',
+        caller TEXT NOT NULL DEFAULT '',
+        reply_topic TEXT NOT NULL DEFAULT '',
         PRIMARY KEY (face, com_uuid))""",
     "CREATE INDEX IF NOT EXISTS commands_by_received ON commands (received)",
 )
+#: Columns a store made by an earlier version lacks (added when it is opened; its rows read as
+#: before: a mission's ``data`` was then the whole record).
+_ADDED_COLUMNS = (
+    ("missions", "state", "TEXT"),
+    ("missions", "tree", "TEXT"),
+    ("commands", "digest", "TEXT NOT NULL DEFAULT ''"),
+    ("commands", "caller", "TEXT NOT NULL DEFAULT ''"),
+    ("commands", "reply_topic", "TEXT NOT NULL DEFAULT ''"),
+)
 
-_UPSERT_MISSION = (
-    "INSERT INTO missions (root_uuid, created, status, ended, summary, data) "
-    "VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (root_uuid) DO UPDATE SET "
-    "status = excluded.status, ended = excluded.ended, summary = excluded.summary, "
-    "data = excluded.data"
+_INSERT_MISSION = (
+    "INSERT INTO missions (root_uuid, created, status, ended, summary, data, state, tree) "
+    "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (root_uuid) DO UPDATE SET "
+    "created = excluded.created, status = excluded.status, ended = excluded.ended, "
+    "summary = excluded.summary, data = excluded.data, state = excluded.state, "
+    "tree = excluded.tree"
 )
+_UPDATE_STATE = ("UPDATE missions SET status = ?, ended = ?, summary = ?, state = ? "
+                 "WHERE root_uuid = ?")
+_UPDATE_TREE = ("UPDATE missions SET status = ?, ended = ?, summary = ?, state = ?, tree = ? "
+                "WHERE root_uuid = ?")
+_MISSION_COLUMNS = "data, state, tree"
 _UPSERT_COMMAND = (
-    "INSERT INTO commands (face, com_uuid, state, received, answer) VALUES (?, ?, ?, ?, ?) "
-    "ON CONFLICT (face, com_uuid) DO UPDATE SET state = excluded.state, answer = excluded.answer"
+    "INSERT INTO commands (face, com_uuid, state, received, answer, digest, caller, reply_topic) "
+    "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (face, com_uuid) DO UPDATE SET "
+    "state = excluded.state, answer = excluded.answer, digest = excluded.digest, "
+    "caller = excluded.caller, reply_topic = excluded.reply_topic"
 )
+_COMMAND_COLUMNS = "face, com_uuid, state, received, answer, digest, caller, reply_topic"
 _OPEN_STATUSES = ("planned", "started", "running")
 
 
@@ -92,8 +137,9 @@ class Store(Protocol):
         """True while the lock taken by `acquire` is still held (its connection is alive)."""
         ...
 
-    def save(self, missions: Sequence[Mission], commands: Sequence[CommandEntry]) -> None:
-        """Write changed missions and commands in one transaction."""
+    def save(self, missions: Sequence[tuple[Mission, Change]],
+             commands: Sequence[CommandEntry]) -> None:
+        """Write what changed of missions, and commands, in one transaction."""
         ...
 
     def load_mission(self, root_uuid: str) -> Mission | None: ...
@@ -122,8 +168,35 @@ def _answer_of(text: str) -> list[Outgoing]:
 
 
 def _entry(row: Sequence[Any]) -> CommandEntry:
-    face, com, state, received, answer = row
-    return CommandEntry((face, com), float(received), CommandState(state), _answer_of(answer))
+    face, com, state, received, answer, digest, caller, reply_topic = row
+    return CommandEntry((face, com), float(received), CommandState(state), _answer_of(answer),
+                        digest=digest or "", caller=caller or "", reply_topic=reply_topic or "")
+
+
+def _mission(row: Sequence[Any]) -> Mission:
+    """A mission from its ``data, state, tree`` columns (later parts override earlier ones)."""
+    record: dict[str, Any] = {}
+    for part in row:
+        if part:
+            record.update(json.loads(part))
+    return mission_from_record(record)
+
+
+def _dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"))
+
+
+def _mission_write(m: Mission, change: Change) -> tuple[str, tuple[Any, ...]]:
+    """The one statement that stores what ``change`` says changed of ``m``."""
+    head = (m.status.value, m.ended_at, _dumps(m.summary()), _dumps(mission_state(m)))
+    if not change & (Change.NEW | Change.TREE):
+        return _UPDATE_STATE, (*head, m.root_uuid)
+    tree = mission_tree(m)
+    tree_json = _dumps(tree) if tree is not None else None
+    if change & Change.NEW:
+        return _INSERT_MISSION, (m.root_uuid, m.created, *head[:3], _dumps(mission_fixed(m)),
+                                 head[3], tree_json)
+    return _UPDATE_TREE, (*head, tree_json, m.root_uuid)
 
 
 def lock_key(name: str) -> int:
@@ -164,22 +237,54 @@ class _SqlStore:
                 cur.execute(ddl)
             cur.close()
             self._conn.commit()
+            for table, column, kind in _ADDED_COLUMNS:
+                self._add_column(table, column, kind)
 
-    def save(self, missions: Sequence[Mission], commands: Sequence[CommandEntry]) -> None:
+    def _has_column(self, table: str, column: str) -> bool:
+        cur = self._conn.cursor()
+        try:
+            cur.execute(f"SELECT {column} FROM {table} WHERE 1 = 0")
+            cur.fetchall()
+            self._conn.commit()
+            return True
+        except Exception:  # sqlite3's or psycopg's error: the column is missing
+            self._conn.rollback()
+            return False
+        finally:
+            cur.close()
+
+    def _add_column(self, table: str, column: str, kind: str) -> None:
+        """Add ``column`` to a table an earlier version created without it (an instance that
+        starts at the same moment may add it first)."""
+        if self._has_column(table, column):
+            return
+        log.info("state store: adding %s.%s", table, column)
+        cur = self._conn.cursor()
+        try:
+            cur.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
+            self._conn.commit()
+        except Exception:
+            self._conn.rollback()
+            if not self._has_column(table, column):
+                raise
+        finally:
+            cur.close()
+
+    def save(self, missions: Sequence[tuple[Mission, Change]],
+             commands: Sequence[CommandEntry]) -> None:
         if not missions and not commands:
             return
-        m_rows = [
-            (m.root_uuid, m.created, m.status.value, m.ended_at, json.dumps(m.summary()),
-             json.dumps(mission_record(m)))
-            for m in missions
-        ]
-        c_rows = [(e.key[0], e.key[1], e.state.value, e.received, _answer_json(e.answer))
-                  for e in commands]
+        writes: dict[str, list[tuple[Any, ...]]] = {}
+        for m, change in missions:
+            sql, row = _mission_write(m, change)
+            writes.setdefault(sql, []).append(row)
+        c_rows = [(e.key[0], e.key[1], e.state.value, e.received, _answer_json(e.answer),
+                   e.digest, e.caller, e.reply_topic) for e in commands]
         with self._lock:
             cur = self._conn.cursor()
             try:
-                if m_rows:
-                    cur.executemany(self._q(_UPSERT_MISSION), m_rows)
+                for sql, rows in writes.items():
+                    cur.executemany(self._q(sql), rows)
                 if c_rows:
                     cur.executemany(self._q(_UPSERT_COMMAND), c_rows)
                 self._conn.commit()
@@ -190,8 +295,9 @@ class _SqlStore:
                 cur.close()
 
     def load_mission(self, root_uuid: str) -> Mission | None:
-        rows = self._fetch("SELECT data FROM missions WHERE root_uuid = ?", (root_uuid,))
-        return mission_from_record(json.loads(rows[0][0])) if rows else None
+        rows = self._fetch(f"SELECT {_MISSION_COLUMNS} FROM missions WHERE root_uuid = ?",
+                           (root_uuid,))
+        return _mission(rows[0]) if rows else None
 
     def page_missions(self, offset: int, limit: int) -> tuple[list[dict[str, Any]], int]:
         total = int(self._fetch("SELECT COUNT(*) FROM missions")[0][0])
@@ -200,17 +306,17 @@ class _SqlStore:
         return [json.loads(r[0]) for r in rows], total
 
     def open_missions(self) -> list[Mission]:
-        rows = self._fetch("SELECT data FROM missions WHERE status IN (?, ?, ?) "
+        rows = self._fetch(f"SELECT {_MISSION_COLUMNS} FROM missions WHERE status IN (?, ?, ?) "
                            "ORDER BY created, root_uuid", _OPEN_STATUSES)
-        return [mission_from_record(json.loads(r[0])) for r in rows]
+        return [_mission(r) for r in rows]
 
     def load_command(self, key: CommandKey) -> CommandEntry | None:
-        rows = self._fetch("SELECT face, com_uuid, state, received, answer FROM commands "
+        rows = self._fetch(f"SELECT {_COMMAND_COLUMNS} FROM commands "
                            "WHERE face = ? AND com_uuid = ?", key)
         return _entry(rows[0]) if rows else None
 
     def commands(self, state: CommandState, limit: int) -> list[CommandEntry]:
-        rows = self._fetch("SELECT face, com_uuid, state, received, answer FROM commands "
+        rows = self._fetch(f"SELECT {_COMMAND_COLUMNS} FROM commands "
                            "WHERE state = ? ORDER BY received DESC LIMIT ?", (state.value, limit))
         return [_entry(r) for r in reversed(rows)]
 

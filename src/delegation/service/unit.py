@@ -5,8 +5,9 @@ tree is being planned).
 At ``stop`` the worker is given 10 s to finish the plan it is running (an ``optimal`` plan may ask
 for up to ``max_time_limit``); a plan still running then is abandoned and never answered.
 
-With a `Store`, the state survives a crash: after every step the missions and commands the core
-changed (its ``dirty`` journals) are written in one transaction BEFORE the step's messages are
+With a `Store`, the state survives a crash: after every batch of queued messages (`CoreUnit`
+handles whatever is queued, then ends the batch) what the core changed (the ``dirty`` journals of
+its missions and commands) is written in one transaction BEFORE the batch's messages are
 published, so an answer that went out is stored; at start the missions that had not ended and the
 latest answers are loaded, and a command that was still being worked on when the last instance
 died is answered ``failed`` (never run again). Ended missions leave memory ``retention`` seconds
@@ -93,9 +94,12 @@ class DelegationService(CoreUnit[ServiceCore]):
             reason = (f"{self.config.name} restarted while this command was being worked on; "
                       + (f"it created mission {root} (query-mission for its state)" if root
                          else "nothing was started: send it again with a new com-uuid"))
-            topic = core.tst_response_topic if face == "tst" else core.delegation_response_topic
+            topic = entry.reply_topic or (core.tst_response_topic if face == "tst"
+                                          else core.delegation_response_topic)
             answer = [Outgoing.of(topic, failure(face, com, reason))]  # type: ignore[arg-type]
-            done = CommandEntry(entry.key, entry.received, CommandState.DONE, answer)
+            done = CommandEntry(entry.key, entry.received, CommandState.DONE, answer,
+                                digest=entry.digest, caller=entry.caller,
+                                reply_topic=entry.reply_topic)
             core.commands.restore(done)
             interrupted.append(done)
         store.save([], interrupted)
@@ -110,21 +114,24 @@ class DelegationService(CoreUnit[ServiceCore]):
     # ---- persistence
 
     def apply(self, effects: Effects) -> None:
-        """Store what the step changed, then publish (an answer that went out is stored)."""
+        """Store what the batch changed (one commit), then publish its messages (an answer
+        that went out is stored)."""
         if self.store is not None:
             self._persist(self.store)
         super().apply(effects)
 
     def _persist(self, store: Store) -> None:
         core = self.core
-        missions = core.book.drain_dirty()
-        commands = core.commands.drain_dirty()
+        with self._state:  # only this thread changes the core: it may read it unlocked below
+            missions = core.book.drain_dirty()
+            commands = core.commands.drain_dirty()
         try:
             store.save(missions, commands)
         except Exception:
-            # Not stored: note them again (the next step retries) and publish nothing of this one.
-            core.book.dirty.update(m.root_uuid for m in missions)
-            core.commands.dirty.update(e.key for e in commands)
+            # Not stored: note them again (the next batch retries) and publish nothing of this one.
+            with self._state:
+                core.book.undrain(missions)
+                core.commands.dirty.update(e.key for e in commands)
             raise
 
     def tick(self, now: float) -> None:
