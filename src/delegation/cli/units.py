@@ -11,8 +11,9 @@ import logging
 import threading
 from typing import Any
 
+from delegation.cli.connect import add_broker_args, client_settings
+from delegation.cli.inputs import find_scenario
 from delegation.cli.options import positive_float
-from delegation.cli.runtime import add_broker_args, client_settings, find_scenario
 from delegation.errors import InputError, InputProblem
 from delegation.topics import AGENT_TYPES, ROLES
 
@@ -65,7 +66,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 
 def _settings(args: argparse.Namespace) -> Any:
-    """The broker by the one rule of every command (``cli.runtime.client_settings``)."""
+    """The broker by the one rule of every command (``cli.connect.client_settings``)."""
     return client_settings(args)
 
 
