@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from delegation.cli.connect import add_broker_args, broker_settings
-from delegation.cli.following import run_mission
+from delegation.cli.following import Watch, run_mission
 from delegation.cli.inputs import find_scenario
 from delegation.cli.options import UsageError
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
@@ -234,10 +234,7 @@ def _fly(
             client,
             {**command, "tst": tree},
             console,
-            speedup=speedup,
-            timeout=args.timeout,
-            tracks=tracks,
-            enough=True,
+            Watch(speedup, args.timeout, tracks=tracks, enough=True),
             hint=False,  # the demo stops the whole system: nothing goes on to re-attach to
         )
         if progress is None:

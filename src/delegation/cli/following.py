@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from delegation.cli.options import Stopped
@@ -18,31 +19,37 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True, slots=True)
+class Watch:
+    """How a command follows a mission: ``speedup`` the fleet's time factor (actual times are
+    shown in mission seconds), ``timeout`` wall seconds at most; ``tracks`` collects the units'
+    positions when given. With ``enough``, open-ended tasks (look-at-*) that hold the mission up
+    (nothing else running) get ``$enough``, as an operator would send it, so that the mission
+    can finish."""
+
+    speedup: float
+    timeout: float
+    tracks: dict[str, list[Any]] | None = None
+    enough: bool = False
+
+
 def follow(
     client: ServiceClient,
     plan: dict[str, Any],
-    *,
-    speedup: float,
+    watch: Watch,
     console: Console,
-    timeout: float,
-    tracks: dict[str, list[Any]] | None = None,
-    enough: bool = False,
     progress: MissionProgress | None = None,
 ) -> MissionProgress:
-    """Show a mission's progress until it ends or ``timeout`` wall seconds pass: a live table on
-    a terminal, else one plain line per change (logs, CI, ``tee``).
-
-    With ``enough``, open-ended tasks (look-at-*) that hold the mission up (nothing else
-    running) get ``$enough``, as an operator would send it, so that the mission can finish.
-    ``progress`` continues a mission already under way (``delegation follow``).
-    """
+    """Show a mission's progress until it ends or the watch's timeout passes: a live table on a
+    terminal, else one plain line per change (logs, CI, ``tee``). ``progress`` continues a
+    mission already under way (``delegation follow``)."""
     from rich.live import Live
 
     from delegation.render.progress import MissionProgress, status_lines
 
     if progress is None:
-        progress = MissionProgress(plan, speedup=speedup)
-    deadline = time.monotonic() + timeout
+        progress = MissionProgress(plan, speedup=watch.speedup)
+    deadline = time.monotonic() + watch.timeout
     if not console.is_terminal:
         shown: dict[str, str] = {}
 
@@ -51,13 +58,12 @@ def follow(
                 console.print(line, soft_wrap=True, highlight=False)
 
         lines()
-        _pump(client, progress, deadline, lines, tracks=tracks, enough=enough)
+        _pump(client, progress, deadline, lines, watch)
         return progress
     with Live(
         progress.table(), console=console, refresh_per_second=6, transient=False, auto_refresh=True
     ) as live:
-        _pump(client, progress, deadline, lambda: live.update(progress.table()),
-              tracks=tracks, enough=enough)
+        _pump(client, progress, deadline, lambda: live.update(progress.table()), watch)
         live.update(progress.table())
     return progress
 
@@ -67,24 +73,22 @@ def _pump(
     progress: MissionProgress,
     deadline: float,
     refresh: Any,
-    *,
-    tracks: dict[str, list[Any]] | None,
-    enough: bool,
+    watch: Watch,
 ) -> None:
     """Feed the client's events to ``progress`` until the mission ends or the deadline."""
     import queue
 
     root = progress.root_uuid
     while not progress.done and time.monotonic() < deadline:
-        if enough:
+        if watch.enough:
             _send_enough(client, progress, time.time())
         try:
             ev = client.events.get(timeout=0.25)
         except queue.Empty:
             continue
         if ev.kind == "position":
-            if tracks is not None:
-                tracks.setdefault(ev.unit, []).append(ev.data)
+            if watch.tracks is not None:
+                watch.tracks.setdefault(ev.unit, []).append(ev.data)
             continue
         data = ev.data
         if ev.kind == "mission" and data.get("root-uuid") == root:
@@ -120,11 +124,8 @@ def run_mission(
     client: ServiceClient,
     command: dict[str, Any],
     console: Console,
+    watch: Watch,
     *,
-    speedup: float,
-    timeout: float,
-    tracks: dict[str, list[Any]] | None = None,
-    enough: bool = False,
     hint: bool = True,
 ) -> MissionProgress | None:
     """Send a ``delegate`` with ``start``, follow the mission live and print the summary; None
@@ -140,15 +141,7 @@ def run_mission(
         console.print(f"mission {root} started", soft_wrap=True)
         for note in answer["plan"].get("notes") or []:  # default speeds, suspicious input
             console.print(f"note: {note}", soft_wrap=True, highlight=False)
-        progress = follow(
-            client,
-            answer["plan"],
-            speedup=speedup,
-            console=console,
-            timeout=timeout,
-            tracks=tracks,
-            enough=enough,
-        )
+        progress = follow(client, answer["plan"], watch, console)
     except (KeyboardInterrupt, Stopped):
         console.print()
         if hint:
@@ -156,7 +149,7 @@ def run_mission(
         raise
     _print_summary(console, progress, time.monotonic() - started)
     if not progress.done:
-        console.print(f"[red]gave up following after {timeout:g} s[/]")
+        console.print(f"[red]gave up following after {watch.timeout:g} s[/]")
         if hint:
             still_running_hint(console, root, progress.status)
     return progress

@@ -218,7 +218,7 @@ def _signal(args: argparse.Namespace) -> int:
 def _follow(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from delegation.cli.following import follow, still_running_hint
+    from delegation.cli.following import Watch, follow, still_running_hint
     from delegation.cli.options import Stopped
 
     console = Console(stderr=bool(args.json))  # with --json, stdout holds the JSON alone
@@ -228,8 +228,8 @@ def _follow(args: argparse.Namespace) -> int:
         progress = resume_progress(mission, args.speedup)
         if not progress.done:
             try:
-                follow(client, progress.plan, speedup=args.speedup, console=console,
-                       timeout=args.timeout, enough=args.enough, progress=progress)
+                watch = Watch(args.speedup, args.timeout, enough=args.enough)
+                follow(client, progress.plan, watch, console, progress=progress)
             except (KeyboardInterrupt, Stopped):
                 console.print()
                 still_running_hint(console, root, progress.status)

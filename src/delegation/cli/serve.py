@@ -10,6 +10,7 @@ from typing import Any
 
 from delegation.cli.connect import add_broker_args, client_settings
 from delegation.cli.inputs import read_profiles
+from delegation.cli.options import fraction
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.cli.ui import add_http_args
 from delegation.topics import AGENT_TYPES, ROLES
@@ -52,17 +53,6 @@ def register(subparsers: Any) -> None:
     serve.set_defaults(func=_serve)
 
 
-def _fraction(text: str) -> float:
-    """A number in 0..1 (argparse type)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is not in 0..1")
-    return value
-
-
 def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default="delegator0", help="the service's unit name")
     p.add_argument("--engine", default="op0", help="the TST engine's unit name")
@@ -86,7 +76,7 @@ def _service_args(p: argparse.ArgumentParser) -> None:
         "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
         "agent type",
     )
-    p.add_argument("--min-battery", type=_fraction, default=0.2, metavar="FRACTION",
+    p.add_argument("--min-battery", type=fraction, default=0.2, metavar="FRACTION",
                    help="units with a battery below this (0..1) are not planned for")
     p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
                    help="a unit busy in another mission: planned from when and where it is free "

@@ -7,7 +7,7 @@ import json
 from typing import Any
 
 from delegation.cli.connect import add_broker_args, client_settings
-from delegation.cli.following import run_mission
+from delegation.cli.following import Watch, run_mission
 from delegation.cli.inputs import read_mission
 from delegation.cli.options import positive_float
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
@@ -78,9 +78,7 @@ def _submit(args: argparse.Namespace) -> int:
             client,
             command,
             Console(stderr=bool(args.json)),  # with --json, stdout holds the JSON alone
-            speedup=args.speedup,
-            timeout=args.timeout,
-            enough=args.enough,
+            Watch(args.speedup, args.timeout, enough=args.enough),
         )
         if args.json and progress is not None:
             print(json.dumps(client.query_mission(progress.root_uuid), indent=2))
