@@ -20,6 +20,7 @@ from delegation.engine import TstEngine
 from delegation.errors import DelegationError
 from delegation.fleet import UnitState
 from delegation.runtime.broker import BrokerProcess
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.service import DelegationService, ServiceConfig
@@ -32,7 +33,7 @@ class SystemNotReady(DelegationError):
     """The parts did not see each other within the start-up deadline."""
 
 
-class LocalSystem:
+class LocalSystem(StartStop):
     """Fleet, engine and service on a broker (an embedded one when ``settings`` is None).
 
     ``engine=False`` / ``service=False`` leave a part out (a test of the engine alone, a benchmark
@@ -155,9 +156,3 @@ class LocalSystem:
     def stop(self) -> None:
         """Stop every part that was started, the last started first (idempotent)."""
         self._stack.close()
-
-    def __enter__(self) -> LocalSystem:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

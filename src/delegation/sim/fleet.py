@@ -6,6 +6,7 @@ import logging
 from collections.abc import Iterator, Mapping, Sequence
 
 from delegation.fleet import UnitState
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.sim.unit import SimUnit
@@ -14,7 +15,7 @@ from delegation.topics import DEFAULT_PREFIX
 log = logging.getLogger(__name__)
 
 
-class SimFleet:
+class SimFleet(StartStop):
     """Simulated units for a list of `UnitState`s (or a scenario's agents, with their rates)."""
 
     def __init__(
@@ -94,9 +95,3 @@ class SimFleet:
 
     def __len__(self) -> int:
         return len(self.units)
-
-    def __enter__(self) -> SimFleet:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
