@@ -24,7 +24,7 @@ from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.service import DelegationService, ServiceConfig
-from delegation.sim import SimFleet
+from delegation.sim import SimFleet, agent_rates
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ class LocalSystem(StartStop):
     @classmethod
     def from_scenario(cls, scenario: Scenario, **options: Any) -> LocalSystem:
         """A system for a scenario's agents: their rates, and their profiles for the service."""
-        rates = {a.name: a.rate for a in scenario.agents if a.rate is not None}
+        rates = agent_rates(scenario)
         rates.update(options.pop("rates", None) or {})
         config = options.pop("config", None) or ServiceConfig()
         if config.profiles is None:

@@ -94,15 +94,16 @@ def _engine(args: argparse.Namespace) -> int:
 
 def _sim(args: argparse.Namespace) -> int:
     from delegation.scenario import load_scenario
-    from delegation.sim import SimFleet
+    from delegation.sim import SimFleet, agent_rates
 
     if args.speedup <= 0:
         raise InputError(InputProblem("--speedup", "", f"must be positive, not {args.speedup}"))
     settings = _settings(args)
     scenario = load_scenario(find_scenario(args.scenario))
-    fleet = SimFleet.from_scenario(
+    fleet = SimFleet(
         settings,
-        scenario,
+        scenario.units(),
+        rates=agent_rates(scenario),
         prefix=args.prefix,
         role=args.role,
         speedup=args.speedup,
