@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from delegation.cli import main
-from delegation.cli.runtime import DEMO_FLEET_TICKS_PER_S, _read_mission, demo_rates, find_scenario
+from delegation.cli.demo import DEMO_FLEET_TICKS_PER_S, demo_rates
+from delegation.cli.inputs import find_scenario, read_mission
 from delegation.errors import InputError
 from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
@@ -74,12 +75,12 @@ def test_mission_files_of_every_kind(tmp_path: Path) -> None:
     (tmp_path / "tree.json").write_text(json.dumps(tree))
     (tmp_path / "cmd.json").write_text(json.dumps({"command": "start-tst", "com-uuid": "x",
                                                    "tst": tree}))
-    assert _read_mission(str(tmp_path / "tree.json")) == tree
-    assert _read_mission(str(tmp_path / "cmd.json")) == tree
-    assert _read_mission(str(find_scenario("demo")))["name"] == "conc"
+    assert read_mission(str(tmp_path / "tree.json")) == tree
+    assert read_mission(str(tmp_path / "cmd.json")) == tree
+    assert read_mission(str(find_scenario("demo")))["name"] == "conc"
     (tmp_path / "bad.json").write_text("[1]")
     with pytest.raises(InputError, match="object"):
-        _read_mission(str(tmp_path / "bad.json"))
+        read_mission(str(tmp_path / "bad.json"))
 
 
 @pytest.fixture
@@ -163,21 +164,21 @@ def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerS
 
 
 def test_serve_profiles_from_a_scenario_or_a_plain_file(tmp_path: Path) -> None:
-    from delegation.cli.runtime import _read_profiles
+    from delegation.cli.inputs import read_profiles
 
-    profiles = _read_profiles(str(find_scenario("demo")))
+    profiles = read_profiles(str(find_scenario("demo")))
     assert set(profiles) == {"dji0", "dji1", "usv0"}
     assert profiles["dji0"]["speeds"]["standard"] == 8.0
     plain = tmp_path / "p.yaml"
     plain.write_text("air: {speeds: {standard: 5.0}}\ndji7: {endurance: 900}\n")
-    assert _read_profiles(str(plain)) == {"air": {"speeds": {"standard": 5.0}},
+    assert read_profiles(str(plain)) == {"air": {"speeds": {"standard": 5.0}},
                                           "dji7": {"endurance": 900}}
     plain.write_text("air: fast\n")
     with pytest.raises(InputError, match="air"):
-        _read_profiles(str(plain))
+        read_profiles(str(plain))
     plain.write_bytes(b"\xff\xfeair: {}\n")
     with pytest.raises(InputError, match=r"p\.yaml: not UTF-8 text"):
-        _read_profiles(str(plain))
+        read_profiles(str(plain))
 
 
 def test_demo_rates_keep_the_fleet_within_the_brokers_budget() -> None:

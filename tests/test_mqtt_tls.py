@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from delegation.cli.runtime import add_broker_args, broker_settings
+from delegation.cli.connect import add_broker_args, broker_settings
 from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
 from delegation.runtime.mqtt import MqttClient, MqttConnectError
 from delegation.runtime.settings import BrokerSettings, SettingsError

@@ -7,7 +7,7 @@ from pathlib import Path
 from rich.console import Console
 
 from delegation.allocation import plan_mission
-from delegation.cli.runtime import find_scenario
+from delegation.cli.inputs import find_scenario
 from delegation.render.mapplot import render_map
 from delegation.render.progress import MissionProgress
 from delegation.scenario import load_scenario

@@ -373,7 +373,7 @@ def test_plausibility_notes_name_the_node_and_the_nearest_unit() -> None:
 
 def test_serve_takes_operators_max_speed_and_a_password_file(tmp_path: Any) -> None:
     from delegation.cli import build_parser
-    from delegation.cli.runtime import broker_settings
+    from delegation.cli.connect import broker_settings
 
     secret = tmp_path / "pw"
     secret.write_text("hunter2\n")

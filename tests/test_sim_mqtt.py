@@ -13,7 +13,7 @@ from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages import decode
 from delegation.runtime.settings import BrokerSettings
-from delegation.sim import SimFleet, SimUnit
+from delegation.sim import SimFleet, SimUnit, agent_rates
 
 pytestmark = pytest.mark.mqtt
 
@@ -242,7 +242,8 @@ def test_fleet_runs_one_unit_per_agent(mqtt_settings, collector, prefix: str) ->
         }
     )
     c = collector(f"{prefix}/unit/+/+/+/heartbeat")
-    with SimFleet.from_scenario(mqtt_settings, scenario, prefix=prefix) as fleet:
+    with SimFleet(mqtt_settings, scenario.units(), rates=agent_rates(scenario),
+                  prefix=prefix) as fleet:
         assert len(fleet) == 2 and fleet["/b0"].rate == 4.0
         c.wait_json(f"{prefix}/unit/air/simulation/a0/heartbeat")
         c.wait_json(f"{prefix}/unit/surface/simulation/b0/heartbeat")

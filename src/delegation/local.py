@@ -20,10 +20,11 @@ from delegation.engine import TstEngine
 from delegation.errors import DelegationError
 from delegation.fleet import UnitState
 from delegation.runtime.broker import BrokerProcess
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.service import DelegationService, ServiceConfig
-from delegation.sim import SimFleet
+from delegation.sim import SimFleet, agent_rates
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +33,7 @@ class SystemNotReady(DelegationError):
     """The parts did not see each other within the start-up deadline."""
 
 
-class LocalSystem:
+class LocalSystem(StartStop):
     """Fleet, engine and service on a broker (an embedded one when ``settings`` is None).
 
     ``engine=False`` / ``service=False`` leave a part out (a test of the engine alone, a benchmark
@@ -80,7 +81,7 @@ class LocalSystem:
     @classmethod
     def from_scenario(cls, scenario: Scenario, **options: Any) -> LocalSystem:
         """A system for a scenario's agents: their rates, and their profiles for the service."""
-        rates = {a.name: a.rate for a in scenario.agents if a.rate is not None}
+        rates = agent_rates(scenario)
         rates.update(options.pop("rates", None) or {})
         config = options.pop("config", None) or ServiceConfig()
         if config.profiles is None:
@@ -155,9 +156,3 @@ class LocalSystem:
     def stop(self) -> None:
         """Stop every part that was started, the last started first (idempotent)."""
         self._stack.close()
-
-    def __enter__(self) -> LocalSystem:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

@@ -29,7 +29,7 @@ def _rel(target: Path, page: Path) -> str:
     return Path(os.path.relpath(target, page.parent)).as_posix()
 
 
-def results_page(
+def write_results_page(
     records: Sequence[RunRecord],
     page: str | Path,
     *,
@@ -37,8 +37,9 @@ def results_page(
     command: str,
     time_limit: float,
     baseline: str = BASELINE,
-) -> str:
-    """The page's markdown; ``plots_dir`` holds the bar charts (``<scenario>-objective.png``)."""
+) -> Path:
+    """Write the page's markdown to ``page``; ``plots_dir`` holds the bar charts
+    (``<scenario>-objective.png``), linked relative to the page."""
     page = Path(page)
     violated = [r for r in records if r.problems]
     if violated:
@@ -113,21 +114,6 @@ def results_page(
         ]
         if scale_md.exists():
             parts += [scale_md.read_text(encoding="utf-8").strip(), ""]
-    return "\n".join(parts)
-
-
-def write_results_page(
-    records: Sequence[RunRecord],
-    page: str | Path,
-    *,
-    plots_dir: str | Path | None,
-    command: str,
-    time_limit: float,
-    baseline: str = BASELINE,
-) -> Path:
-    out = Path(page)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    text = results_page(records, out, plots_dir=plots_dir, command=command, time_limit=time_limit,
-                        baseline=baseline)
-    out.write_text(text, encoding="utf-8")
-    return out
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text("\n".join(parts), encoding="utf-8")
+    return page

@@ -11,7 +11,7 @@ import csv
 import json
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -98,21 +98,15 @@ def table_rows(
 
 
 #: Per-scenario terminal tables: scenario, units and tasks go in the title; short headers so a
-#: table fits an 80-column terminal.
-TERMINAL_COLUMNS: tuple[Column, ...] = (
-    Column("objective", "objective", _text, numeric=False),
-    Column("label", "strategy", _text, numeric=False),
-    Column("repeat", "run", _int),
-    Column("makespan", "makespan", _fixed(1)),
-    Column("total_time", "total", _fixed(1)),
-    Column("total_distance", "dist m", _fixed(0)),
-    Column("solve_time", "solve s", _fixed(3)),
-    Column("unassigned", "unasg", _int),
-    Column("bound", "bound", _fixed(1)),
-    Column("gap", "gap", _percent),
-    Column("ratio_to_baseline", "ratio", _ratio),
-    Column("gap_to_best_known", "vs best", _percent),
-    Column("problems", "checks", _problems, numeric=False),
+#: table fits an 80-column terminal. The same columns as ``COLUMNS`` (one formatter each).
+_TERMINAL_HEADERS: dict[str, str] = {
+    "objective": "objective", "label": "strategy", "repeat": "run", "makespan": "makespan",
+    "total_time": "total", "total_distance": "dist m", "solve_time": "solve s",
+    "unassigned": "unasg", "bound": "bound", "gap": "gap", "ratio_to_baseline": "ratio",
+    "gap_to_best_known": "vs best", "problems": "checks",
+}  # fmt: skip
+TERMINAL_COLUMNS: tuple[Column, ...] = tuple(
+    replace(c, header=_TERMINAL_HEADERS[c.field]) for c in COLUMNS if c.field in _TERMINAL_HEADERS
 )
 
 #: The same per scenario when runs are repeated: the objective's statistics over the repeats.

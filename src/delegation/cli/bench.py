@@ -13,10 +13,13 @@ import argparse
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, InputProblem
+
+if TYPE_CHECKING:
+    from delegation.bench.runner import BenchResult, LoadedScenario, ScenarioFailure
 
 
 def _words(text: str) -> list[str]:
@@ -327,31 +330,12 @@ def _executor(args: argparse.Namespace) -> Iterator[Any]:
 
 
 def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
-    from delegation.bench.generate import save_scenarios
-    from delegation.bench.provenance import provenance
-    from delegation.bench.report import (
-        SUMMARY_NOTE,
-        results_tables,
-        summary_table,
-        table_note,
-        write_outputs,
-    )
-    from delegation.bench.runner import load_scenarios, run_bench, scenarios_from_dicts
-    from delegation.bench.summary import summarise
+    from delegation.bench.runner import run_bench
 
     if not args.scenarios and not args.generate and not args.tsplib:
         raise InputError(InputProblem("bench", "", "give scenario files/folders, --tsplib FILE, "
                                  "--generate or --scale"))
-    loaded, failures = load_scenarios(args.scenarios)
-    loaded += _tsplib(args)
-    generated = _generated(args) if args.generate else []
-    if generated:
-        if args.save:
-            for path in save_scenarios(generated, args.save):
-                err.print(f"wrote {path}")
-        loaded += scenarios_from_dicts(generated)
-    for failure in failures:
-        err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
+    loaded, failures, generated = _bench_scenarios(args, err)
     if not loaded:  # each bad file was named above: one line each, and no empty outputs
         if not failures:
             err.print("error: no scenario to run; nothing written")
@@ -373,6 +357,40 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
     for failure in result.failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
     failures += result.failures
+    _print_bench(result, console, err)
+    _write_bench(args, result, generated, err)
+    if result.interrupted:
+        err.print(f"interrupted: {len(result.records)} of {result.total_runs} runs finished"
+                  + (" (written)" if args.out and result.records else ""))
+        return 130
+    return 1 if failures or result.violations or not result.records else 0
+
+
+def _bench_scenarios(
+    args: argparse.Namespace, err: Any
+) -> tuple[list[LoadedScenario], list[ScenarioFailure], list[dict[str, Any]]]:
+    """(scenarios to run, files that failed to load (named on ``err``), generated scenarios):
+    from files, ``--tsplib`` and ``--generate`` (saved with ``--save``)."""
+    from delegation.bench.generate import save_scenarios
+    from delegation.bench.runner import load_scenarios, scenarios_from_dicts
+
+    loaded, failures = load_scenarios(args.scenarios)
+    loaded += _tsplib(args)
+    generated = _generated(args) if args.generate else []
+    if generated:
+        if args.save:
+            for path in save_scenarios(generated, args.save):
+                err.print(f"wrote {path}")
+        loaded += scenarios_from_dicts(generated)
+    for failure in failures:
+        err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
+    return loaded, failures, generated
+
+
+def _print_bench(result: BenchResult, console: Any, err: Any) -> None:
+    """The per-scenario tables, the summary, and each violated invariant on ``err``."""
+    from delegation.bench.report import SUMMARY_NOTE, results_tables, summary_table, table_note
+    from delegation.bench.summary import summarise
 
     if result.records:
         for table in results_tables(result.records):
@@ -391,6 +409,15 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             markup=True,
             highlight=False,
         )
+
+
+def _write_bench(
+    args: argparse.Namespace, result: BenchResult, generated: list[dict[str, Any]], err: Any
+) -> None:
+    """``--out`` (results, plots, maps, Gantt charts, provenance) and ``--page``."""
+    from delegation.bench.provenance import provenance
+    from delegation.bench.report import write_outputs
+
     if args.out:
         meta = {
             "scenarios": [str(p) for p in args.scenarios],
@@ -422,11 +449,6 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             baseline=result.baseline,
         )
         err.print(f"wrote {page}")
-    if result.interrupted:
-        err.print(f"interrupted: {len(result.records)} of {result.total_runs} runs finished"
-                  + (" (written)" if args.out and result.records else ""))
-        return 130
-    return 1 if failures or result.violations or not result.records else 0
 
 
 def _run_compare(args: argparse.Namespace, console: Any) -> int:

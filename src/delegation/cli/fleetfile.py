@@ -15,7 +15,7 @@ from delegation.tst.node import TstNode
 
 def mission_and_fleet(args: argparse.Namespace) -> tuple[str, TstNode, list[UnitState], list[str]]:
     """(title, tree, units, notes about the fleet) for the plan command's arguments."""
-    from delegation.cli.runtime import _read_mission, find_scenario
+    from delegation.cli.inputs import find_scenario, read_mission
     from delegation.scenario import load_scenario, read_document
     from delegation.tst.validate import parse_and_validate
 
@@ -29,7 +29,7 @@ def mission_and_fleet(args: argparse.Namespace) -> tuple[str, TstNode, list[Unit
                 "--fleet SCENARIO or plan for the live fleet with --live/--broker HOST"))
         scenario = load_scenario(path)
         return scenario.name, scenario.tree(), scenario.units(), []
-    tree = parse_and_validate(_read_mission(str(args.scenario)))
+    tree = parse_and_validate(read_mission(str(args.scenario)))
     if args.fleet:
         return f"{Path(args.scenario).name} on {args.fleet}", tree, fleet_from_file(args.fleet), []
     units, notes = live_fleet(args)
@@ -40,7 +40,7 @@ def fleet_from_file(path: str) -> list[UnitState]:
     """The agents of a scenario file (or of a file holding only ``agents:``)."""
     from pydantic import ValidationError
 
-    from delegation.cli.runtime import find_scenario
+    from delegation.cli.inputs import find_scenario
     from delegation.scenario import AgentSpec, read_document
 
     data = read_document(find_scenario(path))
@@ -61,7 +61,7 @@ def fleet_from_file(path: str) -> list[UnitState]:
 
 def live_fleet(args: argparse.Namespace) -> tuple[list[UnitState], list[str]]:
     """The units a running service would plan for, from its ``list-agents``."""
-    from delegation.cli.runtime import client_settings
+    from delegation.cli.connect import client_settings
     from delegation.fleet import make_unit
     from delegation.geo import GeoPoint
     from delegation.runtime.client import ServiceClient

@@ -16,8 +16,8 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from delegation.cli.connect import add_broker_args, client_settings
 from delegation.cli.options import positive_float
-from delegation.cli.runtime import add_broker_args, client_settings
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -218,8 +218,8 @@ def _signal(args: argparse.Namespace) -> int:
 def _follow(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from delegation.cli.following import Watch, follow, still_running_hint
     from delegation.cli.options import Stopped
-    from delegation.cli.runtime import follow, still_running_hint
 
     console = Console(stderr=bool(args.json))  # with --json, stdout holds the JSON alone
     with _client(args) as client:
@@ -228,8 +228,8 @@ def _follow(args: argparse.Namespace) -> int:
         progress = resume_progress(mission, args.speedup)
         if not progress.done:
             try:
-                follow(client, progress.plan, speedup=args.speedup, console=console,
-                       timeout=args.timeout, enough=args.enough, progress=progress)
+                watch = Watch(args.speedup, args.timeout, enough=args.enough)
+                follow(client, progress.plan, watch, console, progress=progress)
             except (KeyboardInterrupt, Stopped):
                 console.print()
                 still_running_hint(console, root, progress.status)
@@ -276,11 +276,11 @@ def resume_progress(mission: dict[str, Any], speedup: float) -> MissionProgress:
 
 
 def _bids(args: argparse.Namespace) -> int:
-    from delegation.cli.runtime import _read_mission
+    from delegation.cli.inputs import read_mission
     from delegation.tst.node import walk, with_uuids
     from delegation.tst.validate import parse_and_validate
 
-    tree = with_uuids(parse_and_validate(_read_mission(args.mission)))
+    tree = with_uuids(parse_and_validate(read_mission(args.mission)))
     with _client(args) as client:
         bids = client.get_bids(tree.to_dict())
     if args.json:

@@ -143,14 +143,26 @@ def port_number(value: str) -> int:
     return port
 
 
-def positive_float(value: str) -> float:
-    """An argparse ``type`` for durations and factors that must be > 0."""
+def _number(value: str) -> float:
     try:
-        number = float(value)
+        return float(value)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{value!r} is not a number") from None
+
+
+def positive_float(value: str) -> float:
+    """An argparse ``type`` for durations and factors that must be > 0."""
+    number = _number(value)
     if not number > 0 or number == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number, not {value}")
+    return number
+
+
+def fraction(value: str) -> float:
+    """An argparse ``type`` for a number in 0..1."""
+    number = _number(value)
+    if not 0.0 <= number <= 1.0:
+        raise argparse.ArgumentTypeError(f"{value} is not in 0..1")
     return number
 
 

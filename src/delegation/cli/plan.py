@@ -44,8 +44,9 @@ class StrategyChoices:
         return True
 
 
-#: The planner's names (``delegation.allocation``), for argparse ``choices``; ``cli.runtime``
-#: imports these two, so ``plan``, ``serve``, ``submit`` and ``demo`` accept the same strategies.
+#: The planner's names (``delegation.allocation``), for argparse ``choices``; ``cli.demo``,
+#: ``cli.serve`` and ``cli.submit`` import these two, so ``plan``, ``serve``, ``submit`` and
+#: ``demo`` accept the same strategies.
 STRATEGY_CHOICES = StrategyChoices()
 OBJECTIVE_CHOICES: tuple[str, ...] = tuple(o.value for o in OBJECTIVES)
 
@@ -84,7 +85,7 @@ def register(subparsers: Any) -> None:
                         help="output format (default: table)")
     parser.add_argument("--json", dest="format", action="store_const", const="json",
                         help="same as --format json")
-    from delegation.cli.runtime import add_broker_args
+    from delegation.cli.connect import add_broker_args
 
     add_broker_args(parser)
     parser.set_defaults(func=run)

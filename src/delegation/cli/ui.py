@@ -45,7 +45,7 @@ def add_http_args(parser: argparse.ArgumentParser, *, default: str | None) -> No
 
 
 def register(subparsers: Any) -> None:
-    from delegation.cli.runtime import add_broker_args
+    from delegation.cli.connect import add_broker_args
 
     ui = subparsers.add_parser(
         "ui", help="the operator page: live units and missions in the browser",
@@ -105,7 +105,7 @@ def start_page(stack: ExitStack, args: argparse.Namespace, settings: BrokerSetti
 
 
 def _ui(args: argparse.Namespace) -> int:
-    from delegation.cli.runtime import client_settings
+    from delegation.cli.connect import client_settings
 
     settings = client_settings(args)
     page_options(args)  # usage errors before any connection

@@ -11,8 +11,9 @@ import logging
 import threading
 from typing import Any
 
+from delegation.cli.connect import add_broker_args, client_settings
+from delegation.cli.inputs import find_scenario
 from delegation.cli.options import positive_float
-from delegation.cli.runtime import add_broker_args, client_settings, find_scenario
 from delegation.errors import InputError, InputProblem
 from delegation.topics import AGENT_TYPES, ROLES
 
@@ -65,7 +66,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 
 def _settings(args: argparse.Namespace) -> Any:
-    """The broker by the one rule of every command (``cli.runtime.client_settings``)."""
+    """The broker by the one rule of every command (``cli.connect.client_settings``)."""
     return client_settings(args)
 
 
@@ -93,15 +94,16 @@ def _engine(args: argparse.Namespace) -> int:
 
 def _sim(args: argparse.Namespace) -> int:
     from delegation.scenario import load_scenario
-    from delegation.sim import SimFleet
+    from delegation.sim import SimFleet, agent_rates
 
     if args.speedup <= 0:
         raise InputError(InputProblem("--speedup", "", f"must be positive, not {args.speedup}"))
     settings = _settings(args)
     scenario = load_scenario(find_scenario(args.scenario))
-    fleet = SimFleet.from_scenario(
+    fleet = SimFleet(
         settings,
-        scenario,
+        scenario.units(),
+        rates=agent_rates(scenario),
         prefix=args.prefix,
         role=args.role,
         speedup=args.speedup,

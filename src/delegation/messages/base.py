@@ -10,7 +10,7 @@ from __future__ import annotations
 import uuid
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 #: The longest identifier a message may carry (com-uuid, node-uuid, sender, ...): a 1 MB com-uuid
 #: is refused, never kept in the command log.
@@ -75,3 +75,21 @@ class WireModel(BaseModel):
             if key in data and data[key] in ("", []):
                 del data[key]
         return data
+
+
+class Command(WireModel):
+    """What every command carries besides its ``command`` name: a ``com-uuid`` (fresh unless
+    given) that its answer names, and who sent it."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    sender: str = ""
+
+
+class Answer(WireModel):
+    """What every response carries: its own ``com-uuid``, the command it answers, the answer,
+    and why when it failed (left out where a subclass's ``omit_when_empty`` says so)."""
+
+    com_uuid: str = Field(default_factory=new_com_uuid)
+    fail_reason: str = ""
+    response: str
+    response_to: str

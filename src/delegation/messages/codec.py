@@ -14,72 +14,36 @@ from pydantic import BaseModel, ValidationError
 
 from delegation.errors import InputProblem, MessageError, json_kind
 from delegation.geo import GeoPoint
+from delegation.messages import delegation_api, direct, info, tst_exec
 from delegation.messages.base import WireModel
-from delegation.messages.delegation_api import (
-    CancelMission,
-    Delegate,
-    DelegationFeedback,
-    DelegationPing,
-    DelegationResponse,
-    GetBids,
-    ListAgents,
-    ListMissions,
-    QueryMission,
-)
-from delegation.messages.direct import (
-    ExecFeedback,
-    ExecResponse,
-    Ping,
-    QueryStatus,
-    SignalExecutor,
-    SignalTask,
-    StartTask,
-)
 from delegation.messages.errors import json_value, validation_problems
-from delegation.messages.info import (
-    DelegationInfo,
-    DirectExecutionInfo,
-    HeartBeat,
-    SensorInfo,
-    TstExecutionInfo,
-)
 from delegation.messages.sensors import SensorReading, sensor_value
-from delegation.messages.tst_exec import (
-    SignalTstNode,
-    SignalTstTree,
-    SignalUnit,
-    StartTst,
-    TstFeedback,
-    TstResponse,
-)
 
 M = TypeVar("M", bound=BaseModel)
 
 
+def _by_command(*models: type[WireModel]) -> dict[str, type[WireModel]]:
+    """``{command: model}``, the name read from each model's ``command`` field."""
+    return {str(m.model_fields["command"].default): m for m in models}
+
+
 #: Commands by API: ``{command: model}``.
-EXEC_COMMANDS: dict[str, type[WireModel]] = {
-    "ping": Ping,
-    "start-task": StartTask,
-    "signal-task": SignalTask,
-    "query-status": QueryStatus,
-    "signal-executor": SignalExecutor,
-}
-TST_COMMANDS: dict[str, type[WireModel]] = {
-    "ping": Ping,
-    "start-tst": StartTst,
-    "signal-tst-node": SignalTstNode,
-    "signal-tst-tree": SignalTstTree,
-    "signal-unit": SignalUnit,
-}
-DELEGATION_COMMANDS: dict[str, type[WireModel]] = {
-    "ping": DelegationPing,
-    "delegate": Delegate,
-    "get-bids": GetBids,
-    "query-mission": QueryMission,
-    "list-missions": ListMissions,
-    "list-agents": ListAgents,
-    "cancel-mission": CancelMission,
-}
+EXEC_COMMANDS = _by_command(
+    direct.Ping, direct.StartTask, direct.SignalTask, direct.QueryStatus, direct.SignalExecutor
+)
+TST_COMMANDS = _by_command(
+    direct.Ping, tst_exec.StartTst, tst_exec.SignalTstNode, tst_exec.SignalTstTree,
+    tst_exec.SignalUnit,
+)
+DELEGATION_COMMANDS = _by_command(
+    delegation_api.DelegationPing,
+    delegation_api.Delegate,
+    delegation_api.GetBids,
+    delegation_api.QueryMission,
+    delegation_api.ListMissions,
+    delegation_api.ListAgents,
+    delegation_api.CancelMission,
+)
 COMMANDS: dict[str, dict[str, type[WireModel]]] = {
     "exec": EXEC_COMMANDS,
     "tst": TST_COMMANDS,
@@ -87,22 +51,22 @@ COMMANDS: dict[str, dict[str, type[WireModel]]] = {
 }
 #: Responses and feedback by API.
 RESPONSES: dict[str, type[WireModel]] = {
-    "exec": ExecResponse,
-    "tst": TstResponse,
-    "delegation": DelegationResponse,
+    "exec": direct.ExecResponse,
+    "tst": tst_exec.TstResponse,
+    "delegation": delegation_api.DelegationResponse,
 }
 FEEDBACK: dict[str, type[WireModel]] = {
-    "exec": ExecFeedback,
-    "tst": TstFeedback,
-    "delegation": DelegationFeedback,
+    "exec": direct.ExecFeedback,
+    "tst": tst_exec.TstFeedback,
+    "delegation": delegation_api.DelegationFeedback,
 }
 #: Info messages by the last topic level.
 INFO: dict[str, type[WireModel]] = {
-    "heartbeat": HeartBeat,
-    "sensor_info": SensorInfo,
-    "direct_execution_info": DirectExecutionInfo,
-    "tst_execution_info": TstExecutionInfo,
-    "delegation_info": DelegationInfo,
+    "heartbeat": info.HeartBeat,
+    "sensor_info": info.SensorInfo,
+    "direct_execution_info": info.DirectExecutionInfo,
+    "tst_execution_info": info.TstExecutionInfo,
+    "delegation_info": info.DelegationInfo,
 }
 #: Info messages by their ``type`` field (for files without a topic).
 INFO_TYPES: dict[str, type[WireModel]] = {m.model_fields["type"].default: m for m in INFO.values()}
@@ -167,18 +131,18 @@ def parse_message(data: Any) -> WireModel:
         if isinstance(kind, str) and kind in INFO_TYPES:
             return validate_model(INFO_TYPES[kind], data, kind)
         if "response" in data:
-            model: type[WireModel] = TstResponse
+            model: type[WireModel] = tst_exec.TstResponse
             if "agent-uuid" in data or "task-uuid" in data:
-                model = ExecResponse
+                model = direct.ExecResponse
             elif any(k in data for k in ("plan", "bids", "mission", "missions", "agents")):
-                model = DelegationResponse
+                model = delegation_api.DelegationResponse
             return validate_model(model, data, "response")
         if "status" in data:
             if "task-uuid" in data:
-                return validate_model(ExecFeedback, data, "feedback")
+                return validate_model(direct.ExecFeedback, data, "feedback")
             if "node-uuid" in data:
-                return validate_model(TstFeedback, data, "feedback")
-            return validate_model(DelegationFeedback, data, "feedback")
+                return validate_model(tst_exec.TstFeedback, data, "feedback")
+            return validate_model(delegation_api.DelegationFeedback, data, "feedback")
     raise MessageError(InputProblem(
         "message", "", "not a command, info, response or feedback message"))
 

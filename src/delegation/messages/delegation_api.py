@@ -12,7 +12,7 @@ from typing import Any, Literal
 
 from pydantic import Field, StrictBool
 
-from delegation.messages.base import WireModel, new_com_uuid
+from delegation.messages.base import Answer, Command, WireModel, new_com_uuid
 
 
 class MissionStatus(StrEnum):
@@ -35,12 +35,10 @@ FINAL_MISSION_STATUSES: frozenset[MissionStatus] = frozenset(
 )
 
 
-class Delegate(WireModel):
+class Delegate(Command):
     """``delegate``: plan a tree (and with ``start`` also run it)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["delegate"] = "delegate"
-    sender: str = ""
     tst: dict[str, Any]
     strategy: str | None = None
     objective: str | None = None
@@ -49,67 +47,51 @@ class Delegate(WireModel):
     start: StrictBool = False
 
 
-class GetBids(WireModel):
+class GetBids(Command):
     """``get-bids``: every task node x live unit: estimated travel, work, distance or why not."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["get-bids"] = "get-bids"
-    sender: str = ""
     tst: dict[str, Any]
 
 
-class QueryMission(WireModel):
+class QueryMission(Command):
     """``query-mission``: status, node statuses and assignments of one mission."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["query-mission"] = "query-mission"
     root_uuid: str
-    sender: str = ""
 
 
-class ListMissions(WireModel):
+class ListMissions(Command):
     """``list-missions``: the missions with their status, a page at a time (oldest first)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["list-missions"] = "list-missions"
-    sender: str = ""
     offset: int = Field(default=0, ge=0, strict=True)
     limit: int = Field(default=100, ge=1, le=1000, strict=True)
 
 
-class ListAgents(WireModel):
+class ListAgents(Command):
     """``list-agents``: the live units."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["list-agents"] = "list-agents"
-    sender: str = ""
 
 
-class CancelMission(WireModel):
+class CancelMission(Command):
     """``cancel-mission``: abort a mission; answered ``ok`` once the engine confirmed."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["cancel-mission"] = "cancel-mission"
     root_uuid: str
-    sender: str = ""
 
 
-class DelegationPing(WireModel):
+class DelegationPing(Command):
     """``ping`` on ``delegation/command``: answered ``pong``."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["ping"] = "ping"
-    sender: str = ""
 
 
-class DelegationResponse(WireModel):
+class DelegationResponse(Answer):
     """The answer on ``delegation/response``: ``ok``/``started``/``pong``/``failed``, always with
     ``fail-reason``, plus the payload of the command answered."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
-    response_to: str
-    response: str
-    fail_reason: str = ""
     plan: dict[str, Any] | None = None
     bids: list[dict[str, Any]] | None = None
     mission: dict[str, Any] | None = None

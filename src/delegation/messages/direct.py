@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from delegation.messages.base import WireModel, new_com_uuid
+from delegation.messages.base import Answer, Command, WireModel, new_com_uuid
 
 
 class TaskStatus(StrEnum):
@@ -43,12 +43,10 @@ class Signal(StrEnum):
 SIGNALS: tuple[str, ...] = tuple(s.value for s in Signal)
 
 
-class Ping(WireModel):
+class Ping(Command):
     """``ping``: answered with ``pong`` (seed 12.2.1; also accepted on tst and delegation)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["ping"] = "ping"
-    sender: str = ""
 
 
 class TaskSpecMsg(WireModel):
@@ -58,58 +56,46 @@ class TaskSpecMsg(WireModel):
     params: dict[str, Any] = Field(default_factory=dict)
 
 
-class StartTask(WireModel):
+class StartTask(Command):
     """``start-task`` (seed 10): run one task on ``execution-unit``."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["start-task"] = "start-task"
     execution_unit: str
-    sender: str = ""
     task: TaskSpecMsg
     task_uuid: str | None = None
 
 
-class SignalTask(WireModel):
+class SignalTask(Command):
     """``signal-task`` (seed 12.2.2): ``$abort``, ``$enough``, ``$pause``, ``$continue`` or a
     task-specific signal."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["signal-task"] = "signal-task"
-    sender: str = ""
     signal: str
     task_uuid: str
 
 
-class SignalExecutor(WireModel):
+class SignalExecutor(Command):
     """``signal-executor`` (seed 12.2.2's second example): a signal to the executor itself."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["signal-executor"] = "signal-executor"
-    sender: str = ""
     signal: str
     uuid: str | None = None
 
 
-class QueryStatus(WireModel):
+class QueryStatus(Command):
     """``query-status`` (seed 12.1): the status of a task (running, failed, success, unknown)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["query-status"] = "query-status"
-    sender: str = ""
     task_uuid: str
 
 
-class ExecResponse(WireModel):
+class ExecResponse(Answer):
     """A unit's answer on ``exec/response`` (seed 12.3): ``pong``, ``running``, ``failed``, ...
 
     ``fail-reason`` is always written except on ``pong``, which the seed shows without it.
     """
 
     agent_uuid: str = ""
-    com_uuid: str = Field(default_factory=new_com_uuid)
-    fail_reason: str = ""
-    response: str
-    response_to: str
     task_uuid: str | None = None
 
     def omit_when_empty(self) -> frozenset[str]:

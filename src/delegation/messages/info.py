@@ -86,12 +86,17 @@ class TaskExecuting(WireModel):
         return value
 
 
-class DirectExecutionInfo(WireModel):
-    """Seed 5.3: the tasks a unit offers and runs; a heartbeat for the direct execution level."""
+class LevelInfo(WireModel):
+    """What every level's info message carries: the unit, how often it is sent, and when."""
 
     name: str
     rate: float
     stamp: float
+
+
+class DirectExecutionInfo(LevelInfo):
+    """Seed 5.3: the tasks a unit offers and runs; a heartbeat for the direct execution level."""
+
     tasks_available: list[TaskAvailable] = Field(default_factory=list)
     tasks_executing: list[TaskExecuting] = Field(default_factory=list)
     type: Literal["DirectExecutionInfo"] = "DirectExecutionInfo"
@@ -104,23 +109,17 @@ class DirectExecutionInfo(WireModel):
         return [] if value is None else value
 
 
-class TstExecutionInfo(WireModel):
+class TstExecutionInfo(LevelInfo):
     """Info for the TST execution level (the seed names the level, not the message): the root
     uuids of the trees this engine is executing."""
 
-    name: str
-    rate: float
-    stamp: float
     trees_executing: list[str] = Field(default_factory=list)
     type: Literal["TstExecutionInfo"] = "TstExecutionInfo"
 
 
-class DelegationInfo(WireModel):
+class DelegationInfo(LevelInfo):
     """Info for the delegation level (ours, docs/protocol.md §2): what the service offers."""
 
-    name: str
-    rate: float
-    stamp: float
     strategies: list[str] = Field(default_factory=list)
     objectives: list[str] = Field(default_factory=list)
     missions_active: int = 0

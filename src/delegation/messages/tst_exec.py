@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from delegation.messages.base import WireModel, new_com_uuid
+from delegation.messages.base import Answer, Command, WireModel, new_com_uuid
 
 
 class NodeStatus(StrEnum):
@@ -34,58 +34,46 @@ TERMINAL_NODE_STATUSES: frozenset[NodeStatus] = frozenset(
 )
 
 
-class StartTst(WireModel):
+class StartTst(Command):
     """``start-tst`` (seed 11): execute a tree (fully instantiated for an engine, partially for a
     delegator)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["start-tst"] = "start-tst"
     receiver: str | None = None
-    sender: str = ""
     tst: dict[str, Any]
 
 
-class SignalTstNode(WireModel):
+class SignalTstNode(Command):
     """``signal-tst-node`` (seed 14.3.1): a signal to one node."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["signal-tst-node"] = "signal-tst-node"
     node_uuid: str
-    sender: str = ""
     signal: str
 
 
-class SignalTstTree(WireModel):
+class SignalTstTree(Command):
     """``signal-tst-tree`` (seed 14.3.2): a signal to every node of the tree under ``node-uuid``."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["signal-tst-tree"] = "signal-tst-tree"
     node_uuid: str
-    sender: str = ""
     signal: str
 
 
-class SignalUnit(WireModel):
+class SignalUnit(Command):
     """``signal-unit`` (seed 14.3.3): a signal to every running node on ``unit`` (``/dji21``)."""
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
     command: Literal["signal-unit"] = "signal-unit"
-    sender: str = ""
     signal: str
     unit: str
 
 
-class TstResponse(WireModel):
+class TstResponse(Answer):
     """The answer on ``tst/response`` (seed 14.4): ``ok``, ``started`` (with ``root-uuid``),
     ``failed`` (with ``fail-reason``), ``pong``.
 
     The seed writes ``fail-reason`` on ``started``/``failed`` and leaves it out of ``ok``/``pong``.
     """
 
-    com_uuid: str = Field(default_factory=new_com_uuid)
-    fail_reason: str = ""
-    response: str
-    response_to: str
     root_uuid: str | None = None
 
     def omit_when_empty(self) -> frozenset[str]:

@@ -6,7 +6,7 @@ demo`` after a run and reusable by the benchmark for any plan. Rendering only: i
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,6 +72,10 @@ def _route_points(node: TstNode, unit: UnitState) -> list[GeoPoint]:
     return task_path(node, unit, frame)
 
 
+#: Map coordinates (east, north in metres) of a position.
+_XY = Callable[[GeoPoint], tuple[float, float]]
+
+
 def render_map(
     plan: PlanLike | Mapping[str, Any],
     units: Sequence[UnitState],
@@ -87,7 +91,6 @@ def render_map(
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.patches import Circle, Polygon
 
     data = _plan_json(plan)
     tree = parse_tree(data["tst"]) if isinstance(data.get("tst"), dict) else None
@@ -103,10 +106,7 @@ def render_map(
         all_pts += shape.points
     for pts in tracks.values():
         all_pts += list(pts)
-    frame = LocalFrame.around(all_pts)
-
-    def xy(p: GeoPoint) -> tuple[float, float]:
-        return frame.point_xy(p)
+    xy: _XY = LocalFrame.around(all_pts).point_xy
 
     # A bare Figure on the Agg canvas: no pyplot global state, safe off the main thread.
     fig = Figure(figsize=(9, 8), dpi=110)
@@ -115,7 +115,29 @@ def render_map(
     cmap = matplotlib.colormaps["tab10"]
     colour = {u.name: cmap(i % 10) for i, u in enumerate(units)}
 
-    # Tasks: areas and circles shaded, paths dotted, points and look-at targets crossed.
+    _draw_tasks(ax, shapes, xy)
+    _draw_routes(ax, data, units, nodes, colour, xy)
+    _draw_units(ax, units, tracks, colour, xy)
+
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    makespan = float(data.get("makespan") or 0.0)
+    heading = title or f"{data.get('strategy', '')} plan, makespan {makespan:.0f} s"
+    legend = "  (dashed: planned, solid: flown)" if tracks else "  (planned routes)"
+    ax.set_title(heading + legend, fontsize=10)
+    ax.grid(True, alpha=0.3)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, format="png")
+    return out
+
+
+def _draw_tasks(ax: Any, shapes: Sequence[_Shape], xy: _XY) -> None:
+    """Tasks: areas and circles shaded, paths dotted, points and look-at targets crossed."""
+    from matplotlib.patches import Circle, Polygon
+
     for shape in shapes:
         g = shape.geometry
         if g.circle is not None:
@@ -137,7 +159,16 @@ def render_map(
             ax.annotate(shape.name, xy(shape.label_at), fontsize=7, color="dimgrey",
                         xytext=(4, -10), textcoords="offset points")
 
-    # Planned routes: unit position -> each assigned task in order -> home.
+
+def _draw_routes(
+    ax: Any,
+    data: Mapping[str, Any],
+    units: Sequence[UnitState],
+    nodes: Mapping[str, TstNode],
+    colour: Mapping[str, Any],
+    xy: _XY,
+) -> None:
+    """Planned routes, dashed: unit position -> each assigned task in order -> home."""
     routes: dict[str, list[dict[str, Any]]] = {}
     for a in data.get("assignments", []):
         routes.setdefault(str(a.get("execunit", "")).strip("/"), []).append(a)
@@ -157,14 +188,20 @@ def render_map(
         ax.plot(line[:, 0], line[:, 1], ls="--", lw=1.2, color=colour[unit_name], alpha=0.9,
                 zorder=3)
 
-    # Flown tracks.
+
+def _draw_units(
+    ax: Any,
+    units: Sequence[UnitState],
+    tracks: Mapping[str, Sequence[GeoPoint]],
+    colour: Mapping[str, Any],
+    xy: _XY,
+) -> None:
+    """Flown tracks (solid), units at their start positions, and their homes."""
     for unit_name, pts in tracks.items():
         if len(pts) >= 2:
             line = np.array([xy(p) for p in pts])
             ax.plot(line[:, 0], line[:, 1], lw=2.5, color=colour.get(unit_name, "black"),
                     alpha=0.45, zorder=2)
-
-    # Units (start positions) and homes.
     for u in units:
         ux, uy = xy(u.position)
         ax.plot([ux], [uy], "o", color=colour[u.name], ms=8, mec="black", zorder=4)
@@ -172,17 +209,3 @@ def render_map(
         if u.home is not None:
             hx, hy = xy(u.home)
             ax.plot([hx], [hy], "s", color=colour[u.name], ms=6, mec="black", alpha=0.7)
-
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
-    makespan = float(data.get("makespan") or 0.0)
-    heading = title or f"{data.get('strategy', '')} plan, makespan {makespan:.0f} s"
-    legend = "  (dashed: planned, solid: flown)" if tracks else "  (planned routes)"
-    ax.set_title(heading + legend, fontsize=10)
-    ax.grid(True, alpha=0.3)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, format="png")
-    return out

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Self
 
 from delegation.errors import DelegationError
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 
 log = logging.getLogger(__name__)
@@ -82,7 +83,7 @@ def wait_for_port(host: str, port: int, deadline: float) -> bool:
     return False
 
 
-class _Amqtt(ABC):
+class _Amqtt(StartStop, ABC):
     """What the two ways of running amqtt share: loopback only, 3.1.1 settings, a context."""
 
     kind = "amqtt"
@@ -105,12 +106,6 @@ class _Amqtt(ABC):
     def settings(self) -> BrokerSettings:
         """Client settings for this broker (MQTT 3.1.1: amqtt speaks nothing else)."""
         return BrokerSettings(host=self.host, port=self.port, protocol="3.1.1")
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
 class EmbeddedBroker(_Amqtt):
@@ -369,7 +364,7 @@ def mosquitto_binary() -> str | None:
     return None
 
 
-class PrivateMosquitto:
+class PrivateMosquitto(StartStop):
     """A mosquitto child process on a free loopback port, with the settings docs/protocol.md §10
     asks for."""
 
@@ -522,12 +517,6 @@ class PrivateMosquitto:
     def settings(self) -> BrokerSettings:
         """Client settings (anonymous, and without TLS trust: add those for such a broker)."""
         return BrokerSettings(host=self.host, port=self.port, protocol="5", tls=self.tls)
-
-    def __enter__(self) -> PrivateMosquitto:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
 #: Either kind of broker we start ourselves.

@@ -21,6 +21,7 @@ from typing import Any
 from delegation.errors import DelegationError
 from delegation.geo import GeoPoint
 from delegation.messages import json_value, new_com_uuid, parse_sensor
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.mqtt import Message, MqttClient
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import (
@@ -58,7 +59,7 @@ class Event:
     at: float
 
 
-class ServiceClient:
+class ServiceClient(StartStop):
     """Talks to the service named ``service`` under ``prefix`` on a broker."""
 
     def __init__(
@@ -107,12 +108,6 @@ class ServiceClient:
 
     def stop(self) -> None:
         self.client.disconnect()
-
-    def __enter__(self) -> ServiceClient:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # ---- receiving (paho's thread: decode and hand over only)
 

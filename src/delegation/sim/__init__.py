@@ -8,7 +8,7 @@ scenario agent.
 
 from delegation.sim.core import SIM_SIGNALS, SimCore, SimUnitCore
 from delegation.sim.example_agent import EXAMPLE_AGENT_POLICY, ExampleAgentCore
-from delegation.sim.fleet import SimFleet
+from delegation.sim.fleet import SimFleet, agent_rates
 from delegation.sim.unit import SimUnit
 from delegation.sim.vehicle import (
     ALREADY_RUNNING,
@@ -35,4 +35,5 @@ __all__ = [
     "TaskEvent",
     "TaskState",
     "VehiclePolicy",
+    "agent_rates",
 ]

@@ -17,6 +17,8 @@ from __future__ import annotations
 import logging
 import uuid
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from functools import cached_property
 from typing import ClassVar
 
 from delegation.fleet import UnitState
@@ -165,24 +167,27 @@ class SimCore(ABC):
     def _status(self, stamp: float) -> list[Outgoing]:
         """Heartbeat, info and sensor messages stamped ``stamp`` (wall seconds)."""
 
+    def _infos(
+        self, stamp: float, sensors: Sequence[str], info: DirectExecutionInfo
+    ) -> tuple[SensorInfo, DirectExecutionInfo]:
+        """The sensor info naming ``sensors``, and ``info`` offering the unit's tasks with the
+        signals the simulation understands."""
+        sensor_info = SensorInfo(
+            name=self.name, rate=self.rate, sensor_data_provided=list(sensors), stamp=stamp
+        )
+        info.tasks_available = [
+            TaskAvailable(name=t, signals=list(SIM_SIGNALS)) for t in sorted(self.unit.tasks)
+        ]
+        return sensor_info, info
+
 
 class SimUnitCore(SimCore):
     """A simulated unit speaking the seed's Direct Execution API, with com-uuid idempotency."""
 
-    def __init__(
-        self,
-        unit: UnitState,
-        *,
-        prefix: str = DEFAULT_PREFIX,
-        role: str = "simulation",
-        rate: float | None = None,
-        speedup: float = 1.0,
-        agent_uuid: str | None = None,
-    ) -> None:
-        super().__init__(
-            unit, prefix=prefix, role=role, rate=rate, speedup=speedup, agent_uuid=agent_uuid
-        )
-        self.commands = CommandLog()
+    @cached_property
+    def commands(self) -> CommandLog:
+        """The commands seen, by (face, com-uuid): a re-sent one gets the same answer again."""
+        return CommandLog()
 
     # ---- commands
 
@@ -269,18 +274,9 @@ class SimUnitCore(SimCore):
 
     def _status(self, stamp: float) -> list[Outgoing]:
         ident, v = self.identity, self.vehicle
-        info = _AlwaysListsExecuting(
-            name=self.name,
-            rate=self.rate,
-            stamp=stamp,
-            tasks_available=[
-                TaskAvailable(name=t, signals=list(SIM_SIGNALS)) for t in sorted(self.unit.tasks)
-            ],
-            tasks_executing=[TaskExecuting(task_name=n, task_uuid=u) for n, u in v.executing()],
-        )
-        sensors = SensorInfo(
-            name=self.name, rate=self.rate, sensor_data_provided=list(SENSORS), stamp=stamp
-        )
+        running = [TaskExecuting(task_name=n, task_uuid=u) for n, u in v.executing()]
+        sensors, info = self._infos(stamp, SENSORS, _AlwaysListsExecuting(
+            name=self.name, rate=self.rate, stamp=stamp, tasks_executing=running))
         out = [
             heartbeat(ident, ["sensor", "direct execution"], stamp),
             Outgoing.of(ident.topic("sensor_info"), sensors, QOS_PERIODIC),

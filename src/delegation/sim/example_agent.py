@@ -22,9 +22,9 @@ import logging
 import uuid
 from typing import Any, ClassVar
 
-from delegation.messages import DirectExecutionInfo, SensorInfo, TaskAvailable
+from delegation.messages import DirectExecutionInfo
 from delegation.runtime.core import Effects, Outgoing, heartbeat
-from delegation.sim.core import SIM_SIGNALS, SimCore
+from delegation.sim.core import SimCore
 from delegation.sim.vehicle import TaskState, VehiclePolicy
 from delegation.topics import QOS_PERIODIC
 
@@ -129,17 +129,9 @@ class ExampleAgentCore(SimCore):
 
     def _status(self, stamp: float) -> list[Outgoing]:
         ident, v = self.identity, self.vehicle
-        sensors = SensorInfo(
-            name=self.name, rate=self.rate, sensor_data_provided=list(SENSORS), stamp=stamp
-        )
         # No tasks_executing: the model leaves the empty list out, as the example agent does.
-        info = DirectExecutionInfo(
-            name=self.name,
-            rate=self.rate,
-            stamp=stamp,
-            tasks_available=[
-                TaskAvailable(name=t, signals=list(SIM_SIGNALS)) for t in sorted(self.unit.tasks)
-            ],
+        sensors, info = self._infos(
+            stamp, SENSORS, DirectExecutionInfo(name=self.name, rate=self.rate, stamp=stamp)
         )
         pos = v.position
         position = {

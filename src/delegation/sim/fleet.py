@@ -6,6 +6,7 @@ import logging
 from collections.abc import Iterator, Mapping, Sequence
 
 from delegation.fleet import UnitState
+from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.settings import BrokerSettings
 from delegation.scenario import Scenario
 from delegation.sim.unit import SimUnit
@@ -14,8 +15,14 @@ from delegation.topics import DEFAULT_PREFIX
 log = logging.getLogger(__name__)
 
 
-class SimFleet:
-    """Simulated units for a list of `UnitState`s (or a scenario's agents, with their rates)."""
+def agent_rates(scenario: Scenario) -> dict[str, float]:
+    """The status rates a scenario gives its agents (those it gives one)."""
+    return {a.name: a.rate for a in scenario.agents if a.rate is not None}
+
+
+class SimFleet(StartStop):
+    """Simulated units for a list of `UnitState`s (a scenario's: ``scenario.units()`` with
+    ``rates=agent_rates(scenario)``)."""
 
     def __init__(
         self,
@@ -46,28 +53,6 @@ class SimFleet:
                 example_agent=example_agent,
             )
 
-    @classmethod
-    def from_scenario(
-        cls,
-        settings: BrokerSettings,
-        scenario: Scenario,
-        *,
-        prefix: str = DEFAULT_PREFIX,
-        role: str = "simulation",
-        speedup: float = 1.0,
-        example_agent: bool = False,
-    ) -> SimFleet:
-        rates = {a.name: a.rate for a in scenario.agents if a.rate is not None}
-        return cls(
-            settings,
-            scenario.units(),
-            prefix=prefix,
-            role=role,
-            speedup=speedup,
-            rates=rates,
-            example_agent=example_agent,
-        )
-
     def start(self, timeout: float = 10.0) -> SimFleet:
         """Start every unit; if one fails, stop those already started and re-raise."""
         started: list[SimUnit] = []
@@ -94,9 +79,3 @@ class SimFleet:
 
     def __len__(self) -> int:
         return len(self.units)
-
-    def __enter__(self) -> SimFleet:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

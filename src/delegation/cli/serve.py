@@ -1,0 +1,137 @@
+"""``delegation serve``: the delegation service on a broker, its state in a store, optionally
+with the operator page."""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from contextlib import ExitStack
+from typing import Any
+
+from delegation.cli.connect import add_broker_args, client_settings
+from delegation.cli.inputs import read_profiles
+from delegation.cli.options import fraction
+from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
+from delegation.cli.ui import add_http_args
+from delegation.topics import AGENT_TYPES, ROLES
+
+
+def register(subparsers: Any) -> None:
+    serve = subparsers.add_parser("serve", help="run the delegation service on a broker")
+    _service_args(serve)
+    serve.add_argument(
+        "--state",
+        default=None,
+        metavar="PATH|DSN",
+        help="where missions and answers survive a restart: an SQLite file (default "
+        "$XDG_STATE_HOME/delegation/NAME.sqlite, ~/.local/state when unset; ':memory:' keeps "
+        "nothing) or postgresql://... (shared: one instance active, the others stand by)",
+    )
+    serve.add_argument(
+        "--retention",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="ended missions leave memory after this long (they stay in the store; default 600)",
+    )
+    serve.add_argument(
+        "--operator",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="may query, cancel and signal every mission (repeatable)",
+    )
+    serve.add_argument(
+        "--max-speed",
+        type=float,
+        default=100.0,
+        metavar="M/S",
+        help="the highest explicit speed a task may ask for (default 100)",
+    )
+    add_http_args(serve, default=None)
+    add_broker_args(serve)
+    serve.set_defaults(func=_serve)
+
+
+def _service_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--name", default="delegator0", help="the service's unit name")
+    p.add_argument("--engine", default="op0", help="the TST engine's unit name")
+    p.add_argument(
+        "--strategy",
+        default="auction",
+        choices=STRATEGY_CHOICES,
+        help="default strategy for start-tst",
+    )
+    p.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
+    p.add_argument("--time-limit", type=float, default=2.0)
+    p.add_argument("--agent-type", default="ground", choices=AGENT_TYPES,
+                   help="agent-type in the heartbeat topic (default ground)")
+    p.add_argument("--role", default="simulation", choices=ROLES,
+                   help="role level of the topic (default simulation)")
+    p.add_argument(
+        "--profiles",
+        default=None,
+        metavar="FILE",
+        help="what heartbeats do not tell (speeds, endurance, home, camera): a "
+        "scenario file (its agents) or a YAML/JSON object keyed by unit name or "
+        "agent type",
+    )
+    p.add_argument("--min-battery", type=fraction, default=0.2, metavar="FRACTION",
+                   help="units with a battery below this (0..1) are not planned for")
+    p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
+                   help="a unit busy in another mission: planned from when and where it is free "
+                   "(wait), left out (exclude), or ignored (share)")
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from delegation.service import ServiceConfig
+    from delegation.service.active import run_active
+    from delegation.service.store import default_state_path, open_store
+
+    settings = client_settings(args)
+    config = ServiceConfig(
+        name=args.name,
+        prefix=args.prefix,
+        engine=args.engine,
+        strategy=args.strategy,
+        objective=args.objective,
+        time_limit=args.time_limit,
+        agent_type=args.agent_type,
+        role=args.role,
+        profiles=read_profiles(args.profiles) if args.profiles else None,
+        min_battery=args.min_battery,
+        commitments=args.commitments,
+        operators=frozenset(args.operator),
+        max_speed=args.max_speed,
+    )
+    if args.http:
+        from delegation.cli.ui import page_options
+
+        page_options(args)  # usage errors before the store is opened
+    store = open_store(args.state or str(default_state_path(config.name)))
+    page = ExitStack()
+    if args.http:
+        from delegation.cli.ui import start_page
+
+        try:
+            server = start_page(page, args, settings, prefix=config.prefix, service=config.name)
+        except BaseException:
+            page.close()
+            store.close()
+            raise
+        print(f"operator page on {server.url}", flush=True)
+    print(
+        f"{config.name} serving on {settings.describe()} at {config.base_topic} "
+        f"(engine {config.engine}, state {store.where}); Ctrl-C stops",
+        flush=True,
+    )
+    try:
+        # Serves until SIGINT/SIGTERM (`cli.options.Stopped` is raised in the wait), or exits 1
+        # when the lock on a shared store is lost.
+        code = run_active(settings, config, store, threading.Event(), retention=args.retention,
+                          announce=lambda text: print(text, flush=True))
+    finally:
+        page.close()
+        store.close()
+        print(f"{config.name} stopped", flush=True)
+    return code
