@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+import tracemalloc
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ from delegation.web.app import create_app
 from delegation.web.auth import read_users
 from delegation.web.bridge import Bridge
 from delegation.web.server import WebServer
+from test_safe_yaml import bomb
 
 pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
 
@@ -291,6 +293,37 @@ def test_bad_input_is_400_naming_the_field(page: Page) -> None:
     assert strategy.status_code == 400 and "strategy" in strategy.json()["fail-reason"]
     unknown = page.get(f"/api/missions/{uuid.uuid4()}")
     assert unknown.status_code == 404 and "unknown mission" in unknown.json()["fail-reason"]
+
+
+def test_an_alias_bomb_or_a_body_too_large_is_refused_with_memory_bounded(page: Page) -> None:
+    """Issue 23: an alias bomb in an unvalidated field passed validation and was expanded when
+    forwarded (+183 MB, 504); bodies were read whole however large; a mission sent as an object
+    skipped the text limit."""
+    before = len(page.get("/api/state").json()["missions"])
+    tracemalloc.start()
+    try:
+        answers = [page.post(path, {"mission": bomb(9)}) for path in ("/api/plan",
+                                                                    "/api/missions")]
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    for answer in answers:
+        assert answer.status_code == 400, answer.text
+        assert "anchors and aliases" in answer.json()["fail-reason"]
+    assert peak < 4_000_000, f"{peak / 1e6:.1f} MB traced while refusing the bomb"
+    big_text = {"mission": "name: move-to\n" + "#" * 300_000}
+    big_object = {"mission": {**far_mission(), "meta": ["x" * 1000] * 300}}
+    for body in (big_text, big_object):
+        for path in ("/api/plan", "/api/missions"):
+            answer = page.post(path, body)
+            assert answer.status_code == 413, answer.text
+    auth = {"Authorization": f"Bearer {ALICE}", "Content-Type": "application/json"}
+    streamed = page.http.post("/api/missions", headers=auth,  # chunked: no Content-Length
+                              content=(b" " * 65536 for _ in range(8)))
+    assert streamed.status_code == 413, streamed.text
+    deep = page.http.post("/api/missions", headers=auth, content=b"[" * 100_000)
+    assert deep.status_code == 400, deep.text
+    assert len(page.get("/api/state").json()["missions"]) == before
 
 
 def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:

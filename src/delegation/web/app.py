@@ -30,6 +30,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from delegation.errors import DelegationError, InputError
+from delegation.topics import MAX_PAYLOAD
 from delegation.web.auth import COOKIE, bearer, cross_site_refusal, user_of
 from delegation.web.bridge import OBJECTIVES, STRATEGIES, ApiError, Bridge
 from delegation.web.mission_input import mission_tree
@@ -41,6 +42,8 @@ STATIC = Path(__file__).parent / "static"
 UNITS_EVERY = 0.5
 #: Seconds between keep-alive comments.
 KEEPALIVE = 15.0
+#: Bytes of a request body read: what fits in one command to the service (larger: 413, unread).
+MAX_BODY = MAX_PAYLOAD
 
 Handler = Callable[[Request, str], Awaitable[Response]]
 
@@ -51,6 +54,20 @@ def _error(status: int, reason: str) -> JSONResponse:
 
 def _sse(event: str, data: Any) -> str:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+async def _capped(request: Request) -> bytes:
+    """The body, read only up to `MAX_BODY` bytes (413 beyond, whatever Content-Length says)."""
+    too_long = ApiError(413, f"the body is larger than {MAX_BODY} bytes")
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and int(length) > MAX_BODY:
+        raise too_long
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise too_long
+    return bytes(body)
 
 
 class Page:
@@ -200,8 +217,8 @@ class Page:
         if kind != "application/json":
             raise ApiError(415, "the body must be JSON (Content-Type: application/json)")
         try:
-            body = await request.json()
-        except ValueError:
+            body = json.loads(await _capped(request))
+        except (ValueError, RecursionError):
             raise ApiError(400, "the body must be a JSON object") from None
         if not isinstance(body, dict):
             raise ApiError(400, "the body must be a JSON object")
