@@ -17,6 +17,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
 import queue
 import threading
 import time
@@ -26,7 +27,7 @@ from typing import Any
 
 from delegation.errors import DelegationError
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
-from delegation.runtime.mqtt import Message
+from delegation.runtime.mqtt import Message, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
 from delegation.tst import without_node_uuids
@@ -39,7 +40,30 @@ log = logging.getLogger(__name__)
 STRATEGIES = ("nearest", "auction", "optimal")
 OBJECTIVES = ("makespan", "total")
 _BATTERY = ("battery_state", "battery", "battery_level")
-_loads = json.JSONDecoder().decode  # str in: no encoding detection per message
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text[:20]} is not a finite number")
+    return value
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON")
+
+
+#: str in (no encoding detection per message); NaN, Infinity and 1e400 refused: the page's
+#: streams must stay JSON a browser parses.
+_loads = json.JSONDecoder(parse_float=_finite, parse_constant=_refuse_constant).decode
+
+
+def _decode(payload: bytes) -> Any:
+    """A payload as plain JSON, or None for anything else (too deep, not JSON, huge numbers)."""
+    try:
+        return _loads(payload.decode("utf-8", "replace"))
+    except (ValueError, RecursionError):
+        return None
 #: Unit topics the view reads (everything else a unit sends is not subscribed to).
 _UNIT_TOPICS = ("heartbeat", "direct_execution_info", "sensor/position", "sensor/heading",
                 "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
@@ -129,6 +153,8 @@ class Bridge:
         self._wake_lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ui-cmd")
         self.messages = 0
+        #: Messages the view could not take (see `_take`).
+        self.dropped = 0
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -180,17 +206,26 @@ class Bridge:
 
     def _take(self, msg: Message) -> bool:
         """Apply one message to the view; False hands it to the service client (answers, the
-        service's heartbeat)."""
+        service's heartbeat). A message the view cannot take is dropped and counted: nothing
+        may escape paho's network loop (issue 23)."""
         route = self._route(msg.topic)
         if route is None or not route[0]:
             return False
-        rest, base, name, kind = route
-        if name == self.service:
-            return self._feedback(msg, node=rest == "tst/feedback")
         try:
-            data = _loads(msg.payload.decode("utf-8", "replace"))
-        except ValueError:
-            return True
+            self._apply(msg, *route)
+        except Exception as exc:  # a bug the payload found: drop it, keep the loop
+            self.dropped += 1
+            log.warning("ui: message on %.200s dropped: %s: %.200s", msg.topic,
+                        type(exc).__name__, exc, exc_info=self.dropped == 1)
+        return True
+
+    def _apply(self, msg: Message, rest: str, base: str, name: str, kind: str) -> None:
+        if name == self.service:
+            self._feedback(msg, node=rest == "tst/feedback")
+            return
+        data = _decode(msg.payload)
+        if data is None:
+            return
         now = self.clock()
         self.messages += 1
         with self.lock:
@@ -205,15 +240,11 @@ class Bridge:
                 view.heartbeat(base, name, kind, data, now)
             elif rest == "direct_execution_info":
                 view.execution_info(base, name, kind, data, now)
-        return True
 
-    def _feedback(self, msg: Message, *, node: bool) -> bool:
-        try:
-            data = json.loads(msg.payload)
-        except ValueError:
-            return True
+    def _feedback(self, msg: Message, *, node: bool) -> None:
+        data = _decode(msg.payload)
         if not isinstance(data, dict):
-            return True
+            return
         now = self.clock()
         with self.lock:
             if node:
@@ -224,16 +255,30 @@ class Bridge:
         for root in wanted:
             self._fetch.put(root)
         self.wake()
-        return True
 
     # ------------------------------------------------------------------ background threads
 
     def _ticker(self) -> None:
         while not self._stop.wait(1.0):
+            self._revive()
             with self.lock:
                 lost = self.view.tick(self.clock())
             if lost:
                 self.wake()
+
+    def _revive(self) -> None:
+        """Reconnect when paho's network loop ended (it never restarts by itself): otherwise the
+        page stops updating for good while ``connected`` stays set."""
+        mqtt = self.client.client
+        if mqtt.loop_alive or self._stop.is_set():
+            return
+        log.warning("ui: the MQTT network loop ended; reconnecting")
+        try:
+            mqtt.restart(timeout=5.0)
+        except MqttError as exc:
+            log.warning("ui: reconnecting failed (tried again in a second): %s", exc)
+            return
+        self._fetch.put("")  # what changed meanwhile
 
     def _fetcher(self) -> None:
         while True:

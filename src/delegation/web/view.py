@@ -63,7 +63,10 @@ def number(value: Any, key: str = "") -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range
+        return None
     return v if math.isfinite(v) else None
 
 
