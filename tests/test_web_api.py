@@ -32,6 +32,7 @@ from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
 from delegation.runtime.client import ServiceClient
 from delegation.runtime.mqtt import Message, MqttClient
+from delegation.service.config import ServiceConfig
 from delegation.sim import SimFleet
 from delegation.web.app import create_app
 from delegation.web.auth import read_users
@@ -44,7 +45,7 @@ pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
 FRAME = LocalFrame(57.7605, 16.6815)
 TASKS = ["move-to", "move-path", "search-area", "look-at-position"]
 SPEEDUP = 10.0
-ALICE, BOB = "alice-token-1", "bob-token-22"
+ALICE, BOB, CAROL = "alice-token-1", "bob-token-22", "carol-token-333"  # carol: an operator
 
 
 def pt(x: float, y: float) -> dict[str, Any]:
@@ -131,6 +132,7 @@ class Page:
     prefix: str
     http: httpx.Client
     events: Events
+    users_file: Path
 
     def get(self, path: str, token: str | None = ALICE) -> httpx.Response:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -148,19 +150,21 @@ class Page:
 @pytest.fixture(scope="module")
 def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Page]:
     users_file: Path = tmp_path_factory.mktemp("ui") / "users"
-    users_file.write_text(f"# token name\n{ALICE} alice\n{BOB} bob\n")
+    users_file.write_text(f"# token name\n{ALICE} alice\n{BOB} bob\n{CAROL} carol\n")
     settings = broker.settings()
     prefix = f"ui-{uuid.uuid4().hex[:8]}"
     units = [make_unit(n, "air", FRAME.geopoint(x, 0.0, 30.0), TASKS)
              for n, x in (("dji0", 0.0), ("dji1", 40.0))]
-    with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP) as system:
+    config = ServiceConfig(operators=frozenset({"carol"}))
+    with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP,
+                     config=config) as system:
         bridge = Bridge(settings, prefix=prefix, service=system.config.name).start()
         server = WebServer(create_app(bridge, users=read_users(users_file)), "127.0.0.1",
                            0).start()
         events = Events(server.url, ALICE).start()
         try:
             with httpx.Client(base_url=server.url, timeout=60.0) as http:
-                yield Page(system, server.url, settings, prefix, http, events)
+                yield Page(system, server.url, settings, prefix, http, events, users_file)
         finally:
             events.close()
             server.stop()
@@ -337,6 +341,67 @@ def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
         assert login.status_code == 303 and login.headers["location"] == "/"
         assert browser.cookies.get("delegation-token") == BOB
         assert browser.get("/api/config").json()["user"] == "bob"
+
+
+def test_each_user_sees_what_list_missions_shows_them(page: Page) -> None:
+    """Issue 23: /api/state and the event stream showed every user every mission and owner."""
+    bobs_events = Events(page.url, BOB).start()
+    carols_events = Events(page.url, CAROL).start()
+    try:
+        bobs_events.wait(lambda k, d: k == "snapshot", 10.0, "bob's snapshot")
+        started = page.post("/api/missions", {"mission": near_mission()})
+        assert started.status_code == 200, started.text
+        alices = started.json()["id"]
+        page.mission_status(alices, "succeeded", timeout=60.0)
+        carols_events.wait(lambda k, d: k == "mission" and d.get("id") == alices, 10.0,
+                           "the operator sees alice's mission")
+        theirs = page.post("/api/missions", {"mission": near_mission()}, token=BOB)
+        assert theirs.status_code == 200, theirs.text
+        bobs = theirs.json()["id"]
+        # bob's stream sends in order: once his own mission ended, alice's items went by
+        bobs_events.wait(lambda k, d: k == "mission" and d.get("id") == bobs
+                         and d.get("status") == "succeeded", 60.0, "bob's mission succeeded")
+        with bobs_events.cond:
+            seen = json.dumps(bobs_events.seen)
+        assert alices not in seen and "alice" not in seen
+    finally:
+        bobs_events.close()
+        carols_events.close()
+    for token, sees, hidden in ((BOB, {bobs}, {alices}), (ALICE, {alices}, {bobs}),
+                                (CAROL, {alices, bobs}, set())):
+        state = page.get("/api/state", token=token).json()
+        ids = {m["id"] for m in state["missions"]}
+        assert sees <= ids and not hidden & ids, (token, ids)
+        logged = {e["mission"] for e in state["events"]} - {None}
+        assert logged <= ids, token
+    with ServiceClient(page.settings, prefix=page.prefix, sender="bob") as client:
+        listed = client.request({"command": "list-missions", "limit": 1000})["missions"]
+    shown = {m["id"] for m in page.get("/api/state", token=BOB).json()["missions"]}
+    assert shown == {m["root-uuid"] for m in listed}
+
+
+def test_the_cookie_is_secure_under_tls(page: Page) -> None:
+    plain = page.http.get(f"/?token={BOB}", follow_redirects=False)
+    assert plain.status_code == 303 and "secure" not in plain.headers["set-cookie"].lower()
+    proxied = page.http.get(f"/?token={BOB}", follow_redirects=False,
+                            headers={"X-Forwarded-Proto": "https"})  # a TLS proxy on loopback
+    assert proxied.status_code == 303, proxied.text
+    cookie = proxied.headers["set-cookie"].lower()
+    assert "; secure" in cookie and "httponly" in cookie and "samesite=strict" in cookie
+
+
+def test_a_token_is_revoked_by_editing_the_users_file(page: Page) -> None:
+    original = page.users_file.read_text()
+    assert page.get("/api/config", token=BOB).status_code == 200
+    try:
+        page.users_file.write_text(original.replace(f"{BOB} bob\n", ""))
+        assert page.get("/api/config", token=BOB).status_code == 401
+        assert page.get("/api/config", token=ALICE).json()["user"] == "alice"
+        page.users_file.write_text("not a users file\n")  # unreadable: nobody, until fixed
+        assert page.get("/api/config", token=ALICE).status_code == 401
+    finally:
+        page.users_file.write_text(original)
+    assert page.get("/api/config", token=BOB).json()["user"] == "bob"
 
 
 def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:

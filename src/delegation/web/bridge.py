@@ -360,9 +360,10 @@ class Bridge:
 
     # ------------------------------------------------------------------ reads
 
-    def state(self) -> dict[str, Any]:
+    def state(self, sees: Callable[[str], bool] | None = None) -> dict[str, Any]:
+        """The view's state; with ``sees``, only the missions it allows (`LiveView.state`)."""
         with self.lock:
-            return self.view.state(self.clock())
+            return self.view.state(self.clock(), sees)
 
     # ------------------------------------------------------------------ commands (blocking)
 
@@ -468,6 +469,21 @@ class Bridge:
             {"command": "signal-tst-tree", "node-uuid": root, "signal": signal}, sender,
             api="tst"))
         return str(answer.get("response"))
+
+    def missions_of(self, user: str) -> set[str]:
+        """The root-uuids `list-missions` answers ``user``: what the service lets them see
+        (their own, every one for an operator)."""
+        seen: set[str] = set()
+        offset = 0
+        while True:
+            answer = self._ok(self._request({"command": "list-missions", "limit": 1000,
+                                             "offset": offset}, user))
+            rows = answer.get("missions") or []
+            seen.update(str(r.get("root-uuid")) for r in rows if isinstance(r, dict))
+            following = answer.get("next")
+            if not isinstance(following, int) or following <= offset:
+                return seen
+            offset = following
 
     def mission(self, root: str, sender: str) -> dict[str, Any]:
         """GET /api/missions/{id}: asked of the service as the caller (owners apply), merged
