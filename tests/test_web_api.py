@@ -190,8 +190,13 @@ def test_state_and_the_snapshot_show_the_units(page: Page) -> None:
     assert "move-to" in dji0["tasks-available"] and dji0["track"]
 
 
-def test_plan_gives_a_plan_per_strategy_and_starts_nothing(page: Page) -> None:
-    before = {m["id"] for m in page.get("/api/state").json()["missions"]}
+def test_plan_gives_a_plan_per_strategy_and_stores_nothing(
+        page: Page, collector: Callable[..., Any]) -> None:
+    """Issue 23: every preview stayed in the store as a mission (planned, then aborted), and
+    ``["optimal"] * 500`` sent 500 delegate commands."""
+    commands = collector(f"{page.prefix}/unit/+/+/+/delegation/command/#")  # and .../command
+    page.events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]}
+                     >= {"dji0", "dji1"}, 10.0, "both units' positions")  # routes start there
     answer = page.post("/api/plan", {"mission": near_mission(), "time-limit": 1.0})
     assert answer.status_code == 200, answer.text
     plans = answer.json()["plans"]
@@ -206,15 +211,22 @@ def test_plan_gives_a_plan_per_strategy_and_starts_nothing(page: Page) -> None:
             assert unit in ("dji0", "dji1") and len(route) >= 2
         roots.append(plan["tst"]["common_params"]["node-uuid"])
     assert len(set(roots)) == 3  # each plan its own uuids
-    with ServiceClient(page.settings, prefix=page.prefix, sender="alice") as client:
-        for root in roots:
-            status = client.query_mission(root)["status"]
-            assert status in ("planned", "aborted"), status  # never started
-    after = {m["id"] for m in page.get("/api/state").json()["missions"]}
-    assert not (after - before) & set(roots)
-    one = page.post("/api/plan", {"mission": json.loads(near_mission()),
-                                  "strategies": ["nearest"]})
-    assert set(one.json()["plans"]) == {"nearest"}
+    many = page.post("/api/plan", {"mission": json.loads(near_mission()),
+                                   "strategies": ["nearest"] * 500})
+    assert many.status_code == 200, many.text
+    assert set(many.json()["plans"]) == {"nearest"}
+    roots.append(many.json()["plans"]["nearest"]["tst"]["common_params"]["node-uuid"])
+    delegates = [m for m in commands.messages if b'"delegate"' in m.payload]
+    assert len(delegates) == 4, len(delegates)  # 3 strategies, then one for the 500 copies
+    for sender in ("alice", "carol"):  # carol: an operator, sees every mission
+        with ServiceClient(page.settings, prefix=page.prefix, sender=sender) as client:
+            listed = client.request({"command": "list-missions", "limit": 1000})["missions"]
+            assert not {m["root-uuid"] for m in listed} & set(roots)
+            for root in roots:
+                asked = client.request({"command": "query-mission", "root-uuid": root})
+                assert "unknown mission" in asked["fail-reason"], asked
+    missions = {m["id"] for m in page.get("/api/state", token=CAROL).json()["missions"]}
+    assert not missions & set(roots)
 
 
 def test_a_started_mission_reaches_succeeded_on_the_event_stream(page: Page) -> None:

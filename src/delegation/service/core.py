@@ -523,7 +523,8 @@ class ServiceCore:
         if isinstance(cmd, Delegate):
             options = self._options(cmd.strategy, cmd.objective, cmd.time_limit)
             return self._plan_job("delegation", key, cmd.tst, now, options,
-                                  start=cmd.start, source="delegate")
+                                  start=cmd.start and not cmd.preview,
+                                  source="preview" if cmd.preview else "delegate")
         if isinstance(cmd, GetBids):
             return self._plan_job("delegation", key, cmd.tst, now, self._options(None, None, None),
                                   start=False, source="bids", kind="bids")
@@ -655,6 +656,9 @@ class ServiceCore:
                 return self._fail("tst", job.key, job.com_uuid, reason)
             return self._respond("delegation", job.key, DelegationResponse(
                 response="failed", response_to=job.com_uuid, fail_reason=reason, plan=plan_json))
+        if job.source == "preview":  # answered, never stored as a mission
+            return self._respond("delegation", job.key, DelegationResponse(
+                response="ok", response_to=job.com_uuid, plan=plan_json))
         conflicts = self.book.conflicts(plan.tst)
         if conflicts:  # a twin command with the same tree was planned meanwhile
             return self._fail(job.face, job.key, job.com_uuid, InputError(conflicts).fail_reason)

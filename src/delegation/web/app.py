@@ -133,6 +133,8 @@ class Page:
         self.static = static
         #: Set by the server when it stops: streams end within their 500 ms tick.
         self.stopping = threading.Event()
+        #: Users with a plan preview in flight (one each; event-loop thread only).
+        self._previewing: set[str] = set()
 
     # ---- auth
 
@@ -288,14 +290,23 @@ class Page:
         return value
 
     async def plan(self, request: Request, user: str) -> Response:
+        """Previews: each strategy once, one request in flight per user (429 beyond): one
+        request must not hold the page's threads and the service's planner for hours."""
         body = await self._body(request)
         tree = mission_tree(body.get("mission"))
         strategies = body.get("strategies") or list(self.strategies)
         if not isinstance(strategies, list):
             raise ApiError(400, "strategies: must be a list")
-        chosen = [self._strategy(s) for s in strategies]
+        chosen = list(dict.fromkeys(self._strategy(s) for s in strategies))
         objective, limit = self._options(body)
-        plans = await run_in_threadpool(self.bridge.plan, tree, chosen, objective, limit, user)
+        if user in self._previewing:
+            raise ApiError(429, "a plan preview of yours is in flight: wait for its answer")
+        self._previewing.add(user)
+        try:
+            plans = await run_in_threadpool(self.bridge.plan, tree, chosen, objective, limit,
+                                            user)
+        finally:
+            self._previewing.discard(user)
         return JSONResponse({"plans": plans})
 
     async def start(self, request: Request, user: str) -> Response:

@@ -382,23 +382,17 @@ class Bridge:
 
     def _planned(self, tree: dict[str, Any], strategy: str, objective: str | None,
                  time_limit: float | None, sender: str) -> dict[str, Any]:
-        """One dry-run plan with geometry, or {"fail-reason"}."""
+        """One preview plan with geometry, or {"fail-reason"}: the service answers it and
+        stores nothing (``preview``)."""
         fresh = with_node_uuids(without_node_uuids(tree))
-        with self.lock:  # hidden before the service's "planned" feedback can arrive
-            self.view.hide(node_uuid_of(fresh) or "")
         command: dict[str, Any] = {"command": "delegate", "tst": fresh,
-                                   "strategy": strategy, "start": False}
+                                   "strategy": strategy, "preview": True}
         if objective:
             command["objective"] = objective
         if time_limit:
             command["time-limit"] = time_limit
         answer = self._request(command, sender, timeout=self.request_timeout + (time_limit or 0))
         plan = answer.get("plan")
-        root = ""
-        if isinstance(plan, dict):
-            root = node_uuid_of(plan.get("tst") or {}) or ""
-        if root and answer.get("response") == "ok":  # a planned mission: leave nothing behind
-            self._pool.submit(self._forget, root, sender)
         if answer.get("response") != "ok" or not isinstance(plan, dict):
             out: dict[str, Any] = {"fail-reason": str(answer.get("fail-reason") or "not planned")}
             if isinstance(plan, dict):
@@ -408,13 +402,6 @@ class Bridge:
             starts = self.view.unit_positions()
         routes, tasks = plan_geometry(plan, starts)
         return {**plan, "notes": list(plan.get("notes") or []), "routes": routes, "tasks": tasks}
-
-    def _forget(self, root: str, sender: str) -> None:
-        try:
-            self.client.request({"command": "cancel-mission", "root-uuid": root,
-                                 "sender": sender}, timeout=10.0)
-        except DelegationError as exc:
-            log.info("ui: dry-run mission %s not cancelled: %s", root, exc)
 
     def plan(self, tree: dict[str, Any], strategies: list[str], objective: str | None,
              time_limit: float | None, sender: str) -> dict[str, Any]:
