@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
-import math
 import queue
 import threading
 import time
@@ -26,6 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from delegation.errors import DelegationError
+from delegation.messages.errors import json_value
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
 from delegation.runtime.mqtt import Message, MqttError
 from delegation.runtime.settings import BrokerSettings
@@ -42,28 +41,15 @@ OBJECTIVES = ("makespan", "total")
 _BATTERY = ("battery_state", "battery", "battery_level")
 
 
-def _finite(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"{text[:20]} is not a finite number")
-    return value
-
-
-def _refuse_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not JSON")
-
-
-#: str in (no encoding detection per message); NaN, Infinity and 1e400 refused: the page's
-#: streams must stay JSON a browser parses.
-_loads = json.JSONDecoder(parse_float=_finite, parse_constant=_refuse_constant).decode
-
-
 def _decode(payload: bytes) -> Any:
-    """A payload as plain JSON, or None for anything else (too deep, not JSON, huge numbers)."""
+    """A payload as plain JSON, or None for anything else (not UTF-8, too deep, NaN, 1e400,
+    huge integers): the page's streams must stay JSON a browser parses."""
     try:
-        return _loads(payload.decode("utf-8", "replace"))
-    except (ValueError, RecursionError):
+        return json_value(payload, max_depth=None)
+    except DelegationError:
         return None
+
+
 #: Unit topics the view reads (everything else a unit sends is not subscribed to).
 _UNIT_TOPICS = ("heartbeat", "direct_execution_info", "sensor/position", "sensor/heading",
                 "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
