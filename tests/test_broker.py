@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import logging
 import socket
+import sys
 from pathlib import Path
 
 import pytest
 
 from delegation.runtime.broker import (
     BrokerError,
+    BrokerProcess,
     EmbeddedBroker,
     PrivateMosquitto,
     free_port,
@@ -152,3 +155,29 @@ def test_broker_process_exits_when_its_parent_is_killed() -> None:
             parent.wait(10)
         if parent.stdout:
             parent.stdout.close()
+
+
+class _ChattyChild(BrokerProcess):
+    """A child that says its port, then writes 256 kB of errors (4x a pipe's buffer) and exits:
+    it can exit only if somebody reads what it writes."""
+
+    def _command(self) -> list[str]:
+        script = ("import sys\nprint('port 1', flush=True)\n"
+                  "for k in range(4096): sys.stderr.write(f'error {k}: ' + 'x' * 53 + '\\n')\n"
+                  "sys.stderr.flush()\nprint('more on stdout', flush=True)\n")
+        return [sys.executable, "-c", script]
+
+
+def test_broker_process_output_is_drained_to_the_log(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 23: the child's stderr was piped and never read; after ~64 kB it blocked."""
+    caplog.set_level(logging.INFO, logger="delegation.runtime.broker")
+    child = _ChattyChild().start()
+    proc = child._proc
+    assert proc is not None
+    try:
+        assert proc.wait(timeout=20.0) == 0  # never blocked on a full pipe
+    finally:
+        child.stop()
+    said = [r.getMessage() for r in caplog.records if r.name == "delegation.runtime.broker"]
+    assert any("error 4095: " in m for m in said), said[-3:]
+    assert any("more on stdout" in m for m in said)

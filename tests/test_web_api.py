@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+import tracemalloc
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -31,18 +32,20 @@ from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
 from delegation.runtime.client import ServiceClient
 from delegation.runtime.mqtt import Message, MqttClient
+from delegation.service.config import ServiceConfig
 from delegation.sim import SimFleet
 from delegation.web.app import create_app
 from delegation.web.auth import read_users
 from delegation.web.bridge import Bridge
 from delegation.web.server import WebServer
+from test_safe_yaml import bomb
 
 pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
 
 FRAME = LocalFrame(57.7605, 16.6815)
 TASKS = ["move-to", "move-path", "search-area", "look-at-position"]
 SPEEDUP = 10.0
-ALICE, BOB = "alice-token-1", "bob-token-22"
+ALICE, BOB, CAROL = "alice-token-1", "bob-token-22", "carol-token-333"  # carol: an operator
 
 
 def pt(x: float, y: float) -> dict[str, Any]:
@@ -129,6 +132,7 @@ class Page:
     prefix: str
     http: httpx.Client
     events: Events
+    users_file: Path
 
     def get(self, path: str, token: str | None = ALICE) -> httpx.Response:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -146,19 +150,21 @@ class Page:
 @pytest.fixture(scope="module")
 def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Page]:
     users_file: Path = tmp_path_factory.mktemp("ui") / "users"
-    users_file.write_text(f"# token name\n{ALICE} alice\n{BOB} bob\n")
+    users_file.write_text(f"# token name\n{ALICE} alice\n{BOB} bob\n{CAROL} carol\n")
     settings = broker.settings()
     prefix = f"ui-{uuid.uuid4().hex[:8]}"
     units = [make_unit(n, "air", FRAME.geopoint(x, 0.0, 30.0), TASKS)
              for n, x in (("dji0", 0.0), ("dji1", 40.0))]
-    with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP) as system:
+    config = ServiceConfig(operators=frozenset({"carol"}))
+    with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP,
+                     config=config) as system:
         bridge = Bridge(settings, prefix=prefix, service=system.config.name).start()
         server = WebServer(create_app(bridge, users=read_users(users_file)), "127.0.0.1",
                            0).start()
         events = Events(server.url, ALICE).start()
         try:
             with httpx.Client(base_url=server.url, timeout=60.0) as http:
-                yield Page(system, server.url, settings, prefix, http, events)
+                yield Page(system, server.url, settings, prefix, http, events, users_file)
         finally:
             events.close()
             server.stop()
@@ -184,8 +190,13 @@ def test_state_and_the_snapshot_show_the_units(page: Page) -> None:
     assert "move-to" in dji0["tasks-available"] and dji0["track"]
 
 
-def test_plan_gives_a_plan_per_strategy_and_starts_nothing(page: Page) -> None:
-    before = {m["id"] for m in page.get("/api/state").json()["missions"]}
+def test_plan_gives_a_plan_per_strategy_and_stores_nothing(
+        page: Page, collector: Callable[..., Any]) -> None:
+    """Issue 23: every preview stayed in the store as a mission (planned, then aborted), and
+    ``["optimal"] * 500`` sent 500 delegate commands."""
+    commands = collector(f"{page.prefix}/unit/+/+/+/delegation/command/#")  # and .../command
+    page.events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]}
+                     >= {"dji0", "dji1"}, 10.0, "both units' positions")  # routes start there
     answer = page.post("/api/plan", {"mission": near_mission(), "time-limit": 1.0})
     assert answer.status_code == 200, answer.text
     plans = answer.json()["plans"]
@@ -200,15 +211,22 @@ def test_plan_gives_a_plan_per_strategy_and_starts_nothing(page: Page) -> None:
             assert unit in ("dji0", "dji1") and len(route) >= 2
         roots.append(plan["tst"]["common_params"]["node-uuid"])
     assert len(set(roots)) == 3  # each plan its own uuids
-    with ServiceClient(page.settings, prefix=page.prefix, sender="alice") as client:
-        for root in roots:
-            status = client.query_mission(root)["status"]
-            assert status in ("planned", "aborted"), status  # never started
-    after = {m["id"] for m in page.get("/api/state").json()["missions"]}
-    assert not (after - before) & set(roots)
-    one = page.post("/api/plan", {"mission": json.loads(near_mission()),
-                                  "strategies": ["nearest"]})
-    assert set(one.json()["plans"]) == {"nearest"}
+    many = page.post("/api/plan", {"mission": json.loads(near_mission()),
+                                   "strategies": ["nearest"] * 500})
+    assert many.status_code == 200, many.text
+    assert set(many.json()["plans"]) == {"nearest"}
+    roots.append(many.json()["plans"]["nearest"]["tst"]["common_params"]["node-uuid"])
+    delegates = [m for m in commands.messages if b'"delegate"' in m.payload]
+    assert len(delegates) == 4, len(delegates)  # 3 strategies, then one for the 500 copies
+    for sender in ("alice", "carol"):  # carol: an operator, sees every mission
+        with ServiceClient(page.settings, prefix=page.prefix, sender=sender) as client:
+            listed = client.request({"command": "list-missions", "limit": 1000})["missions"]
+            assert not {m["root-uuid"] for m in listed} & set(roots)
+            for root in roots:
+                asked = client.request({"command": "query-mission", "root-uuid": root})
+                assert "unknown mission" in asked["fail-reason"], asked
+    missions = {m["id"] for m in page.get("/api/state", token=CAROL).json()["missions"]}
+    assert not missions & set(roots)
 
 
 def test_a_started_mission_reaches_succeeded_on_the_event_stream(page: Page) -> None:
@@ -293,6 +311,37 @@ def test_bad_input_is_400_naming_the_field(page: Page) -> None:
     assert unknown.status_code == 404 and "unknown mission" in unknown.json()["fail-reason"]
 
 
+def test_an_alias_bomb_or_a_body_too_large_is_refused_with_memory_bounded(page: Page) -> None:
+    """Issue 23: an alias bomb in an unvalidated field passed validation and was expanded when
+    forwarded (+183 MB, 504); bodies were read whole however large; a mission sent as an object
+    skipped the text limit."""
+    before = len(page.get("/api/state").json()["missions"])
+    tracemalloc.start()
+    try:
+        answers = [page.post(path, {"mission": bomb(9)}) for path in ("/api/plan",
+                                                                    "/api/missions")]
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    for answer in answers:
+        assert answer.status_code == 400, answer.text
+        assert "anchors and aliases" in answer.json()["fail-reason"]
+    assert peak < 4_000_000, f"{peak / 1e6:.1f} MB traced while refusing the bomb"
+    big_text = {"mission": "name: move-to\n" + "#" * 300_000}
+    big_object = {"mission": {**far_mission(), "meta": ["x" * 1000] * 300}}
+    for body in (big_text, big_object):
+        for path in ("/api/plan", "/api/missions"):
+            answer = page.post(path, body)
+            assert answer.status_code == 413, answer.text
+    auth = {"Authorization": f"Bearer {ALICE}", "Content-Type": "application/json"}
+    streamed = page.http.post("/api/missions", headers=auth,  # chunked: no Content-Length
+                              content=(b" " * 65536 for _ in range(8)))
+    assert streamed.status_code == 413, streamed.text
+    deep = page.http.post("/api/missions", headers=auth, content=b"[" * 100_000)
+    assert deep.status_code == 400, deep.text
+    assert len(page.get("/api/state").json()["missions"]) == before
+
+
 def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
     for path in ("/api/config", "/api/state", "/api/events"):
         assert page.get(path, token=None).status_code == 401
@@ -304,6 +353,67 @@ def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
         assert login.status_code == 303 and login.headers["location"] == "/"
         assert browser.cookies.get("delegation-token") == BOB
         assert browser.get("/api/config").json()["user"] == "bob"
+
+
+def test_each_user_sees_what_list_missions_shows_them(page: Page) -> None:
+    """Issue 23: /api/state and the event stream showed every user every mission and owner."""
+    bobs_events = Events(page.url, BOB).start()
+    carols_events = Events(page.url, CAROL).start()
+    try:
+        bobs_events.wait(lambda k, d: k == "snapshot", 10.0, "bob's snapshot")
+        started = page.post("/api/missions", {"mission": near_mission()})
+        assert started.status_code == 200, started.text
+        alices = started.json()["id"]
+        page.mission_status(alices, "succeeded", timeout=60.0)
+        carols_events.wait(lambda k, d: k == "mission" and d.get("id") == alices, 10.0,
+                           "the operator sees alice's mission")
+        theirs = page.post("/api/missions", {"mission": near_mission()}, token=BOB)
+        assert theirs.status_code == 200, theirs.text
+        bobs = theirs.json()["id"]
+        # bob's stream sends in order: once his own mission ended, alice's items went by
+        bobs_events.wait(lambda k, d: k == "mission" and d.get("id") == bobs
+                         and d.get("status") == "succeeded", 60.0, "bob's mission succeeded")
+        with bobs_events.cond:
+            seen = json.dumps(bobs_events.seen)
+        assert alices not in seen and "alice" not in seen
+    finally:
+        bobs_events.close()
+        carols_events.close()
+    for token, sees, hidden in ((BOB, {bobs}, {alices}), (ALICE, {alices}, {bobs}),
+                                (CAROL, {alices, bobs}, set())):
+        state = page.get("/api/state", token=token).json()
+        ids = {m["id"] for m in state["missions"]}
+        assert sees <= ids and not hidden & ids, (token, ids)
+        logged = {e["mission"] for e in state["events"]} - {None}
+        assert logged <= ids, token
+    with ServiceClient(page.settings, prefix=page.prefix, sender="bob") as client:
+        listed = client.request({"command": "list-missions", "limit": 1000})["missions"]
+    shown = {m["id"] for m in page.get("/api/state", token=BOB).json()["missions"]}
+    assert shown == {m["root-uuid"] for m in listed}
+
+
+def test_the_cookie_is_secure_under_tls(page: Page) -> None:
+    plain = page.http.get(f"/?token={BOB}", follow_redirects=False)
+    assert plain.status_code == 303 and "secure" not in plain.headers["set-cookie"].lower()
+    proxied = page.http.get(f"/?token={BOB}", follow_redirects=False,
+                            headers={"X-Forwarded-Proto": "https"})  # a TLS proxy on loopback
+    assert proxied.status_code == 303, proxied.text
+    cookie = proxied.headers["set-cookie"].lower()
+    assert "; secure" in cookie and "httponly" in cookie and "samesite=strict" in cookie
+
+
+def test_a_token_is_revoked_by_editing_the_users_file(page: Page) -> None:
+    original = page.users_file.read_text()
+    assert page.get("/api/config", token=BOB).status_code == 200
+    try:
+        page.users_file.write_text(original.replace(f"{BOB} bob\n", ""))
+        assert page.get("/api/config", token=BOB).status_code == 401
+        assert page.get("/api/config", token=ALICE).json()["user"] == "alice"
+        page.users_file.write_text("not a users file\n")  # unreadable: nobody, until fixed
+        assert page.get("/api/config", token=ALICE).status_code == 401
+    finally:
+        page.users_file.write_text(original)
+    assert page.get("/api/config", token=BOB).json()["user"] == "bob"
 
 
 def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:

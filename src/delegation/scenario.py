@@ -29,6 +29,7 @@ from delegation.fleet import DEFAULT_CAMERA_FOV_DEG, SPEED_KEYS, UnitState, make
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.messages.base import hyphenate
 from delegation.messages.errors import loc_text
+from delegation.safe_yaml import load_yaml
 from delegation.topics import AGENT_TYPES
 from delegation.tst import CATALOGUE, TstNode, parse_and_validate
 
@@ -225,7 +226,9 @@ def read_document(path: str | Path) -> Any:
     source = str(path)
     text = read_text(p)
     try:
-        return json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+        return json.loads(text) if p.suffix.lower() == ".json" else load_yaml(text)
+    except RecursionError:
+        raise InputError(InputProblem(source, "", "nested too deeply")) from None
     except json.JSONDecodeError as exc:
         raise InputError(
             InputProblem(

@@ -20,6 +20,9 @@ AGENT_TYPES: tuple[str, ...] = ("air", "ground", "surface", "subsurface")
 #: Commands, responses and feedback are QoS 1; periodic heartbeats and sensors QoS 0.
 QOS_COMMAND = 1
 QOS_PERIODIC = 0
+#: The largest command or status payload read (bytes), and the largest request body the page
+#: reads: a larger one is refused unread.
+MAX_PAYLOAD = 256 * 1024
 
 
 def _check_levels(value: str, what: str) -> None:

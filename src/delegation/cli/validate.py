@@ -40,10 +40,12 @@ def _as_json(name: str, payload: bytes) -> bytes:
 
     import yaml
 
+    from delegation.safe_yaml import load_yaml
+
     if not name.lower().endswith((".yaml", ".yml")):
         return payload
     try:
-        return json.dumps(yaml.safe_load(payload)).encode("utf-8")
+        return json.dumps(load_yaml(payload)).encode("utf-8")
     except (yaml.YAMLError, TypeError, ValueError, RecursionError):
         return payload  # check_bytes names the problem
 
@@ -56,11 +58,12 @@ def _scenario_summary(name: str, payload: bytes) -> str | None:
     import yaml
 
     from delegation.errors import InputError
+    from delegation.safe_yaml import load_yaml
     from delegation.scenario import scenario_from_dict
 
     try:
         data = (json.loads(payload) if name.lower().endswith(".json")
-                else yaml.safe_load(payload))
+                else load_yaml(payload))
     except (ValueError, RecursionError, yaml.YAMLError):
         return None  # check_bytes says what is wrong
     if not (isinstance(data, dict) and "agents" in data and "mission" in data):

@@ -45,6 +45,10 @@ class Delegate(Command):
     time_limit: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
     #: Strict: ``"yes"`` is no boolean (it once started 17 missions).
     start: StrictBool = False
+    #: A plan to look at (the page's previews): answered with the plan, never stored as a
+    #: mission (nothing to cancel, nothing in ``list-missions``), never started (``start``
+    #: ignored).
+    preview: StrictBool = False
 
 
 class GetBids(Command):

@@ -25,8 +25,9 @@ import tempfile
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from pathlib import Path
-from typing import Any, Self
+from typing import IO, Any, Self
 
 from delegation.errors import DelegationError
 from delegation.runtime.lifecycle import StartStop
@@ -81,6 +82,31 @@ def wait_for_port(host: str, port: int, deadline: float) -> bool:
         except OSError:
             time.sleep(0.05)  # polling a port that is not open yet: nothing to wait on
     return False
+
+
+class _Drain:
+    """Reads a child's output stream to its end on a thread, logging each line: a pipe nobody
+    reads fills (64 kB) and blocks the child's next write. The last lines are kept for an error
+    message when the child does not start."""
+
+    def __init__(self, stream: IO[bytes], name: str, level: int = logging.WARNING) -> None:
+        self.lines: deque[str] = deque(maxlen=20)
+        self._stream, self._name, self._level = stream, name, level
+        self._thread = threading.Thread(target=self._run, name=f"drain-{name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        with contextlib.suppress(OSError, ValueError):  # closed under us: the child is gone
+            for raw in iter(self._stream.readline, b""):
+                line = raw.decode(errors="replace").rstrip()
+                if line:
+                    self.lines.append(line)
+                    log.log(self._level, "%s: %s", self._name, line)
+
+    def text(self, timeout: float = 1.0) -> str:
+        """What it said last (waiting up to ``timeout`` for the child's end of the stream)."""
+        self._thread.join(timeout)
+        return "\n".join(self.lines)
 
 
 class _Amqtt(StartStop, ABC):
@@ -251,26 +277,32 @@ class BrokerProcess(_Amqtt):
     def __init__(self, host: str = LOOPBACK, port: int = 0) -> None:
         super().__init__(host, port)
         self._proc: subprocess.Popen[bytes] | None = None
+        self._drains: list[_Drain] = []
 
     def start(self, timeout: float = 15.0) -> BrokerProcess:
         if self._proc is not None:
             return self
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "delegation.runtime.broker",
-             "--host", self.host, "--port", str(self._requested_port)],
+            self._command(),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
         )
+        assert self._proc.stderr is not None and self._proc.stdout is not None
+        self._drains = [_Drain(self._proc.stderr, "amqtt child")]
         line = _read_line(self._proc, timeout)
+        self._drains.append(_Drain(self._proc.stdout, "amqtt child", logging.INFO))
         if not line.startswith("port "):
-            error = self._proc.stderr.read().decode(errors="replace").strip() if (
-                self._proc.poll() is not None and self._proc.stderr) else ""
+            error = self._drains[0].text() if self._proc.poll() is not None else ""
             self.stop()
             raise BrokerError(f"amqtt did not start within {timeout}s: {error or line or 'silent'}")
         self.port = int(line.split()[1])
         log.info("embedded amqtt broker (own process) on %s:%d", self.host, self.port)
         return self
+
+    def _command(self) -> list[str]:
+        return [sys.executable, "-m", "delegation.runtime.broker",
+                "--host", self.host, "--port", str(self._requested_port)]
 
     def stop(self, timeout: float = 10.0) -> None:
         """Close its stdin (it shuts down and exits), then terminate or kill it if it lingers."""
@@ -284,6 +316,9 @@ class BrokerProcess(_Amqtt):
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
             _end(proc)
+        for drain in self._drains:  # the child is gone: its streams end
+            drain.text()
+        self._drains = []
         for stream in (proc.stdout, proc.stderr):
             if stream:
                 stream.close()
@@ -407,6 +442,7 @@ class PrivateMosquitto(StartStop):
         self._require_certificate = require_certificate
         self._anonymous = "false" if password_file else "true"
         self._proc: subprocess.Popen[bytes] | None = None
+        self._drain: _Drain | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
     def start(
@@ -439,6 +475,8 @@ class PrivateMosquitto(StartStop):
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.PIPE,
             )
+            assert self._proc.stderr is not None
+            self._drain = _Drain(self._proc.stderr, "mosquitto")
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline and self._proc.poll() is None:
                 if wait_for_port(self.host, self.port, min(deadline, time.monotonic() + 0.5)):
@@ -477,8 +515,8 @@ class PrivateMosquitto(StartStop):
 
     def _collect_failure(self, logfile: Path) -> str:
         text = ""
-        if self._proc is not None and self._proc.poll() is not None and self._proc.stderr:
-            text = self._proc.stderr.read().decode(errors="replace").strip()
+        if self._proc is not None and self._proc.poll() is not None and self._drain:
+            text = self._drain.text().strip()
         if not text and logfile.exists():
             text = logfile.read_text(errors="replace").strip()
         return text or "port did not open in time"
@@ -488,8 +526,7 @@ class PrivateMosquitto(StartStop):
         if proc is None:
             return
         _end(proc)
-        if proc.stderr:
-            proc.stderr.close()
+        self._close_stderr(proc)
 
     def _cleanup_dir(self) -> None:
         if self._dir is not None:
@@ -502,7 +539,15 @@ class PrivateMosquitto(StartStop):
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait(5)
-        if proc is not None and proc.stderr:
+        if proc is not None:
+            self._close_stderr(proc)
+
+    def _close_stderr(self, proc: subprocess.Popen[bytes]) -> None:
+        """Once the child is gone: let the drain read the end of its stderr, then close it."""
+        drain, self._drain = self._drain, None
+        if drain is not None:
+            drain.text()
+        if proc.stderr:
             proc.stderr.close()
 
     def stop(self) -> None:

@@ -159,6 +159,8 @@ class MqttClient:
         self.nodelay_sockets = 0
         #: Read the socket in chunks (`_BufferedReadClient`); set before `connect`.
         self.buffered_reads = False
+        #: Exceptions caught in callbacks (each dropped what it was handling).
+        self.callback_errors = 0
 
     # ---- lifecycle
 
@@ -251,6 +253,20 @@ class MqttClient:
             client.disconnect()
         client.loop_stop()
 
+    @property
+    def loop_alive(self) -> bool:
+        """paho's network thread runs (it ends for good on an exception it does not catch)."""
+        client = self._client
+        thread = getattr(client, "_thread", None) if client is not None else None
+        return isinstance(thread, threading.Thread) and thread.is_alive()
+
+    def restart(self, timeout: float = 10.0) -> None:
+        """A new connection and network loop for one whose loop ended (paho never restarts a
+        loop thread that died); subscriptions are renewed. `MqttConnectError` as `connect`."""
+        self.connected.clear()
+        self._shutdown_client()
+        self.connect(timeout)
+
     def disconnect(self) -> None:
         """Disconnect cleanly and stop paho's thread (idempotent)."""
         self._shutdown_client()
@@ -307,19 +323,23 @@ class MqttClient:
     def _on_connect(
         self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any
     ) -> None:
-        code = int(getattr(reason, "value", reason))
-        self._connack_code = code
-        self._connack_reason = str(reason)
-        if code == 0:
-            with self._sub_lock:
-                subs = list(self._subscriptions.items())
-            if subs:
-                client.subscribe(subs)
-            self.connect_count += 1
-            self.connected.set()
-            if self._on_connection is not None:
-                self._on_connection(True, self.connect_count)
-        self._connack.set()
+        try:
+            code = int(getattr(reason, "value", reason))
+            self._connack_code = code
+            self._connack_reason = str(reason)
+            if code == 0:
+                with self._sub_lock:
+                    subs = list(self._subscriptions.items())
+                if subs:
+                    client.subscribe(subs)
+                self.connect_count += 1
+                self.connected.set()
+                if self._on_connection is not None:
+                    self._on_connection(True, self.connect_count)
+        except Exception as exc:
+            self._callback_failed("connect", exc)
+        finally:
+            self._connack.set()
 
     def _on_disconnect(
         self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any
@@ -327,7 +347,20 @@ class MqttClient:
         self.connected.clear()
         log.debug("%s disconnected: %s", self.client_id, reason)
         if self._on_connection is not None:
-            self._on_connection(False, self.connect_count)
+            try:
+                self._on_connection(False, self.connect_count)
+            except Exception as exc:
+                self._callback_failed("disconnect", exc)
 
     def _on_message(self, client: paho.Client, userdata: Any, msg: paho.MQTTMessage) -> None:
-        self._sink(_message_from_paho(msg))
+        try:
+            self._sink(_message_from_paho(msg))
+        except Exception as exc:
+            self._callback_failed(f"a message on {msg.topic[:200]}", exc)
+
+    def _callback_failed(self, what: str, exc: Exception) -> None:
+        """An exception out of a callback would end paho's network loop for good (paho re-raises
+        it): it is logged (the first with its traceback) and counted instead."""
+        self.callback_errors += 1
+        log.error("%s: %s dropped: %s: %.200s", self.client_id, what, type(exc).__name__, exc,
+                  exc_info=self.callback_errors == 1)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from delegation.runtime.core import Identity
-from delegation.topics import DEFAULT_PREFIX, unit_base_topic
+from delegation.topics import DEFAULT_PREFIX, MAX_PAYLOAD, unit_base_topic
 from delegation.tst.validate import Limits
 
 
@@ -54,7 +54,7 @@ class ServiceConfig:
     #: command carries (its per-client command topic, ``sender``, or ``response-topic``).
     operators: frozenset[str] = frozenset()
     #: The largest command or status message read (bytes); a larger one is refused unread.
-    max_payload: int = 256 * 1024
+    max_payload: int = MAX_PAYLOAD
     #: The highest explicit speed (m/s) a task may ask for.
     max_speed: float = 100.0
 

@@ -312,7 +312,8 @@ class ServiceCore:
         if isinstance(cmd, Delegate):
             options = self.planning.options(cmd.strategy, cmd.objective, cmd.time_limit)
             return self.planning.job("delegation", key, cmd.tst, now, options,
-                                     start=cmd.start, source="delegate")
+                                     start=cmd.start and not cmd.preview,
+                                     source="preview" if cmd.preview else "delegate")
         if isinstance(cmd, GetBids):
             return self.planning.job("delegation", key, cmd.tst, now,
                                      self.planning.options(None, None, None),

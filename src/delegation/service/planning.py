@@ -152,6 +152,9 @@ class Planning(MissionPart):
                 return self.desk.fail("tst", job.key, job.com_uuid, reason)
             return self.desk.respond("delegation", job.key, DelegationResponse(
                 response="failed", response_to=job.com_uuid, fail_reason=reason, plan=plan_json))
+        if job.source == "preview":  # answered, never stored as a mission
+            return self.desk.respond("delegation", job.key, DelegationResponse(
+                response="ok", response_to=job.com_uuid, plan=plan_json))
         conflicts = self.book.conflicts(plan.tst)
         if conflicts:  # a twin command with the same tree was planned meanwhile
             return self.desk.fail(job.face, job.key, job.com_uuid,

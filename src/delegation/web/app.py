@@ -30,9 +30,11 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from delegation.errors import DelegationError, InputError
-from delegation.web.auth import COOKIE, bearer, cross_site_refusal, user_of
+from delegation.topics import MAX_PAYLOAD
+from delegation.web.auth import COOKIE, Users, bearer, cross_site_refusal, user_of
 from delegation.web.bridge import OBJECTIVES, STRATEGIES, ApiError, Bridge
 from delegation.web.mission_input import mission_tree
+from delegation.web.view import item_mission
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +43,8 @@ STATIC = Path(__file__).parent / "static"
 UNITS_EVERY = 0.5
 #: Seconds between keep-alive comments.
 KEEPALIVE = 15.0
+#: Bytes of a request body read: what fits in one command to the service (larger: 413, unread).
+MAX_BODY = MAX_PAYLOAD
 
 Handler = Callable[[Request, str], Awaitable[Response]]
 
@@ -51,6 +55,56 @@ def _error(status: int, reason: str) -> JSONResponse:
 
 def _sse(event: str, data: Any) -> str:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+async def _capped(request: Request) -> bytes:
+    """The body, read only up to `MAX_BODY` bytes (413 beyond, whatever Content-Length says)."""
+    too_long = ApiError(413, f"the body is larger than {MAX_BODY} bytes")
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and int(length) > MAX_BODY:
+        raise too_long
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise too_long
+    return bytes(body)
+
+
+async def _seen(sight: Sight, items: list[tuple[int, str, dict[str, Any]]]) -> list[str]:
+    """The stream items ``sight`` allows, as SSE (a unit's events are everyone's)."""
+    about = [(kind, data, item_mission(kind, data)) for _, kind, data in items]
+    await sight.learn({root for _, _, root in about if root is not None})
+    return [_sse(kind, data) for kind, data, root in about if root is None or sight.sees(root)]
+
+
+class Sight:
+    """The missions one user sees on the page: those `list-missions` answers them (the service
+    decides: their own, or every one for an operator), asked again when a mission it was not
+    told of appears. Unknown until asked: nothing is shown that the service did not list."""
+
+    def __init__(self, bridge: Bridge, user: str, *, everything: bool = False) -> None:
+        self.bridge, self.user, self.everything = bridge, user, everything
+        self.ids: set[str] = set()
+        self._asked: set[str] = set()
+
+    async def refresh(self) -> None:
+        if self.everything:
+            return
+        try:
+            self.ids = await run_in_threadpool(self.bridge.missions_of, self.user)
+        except ApiError as exc:  # no service: what was listed before stands
+            log.info("ui: missions of %s not listed: %s", self.user, exc.reason)
+
+    async def learn(self, roots: set[str]) -> None:
+        """Ask again if one of ``roots`` is new to this user's sight."""
+        new = roots - self.ids - self._asked
+        if new and not self.everything:
+            self._asked |= new
+            await self.refresh()
+
+    def sees(self, root: str) -> bool:
+        return self.everything or root in self.ids
 
 
 class Page:
@@ -71,13 +125,16 @@ class Page:
         (`auth.cross_site_refusal`)."""
         self.bridge = bridge
         self.loopback_only = loopback_only
-        self.users = dict(users) if users else None
+        self.users: Mapping[str, str] | None = (
+            users if isinstance(users, Users) else dict(users) if users else None)
         self.tile_url = tile_url
         self.tile_attribution = tile_attribution
         self.strategies = strategies
         self.static = static
         #: Set by the server when it stops: streams end within their 500 ms tick.
         self.stopping = threading.Event()
+        #: Users with a plan preview in flight (one each; event-loop thread only).
+        self._previewing: set[str] = set()
 
     # ---- auth
 
@@ -85,6 +142,8 @@ class Page:
         """The caller's name (the sender of its commands); None when not authenticated."""
         if self.users is None:
             return self.bridge.sender
+        if isinstance(self.users, Users):  # edited on disk: tokens added or revoked
+            self.users = self.users.current()
         token = bearer(request.headers.get("authorization")) or request.cookies.get(COOKIE)
         return user_of(self.users, token)
 
@@ -120,7 +179,8 @@ class Page:
             if user_of(self.users, token) is None:
                 return _error(401, "unknown token")
             response = RedirectResponse("/", status_code=303)
-            response.set_cookie(COOKIE, token, httponly=True, samesite="strict")
+            response.set_cookie(COOKIE, token, httponly=True, samesite="strict",
+                                secure=request.url.scheme == "https")
             return response
         index = self.static / "index.html"
         if not index.is_file():
@@ -137,26 +197,32 @@ class Page:
                              "objectives": list(OBJECTIVES),
                              "time-scale": self.bridge.view.scale})
 
+    def _sight(self, user: str) -> Sight:
+        return Sight(self.bridge, user, everything=self.users is None)
+
     async def state(self, request: Request, user: str) -> Response:
-        return JSONResponse(self.bridge.state())
+        sight = self._sight(user)
+        await sight.refresh()
+        return JSONResponse(self.bridge.state(sight.sees))
 
     async def mission(self, request: Request, user: str) -> Response:
         root = request.path_params["id"]
         return JSONResponse(await run_in_threadpool(self.bridge.mission, root, user))
 
     async def events(self, request: Request, user: str) -> Response:
-        return StreamingResponse(self._stream(), media_type="text/event-stream",
+        return StreamingResponse(self._stream(self._sight(user)), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache",
                                           "X-Accel-Buffering": "no"})
 
-    async def _stream(self) -> AsyncIterator[str]:
+    async def _stream(self, sight: Sight) -> AsyncIterator[str]:
         bridge, view = self.bridge, self.bridge.view
         loop = asyncio.get_running_loop()
         wake = asyncio.Event()
         key = bridge.add_waker(loop, wake)
         try:
+            await sight.refresh()
             with bridge.lock:
-                state = view.state(bridge.clock())
+                state = view.state(bridge.clock(), sight.sees)
             cursor = units_cursor = int(state["seq"])
             yield _sse("snapshot", state)
             last_units = last_sent = loop.time()
@@ -170,13 +236,13 @@ class Page:
                     items = view.items_since(cursor)
                     seq = view.seq
                     units = view.units_since(units_cursor) if due else []
-                    snapshot = view.state(bridge.clock()) if items is None else None
+                    snapshot = view.state(bridge.clock(), sight.sees) if items is None else None
                 out: list[str] = []
                 if snapshot is not None:  # fell behind: start again from a snapshot
                     out.append(_sse("snapshot", snapshot))
                     units_cursor = seq
                 else:
-                    out.extend(_sse(kind, data) for _, kind, data in items or [])
+                    out.extend(await _seen(sight, items or []))
                 if due:
                     last_units = loop.time()
                     if units and snapshot is None:
@@ -200,8 +266,8 @@ class Page:
         if kind != "application/json":
             raise ApiError(415, "the body must be JSON (Content-Type: application/json)")
         try:
-            body = await request.json()
-        except ValueError:
+            body = json.loads(await _capped(request))
+        except (ValueError, RecursionError):
             raise ApiError(400, "the body must be a JSON object") from None
         if not isinstance(body, dict):
             raise ApiError(400, "the body must be a JSON object")
@@ -224,14 +290,23 @@ class Page:
         return value
 
     async def plan(self, request: Request, user: str) -> Response:
+        """Previews: each strategy once, one request in flight per user (429 beyond): one
+        request must not hold the page's threads and the service's planner for hours."""
         body = await self._body(request)
         tree = mission_tree(body.get("mission"))
         strategies = body.get("strategies") or list(self.strategies)
         if not isinstance(strategies, list):
             raise ApiError(400, "strategies: must be a list")
-        chosen = [self._strategy(s) for s in strategies]
+        chosen = list(dict.fromkeys(self._strategy(s) for s in strategies))
         objective, limit = self._options(body)
-        plans = await run_in_threadpool(self.bridge.plan, tree, chosen, objective, limit, user)
+        if user in self._previewing:
+            raise ApiError(429, "a plan preview of yours is in flight: wait for its answer")
+        self._previewing.add(user)
+        try:
+            plans = await run_in_threadpool(self.bridge.plan, tree, chosen, objective, limit,
+                                            user)
+        finally:
+            self._previewing.discard(user)
         return JSONResponse({"plans": plans})
 
     async def start(self, request: Request, user: str) -> Response:

@@ -9,17 +9,64 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
-from collections.abc import Mapping
+import logging
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from urllib.parse import urlsplit
 
 from delegation.errors import InputError, InputProblem
 
+log = logging.getLogger(__name__)
+
 COOKIE = "delegation-token"
 
 
-def read_users(path: str | Path) -> dict[str, str]:
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+class Users(Mapping[str, str]):
+    """token -> name of a users file, as it was last read; `current` reads it again when it
+    changed on disk (revoking a token is editing the file: no restart)."""
+
+    def __init__(self, path: Path, tokens: Mapping[str, str],
+                 stamp: tuple[int, int, int] | None) -> None:
+        self.path = path
+        self._tokens = dict(tokens)
+        self._stamp = stamp
+
+    def __getitem__(self, token: str) -> str:
+        return self._tokens[token]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._tokens)
+
+    def __len__(self) -> int:
+        return len(self._tokens)
+
+    def current(self) -> Users:
+        """These users, or the file's new ones when it changed (one ``stat`` when it did not).
+        A file that no longer reads lets nobody in (logged) until it is fixed."""
+        stamp = _stamp(self.path)
+        if stamp == self._stamp:
+            return self
+        try:
+            fresh = read_users(self.path)
+        except InputError as exc:
+            log.error("ui: users file %s: %s; every token refused until it is fixed",
+                      self.path, exc.fail_reason)
+            return Users(self.path, {}, stamp)
+        log.info("ui: users file %s read again: %d tokens", self.path, len(fresh))
+        return fresh
+
+
+def read_users(path: str | Path) -> Users:
     """token -> name from a users file (``#`` comments and blank lines ignored)."""
+    stamp = _stamp(Path(path))
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -42,7 +89,7 @@ def read_users(path: str | Path) -> dict[str, str]:
         users[token] = name
     if not users:
         raise InputError(InputProblem(str(path), "", "no users (lines 'TOKEN NAME')"))
-    return users
+    return Users(Path(path), users, stamp)
 
 
 def user_of(users: Mapping[str, str], token: str | None) -> str | None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import queue
 import threading
@@ -25,8 +24,9 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from delegation.errors import DelegationError
+from delegation.messages.errors import json_value
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
-from delegation.runtime.mqtt import Message
+from delegation.runtime.mqtt import Message, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
 from delegation.tst import without_node_uuids
@@ -39,7 +39,17 @@ log = logging.getLogger(__name__)
 STRATEGIES = ("nearest", "auction", "optimal")
 OBJECTIVES = ("makespan", "total")
 _BATTERY = ("battery_state", "battery", "battery_level")
-_loads = json.JSONDecoder().decode  # str in: no encoding detection per message
+
+
+def _decode(payload: bytes) -> Any:
+    """A payload as plain JSON, or None for anything else (not UTF-8, too deep, NaN, 1e400,
+    huge integers): the page's streams must stay JSON a browser parses."""
+    try:
+        return json_value(payload, max_depth=None)
+    except DelegationError:
+        return None
+
+
 #: Unit topics the view reads (everything else a unit sends is not subscribed to).
 _UNIT_TOPICS = ("heartbeat", "direct_execution_info", "sensor/position", "sensor/heading",
                 "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
@@ -129,6 +139,8 @@ class Bridge:
         self._wake_lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ui-cmd")
         self.messages = 0
+        #: Messages the view could not take (see `_take`).
+        self.dropped = 0
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -180,17 +192,26 @@ class Bridge:
 
     def _take(self, msg: Message) -> bool:
         """Apply one message to the view; False hands it to the service client (answers, the
-        service's heartbeat)."""
+        service's heartbeat). A message the view cannot take is dropped and counted: nothing
+        may escape paho's network loop (issue 23)."""
         route = self._route(msg.topic)
         if route is None or not route[0]:
             return False
-        rest, base, name, kind = route
-        if name == self.service:
-            return self._feedback(msg, node=rest == "tst/feedback")
         try:
-            data = _loads(msg.payload.decode("utf-8", "replace"))
-        except ValueError:
-            return True
+            self._apply(msg, *route)
+        except Exception as exc:  # a bug the payload found: drop it, keep the loop
+            self.dropped += 1
+            log.warning("ui: message on %.200s dropped: %s: %.200s", msg.topic,
+                        type(exc).__name__, exc, exc_info=self.dropped == 1)
+        return True
+
+    def _apply(self, msg: Message, rest: str, base: str, name: str, kind: str) -> None:
+        if name == self.service:
+            self._feedback(msg, node=rest == "tst/feedback")
+            return
+        data = _decode(msg.payload)
+        if data is None:
+            return
         now = self.clock()
         self.messages += 1
         with self.lock:
@@ -205,15 +226,11 @@ class Bridge:
                 view.heartbeat(base, name, kind, data, now)
             elif rest == "direct_execution_info":
                 view.execution_info(base, name, kind, data, now)
-        return True
 
-    def _feedback(self, msg: Message, *, node: bool) -> bool:
-        try:
-            data = json.loads(msg.payload)
-        except ValueError:
-            return True
+    def _feedback(self, msg: Message, *, node: bool) -> None:
+        data = _decode(msg.payload)
         if not isinstance(data, dict):
-            return True
+            return
         now = self.clock()
         with self.lock:
             if node:
@@ -224,16 +241,30 @@ class Bridge:
         for root in wanted:
             self._fetch.put(root)
         self.wake()
-        return True
 
     # ------------------------------------------------------------------ background threads
 
     def _ticker(self) -> None:
         while not self._stop.wait(1.0):
+            self._revive()
             with self.lock:
                 lost = self.view.tick(self.clock())
             if lost:
                 self.wake()
+
+    def _revive(self) -> None:
+        """Reconnect when paho's network loop ended (it never restarts by itself): otherwise the
+        page stops updating for good while ``connected`` stays set."""
+        mqtt = self.client.client
+        if mqtt.loop_alive or self._stop.is_set():
+            return
+        log.warning("ui: the MQTT network loop ended; reconnecting")
+        try:
+            mqtt.restart(timeout=5.0)
+        except MqttError as exc:
+            log.warning("ui: reconnecting failed (tried again in a second): %s", exc)
+            return
+        self._fetch.put("")  # what changed meanwhile
 
     def _fetcher(self) -> None:
         while True:
@@ -315,9 +346,10 @@ class Bridge:
 
     # ------------------------------------------------------------------ reads
 
-    def state(self) -> dict[str, Any]:
+    def state(self, sees: Callable[[str], bool] | None = None) -> dict[str, Any]:
+        """The view's state; with ``sees``, only the missions it allows (`LiveView.state`)."""
         with self.lock:
-            return self.view.state(self.clock())
+            return self.view.state(self.clock(), sees)
 
     # ------------------------------------------------------------------ commands (blocking)
 
@@ -336,23 +368,17 @@ class Bridge:
 
     def _planned(self, tree: dict[str, Any], strategy: str, objective: str | None,
                  time_limit: float | None, sender: str) -> dict[str, Any]:
-        """One dry-run plan with geometry, or {"fail-reason"}."""
+        """One preview plan with geometry, or {"fail-reason"}: the service answers it and
+        stores nothing (``preview``)."""
         fresh = with_node_uuids(without_node_uuids(tree))
-        with self.lock:  # hidden before the service's "planned" feedback can arrive
-            self.view.hide(node_uuid_of(fresh) or "")
         command: dict[str, Any] = {"command": "delegate", "tst": fresh,
-                                   "strategy": strategy, "start": False}
+                                   "strategy": strategy, "preview": True}
         if objective:
             command["objective"] = objective
         if time_limit:
             command["time-limit"] = time_limit
         answer = self._request(command, sender, timeout=self.request_timeout + (time_limit or 0))
         plan = answer.get("plan")
-        root = ""
-        if isinstance(plan, dict):
-            root = node_uuid_of(plan.get("tst") or {}) or ""
-        if root and answer.get("response") == "ok":  # a planned mission: leave nothing behind
-            self._pool.submit(self._forget, root, sender)
         if answer.get("response") != "ok" or not isinstance(plan, dict):
             out: dict[str, Any] = {"fail-reason": str(answer.get("fail-reason") or "not planned")}
             if isinstance(plan, dict):
@@ -362,13 +388,6 @@ class Bridge:
             starts = self.view.unit_positions()
         routes, tasks = plan_geometry(plan, starts)
         return {**plan, "notes": list(plan.get("notes") or []), "routes": routes, "tasks": tasks}
-
-    def _forget(self, root: str, sender: str) -> None:
-        try:
-            self.client.request({"command": "cancel-mission", "root-uuid": root,
-                                 "sender": sender}, timeout=10.0)
-        except DelegationError as exc:
-            log.info("ui: dry-run mission %s not cancelled: %s", root, exc)
 
     def plan(self, tree: dict[str, Any], strategies: list[str], objective: str | None,
              time_limit: float | None, sender: str) -> dict[str, Any]:
@@ -423,6 +442,21 @@ class Bridge:
             {"command": "signal-tst-tree", "node-uuid": root, "signal": signal}, sender,
             api="tst"))
         return str(answer.get("response"))
+
+    def missions_of(self, user: str) -> set[str]:
+        """The root-uuids `list-missions` answers ``user``: what the service lets them see
+        (their own, every one for an operator)."""
+        seen: set[str] = set()
+        offset = 0
+        while True:
+            answer = self._ok(self._request({"command": "list-missions", "limit": 1000,
+                                             "offset": offset}, user))
+            rows = answer.get("missions") or []
+            seen.update(str(r.get("root-uuid")) for r in rows if isinstance(r, dict))
+            following = answer.get("next")
+            if not isinstance(following, int) or following <= offset:
+                return seen
+            offset = following
 
     def mission(self, root: str, sender: str) -> dict[str, Any]:
         """GET /api/missions/{id}: asked of the service as the caller (owners apply), merged

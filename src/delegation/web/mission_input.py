@@ -13,11 +13,13 @@ from typing import Any
 import yaml
 
 from delegation.errors import InputError, InputProblem
+from delegation.safe_yaml import load_yaml
+from delegation.topics import MAX_PAYLOAD
 from delegation.tst.node import parse_tree, to_dict, with_uuids
 from delegation.tst.validate import parse_and_validate
 
-#: Characters of mission text accepted (the service's own limits are stricter on trees).
-MAX_TEXT = 2_000_000
+#: Characters of mission text accepted: what fits in one command to the service.
+MAX_TEXT = MAX_PAYLOAD
 
 
 def _document(text: str) -> Any:
@@ -25,10 +27,12 @@ def _document(text: str) -> Any:
         raise InputError(InputProblem("mission", "", f"longer than {MAX_TEXT} characters"))
     try:
         return json.loads(text)
+    except RecursionError:
+        raise InputError(InputProblem("mission", "", "nested too deeply")) from None
     except ValueError:
         pass
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError as exc:
         line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(InputProblem("mission", "", f"neither JSON nor YAML: {line}")) from None

@@ -63,7 +63,10 @@ def number(value: Any, key: str = "") -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range
+        return None
     return v if math.isfinite(v) else None
 
 
@@ -669,14 +672,22 @@ class LiveView:
             return None
         return [item for item in self.items if item[0] > seq]
 
-    def state(self, now: float) -> dict[str, Any]:
-        """GET /api/state."""
+    def state(self, now: float, sees: Callable[[str], bool] | None = None) -> dict[str, Any]:
+        """GET /api/state; with ``sees``, only the missions (and their events) it allows."""
         return {
             "seq": self.seq,
             "units": [r.to_json(track=True) for r in self.units.values() if r.shown],
-            "missions": [m.to_json(now) for m in self.missions.values()],
-            "events": list(self.log),
+            "missions": [m.to_json(now) for m in self.missions.values()
+                         if sees is None or sees(m.id)],
+            "events": [e for e in self.log
+                       if sees is None or e["mission"] is None or sees(e["mission"])],
         }
+
+
+def item_mission(kind: str, data: Mapping[str, Any]) -> str | None:
+    """The mission a stream item is about (None: a unit's event, for everyone)."""
+    found = data.get("id") if kind == "mission" else data.get("mission")
+    return found if isinstance(found, str) else None
 
 
 def _metres(p: list[float], lat: float, lon: float) -> float:
