@@ -27,7 +27,13 @@ from delegation.service import ServiceConfig
 pytestmark = pytest.mark.mqtt
 
 ROOT = Path(__file__).resolve().parents[1]
-SPEEDUP = 20.0
+#: Simulated seconds per wall second: the usv0's 270 m move-to (90 s) takes under 2 s.
+SPEEDUP = 50.0
+#: Every command first waits for the service's heartbeat (not retained): at 10 Hz that is at most
+#: 0.1 s instead of up to a second, on each of the ~40 commands here. The units beat at 5 Hz so
+#: that ``agents --wait 1`` sees each of them five times.
+SERVICE_RATE = 10.0
+UNIT_RATE = 5.0
 WP = {"latitude": 57.7608, "longitude": 16.6800, "altitude": 40.0}
 
 
@@ -45,9 +51,10 @@ def open_ended(root: str, unit: str) -> dict[str, Any]:
 def live(broker: LocalBroker) -> Iterator[dict[str, str]]:
     scenario = load_scenario(ROOT / "scenarios" / "demo.yaml")
     prefix = f"test-{uuid.uuid4().hex[:10]}"
-    config = replace(ServiceConfig(), profiles=scenario.profiles())
-    with LocalSystem(scenario.units(), settings=broker.settings(), config=config, prefix=prefix,
-                     speedup=SPEEDUP):
+    config = replace(ServiceConfig(), profiles=scenario.profiles(), rate=SERVICE_RATE)
+    units = scenario.units()
+    with LocalSystem(units, settings=broker.settings(), config=config, prefix=prefix,
+                     speedup=SPEEDUP, rates={u.name: UNIT_RATE for u in units}):
         yield {"port": str(broker.settings().port), "prefix": prefix}
 
 
@@ -124,7 +131,7 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     fb = _mission_file(tmp_path, "b.json", open_ended(b, "/dji1"))
 
     # submit stops following (timeout): full id, plain progress lines, and how to go on
-    r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "4"])
+    r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "2"])
     assert r.returncode == 1, r.stdout + r.stderr
     assert f"mission {a} started" in r.stdout
     assert f"mission {a[:8]} running" in r.stdout  # a plain line, not a live table
@@ -185,7 +192,7 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
     assert all(len(line) <= 80 for line in r.stdout.splitlines())
     bids = json.loads(cli(live, ["bids", f, "--json"]).stdout)
     assert {b["unit"] for b in bids} >= {"/dji0", "/dji1", "/usv0"}
-    r = cli(live, ["agents", "--wait", "2"])  # piped: 80 columns, nothing dropped
+    r = cli(live, ["agents", "--wait", "1"])  # piped: 80 columns, nothing dropped
     assert r.returncode == 0 and all(len(line) <= 80 for line in r.stdout.splitlines())
     assert "move-to" in r.stdout and "usv0" in r.stdout
     r = cli(live, ["submit", f, "--json", "--speedup", str(SPEEDUP), "--timeout", "60"])

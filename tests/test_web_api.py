@@ -25,7 +25,7 @@ from typing import Any
 import httpx
 import pytest
 
-from delegation.fleet import make_unit
+from delegation.fleet import FleetRegistry, make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
@@ -41,7 +41,10 @@ pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
 
 FRAME = LocalFrame(57.7605, 16.6815)
 TASKS = ["move-to", "move-path", "search-area", "look-at-position"]
-SPEEDUP = 10.0
+SPEEDUP = 30.0
+#: The page judges a unit lost after 3 heartbeat periods, here at least 1.5 s (its default is 5 s):
+#: ``lost0`` beats at 4 Hz, so the rule applies unchanged, in a third of the time.
+LOST_AFTER = 1.5
 ALICE, BOB = "alice-token-1", "bob-token-22"
 
 
@@ -153,6 +156,7 @@ def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Itera
              for n, x in (("dji0", 0.0), ("dji1", 40.0))]
     with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP) as system:
         bridge = Bridge(settings, prefix=prefix, service=system.config.name).start()
+        bridge.view.timeout = FleetRegistry(min_timeout=LOST_AFTER).timeout
         server = WebServer(create_app(bridge, users=read_users(users_file)), "127.0.0.1",
                            0).start()
         events = Events(server.url, ALICE).start()
@@ -265,7 +269,8 @@ def test_signals_and_cancel_with_the_owners_rights(page: Page) -> None:
 
 def test_a_lost_unit_is_shown_lost(page: Page) -> None:
     extra = SimFleet(page.settings, [make_unit("lost0", "air", FRAME.geopoint(-80.0, 0.0, 30.0),
-                                               TASKS)], prefix=page.prefix).start()
+                                               TASKS)], prefix=page.prefix,
+                     rates={"lost0": 4.0}).start()
     try:
         page.events.wait(lambda k, d: k == "units" and any(
             u["name"] == "lost0" and u["status"] == "alive" for u in d["units"]), 15.0,
@@ -329,7 +334,8 @@ def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:
 
 
 def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> None:
-    bridge = Bridge(page.settings, prefix=page.prefix, sender="ops")  # not started: no I/O
+    # not started: no I/O; a start waits 4 request timeouts, 1 s (not 5), for the heartbeat
+    bridge = Bridge(page.settings, prefix=page.prefix, sender="ops", request_timeout=0.25)
     try:
         with WebServer(create_app(bridge), "127.0.0.1", 0) as server:
             config = httpx.get(f"{server.url}/api/config", timeout=10.0).json()
@@ -447,7 +453,7 @@ def test_buffered_reads_over_tls(tmp_path: Path, prefix: str) -> None:
 
 def test_cli_demo_serves_the_page_while_its_mission_runs(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "20",
+        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "40",
          "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
