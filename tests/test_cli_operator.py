@@ -1,5 +1,7 @@
 """The operator's commands, run as an operator runs them: child processes against a real broker
-with a live fleet, engine and service (`LocalSystem`), output not on a terminal."""
+with a live fleet, engine and service (`LocalSystem`), output not on a terminal. One-shot commands
+are forked from a process that imported the CLI once (`cli_forks`); long-running ones, stopped by
+signals, are started afresh."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker
 from delegation.scenario import load_scenario
@@ -60,8 +63,8 @@ def live(broker: LocalBroker) -> Iterator[dict[str, str]]:
 
 def cli(live: dict[str, str], args: list[str], timeout: float = 60.0,
         cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(_argv(live, args), env=_env(), capture_output=True, text=True,
-                          timeout=timeout, cwd=cwd, stdin=subprocess.DEVNULL)
+    """A one-shot command, in a child process forked with the CLI imported (`cli_forks`)."""
+    return cli_forks.run(_argv(live, args)[3:], _env(), cwd, timeout)
 
 
 def _argv(live: dict[str, str], args: list[str]) -> list[str]:
