@@ -59,7 +59,9 @@ def _child(request: dict[str, Any], out: int, err: int) -> None:
     os.chdir(request["cwd"])
     os.environ.clear()
     os.environ.update(request["env"])
-    sys.path[0] = os.getcwd()  # as ``python -m`` has it
+    sys.path[0] = os.getcwd()  # as ``python -m`` has it, and after it PYTHONPATH's folders
+    sys.path[1:1] = [p for p in request["env"].get("PYTHONPATH", "").split(os.pathsep)
+                     if p and p not in sys.path]
     sys.argv = ["delegation", *request["argv"]]
     runpy.run_module("delegation", run_name="__main__", alter_sys=True)
     raise SystemExit(0)  # the interpreter's own exit: atexit handlers, non-daemon threads

@@ -8,6 +8,7 @@ Events are read from /api/events by a thread and waited on with deadlines.
 from __future__ import annotations
 
 import json
+import os
 import re
 import select
 import shutil
@@ -25,6 +26,7 @@ from typing import Any
 import httpx
 import pytest
 
+import cli_forks
 from delegation.fleet import FleetRegistry, make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
@@ -349,8 +351,7 @@ def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> N
 
 
 def _run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "delegation", *args], capture_output=True,
-                          text=True, timeout=timeout, check=False)
+    return cli_forks.run(list(args), dict(os.environ), timeout=timeout)  # forked, CLI imported
 
 
 @pytest.mark.parametrize(("args", "says"), [
