@@ -163,6 +163,10 @@ def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Itera
                            0).start()
         events = Events(server.url, ALICE).start()
         try:
+            # Whichever test a worker runs first, the page has seen both units where they are.
+            events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]
+                                                       if u.get("latitude") is not None}
+                        >= {"dji0", "dji1"}, 15.0, "both units with a position")
             with httpx.Client(base_url=server.url, timeout=60.0) as http:
                 yield Page(system, server.url, settings, prefix, http, events)
         finally:

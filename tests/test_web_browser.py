@@ -52,6 +52,7 @@ LOST_AFTER = 2.0
 pytestmark = [
     pytest.mark.mqtt,
     pytest.mark.slow,
+    pytest.mark.xdist_group("chromium"),  # one worker: Chromium and the demo system start once
     pytest.mark.skipif(mosquitto_binary() is None, reason="no mosquitto binary"),
     pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"no Chromium at {CHROMIUM} "
                        "(apt-get install chromium; .ci/run does)"),
