@@ -19,7 +19,7 @@ from delegation.bench.runner import RunRecord, run_bench, scenarios_from_dicts
 from delegation.bench.scale import run_scale
 
 #: One worker runs these: the Dask cluster (three Python processes) starts once.
-pytestmark = pytest.mark.xdist_group("dask")
+pytestmark = [pytest.mark.xdist_group("dask"), pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Fields that measure time: the only ones allowed to differ between executors.

@@ -127,6 +127,7 @@ def _mission_file(tmp_path: Path, name: str, tree: dict[str, Any]) -> str:
     return str(path)
 
 
+@pytest.mark.slow
 def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path: Path) -> None:
     base = uuid.uuid4().hex[:6]
     a, b = f"{base}a0-0000-4000-8000-000000000001", f"{base}b0-0000-4000-8000-000000000002"
@@ -180,6 +181,7 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     assert r.returncode == 1 and "already ended" in r.stderr
 
 
+@pytest.mark.slow
 def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) -> None:
     tree = {"name": "conc", "children": [
         {"name": "move-to", "params": {"waypoint": WP}},
@@ -211,6 +213,7 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
         "/dji0", "/dji1", "/usv0"}
 
 
+@pytest.mark.slow
 def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
                                                        tmp_path: Path) -> None:
     root = str(uuid.uuid4())
@@ -241,6 +244,7 @@ def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
     assert cli(live, ["cancel", root]).returncode == 0
 
 
+@pytest.mark.slow
 def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
                                                         tmp_path: Path) -> None:
     """A second service (no profiles) on the same fleet: its log, in JSON, at INFO by default,

@@ -41,6 +41,7 @@ def test_demo_runs_to_success_and_writes_a_map(tmp_path: Path,
     assert plan["feasible"] and plan["strategy"] == "auction"
 
 
+@pytest.mark.slow
 def test_demo_runs_the_mission_twice_and_prints_plan_vs_flown(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -130,6 +131,7 @@ def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, p
 
 
 @pytest.mark.mqtt
+@pytest.mark.slow
 def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerSettings,
                                                           prefix: str, tmp_path: Path) -> None:
     import signal

@@ -23,6 +23,7 @@ DOC = ROOT / "docs" / "deployment.md"
 
 pytestmark = [
     pytest.mark.mqtt,
+    pytest.mark.slow,
     pytest.mark.skipif(mosquitto_binary() is None, reason="no mosquitto binary"),
 ]
 
