@@ -67,18 +67,32 @@ def _child(request: dict[str, Any], out: int, err: int) -> None:
     raise SystemExit(0)  # the interpreter's own exit: atexit handlers, non-daemon threads
 
 
+def _exits_within(pid: int, timeout: float) -> bool:
+    """True once the child ``pid`` has exited (not yet reaped), False at the deadline."""
+    if hasattr(os, "pidfd_open"):  # Linux: a descriptor that becomes readable at the exit
+        exited = os.pidfd_open(pid)
+        try:
+            return bool(select.select([exited], [], [], timeout)[0])
+        finally:
+            os.close(exited)
+    exited = threading.Event()  # elsewhere: a thread waits for the exit without reaping it
+
+    def wait() -> None:
+        with contextlib.suppress(ChildProcessError):
+            os.waitid(os.P_PID, pid, os.WEXITED | os.WNOWAIT)
+        exited.set()
+
+    threading.Thread(target=wait, daemon=True).start()
+    return exited.wait(timeout)
+
+
 def _answer(request: dict[str, Any]) -> dict[str, Any] | None:
     """Fork one command and wait for it; None in the child (which then exits)."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         pid = os.fork()
         if pid == 0:
             _child(request, out.fileno(), err.fileno())
-        exited = os.pidfd_open(pid)  # readable once the child has exited
-        try:
-            ready, _, _ = select.select([exited], [], [], float(request["timeout"]))
-        finally:
-            os.close(exited)
-        if not ready:
+        if not _exits_within(pid, float(request["timeout"])):
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
             return {"timeout": True}
