@@ -70,7 +70,7 @@ def test_every_strategy_plans_a_heterogeneous_fleet(
     strategy: str, objective: str, shape: str
 ) -> None:
     tree, units = TREES[shape](), _fleet()
-    plan = plan_mission(tree, units, strategy=strategy, objective=objective, time_limit=1.0)
+    plan = plan_mission(tree, units, strategy=strategy, objective=objective, time_limit=0.5)
     assert plan.feasible
     if strategy == "optimal":
         solver = "routing" if shape == "plain conc" else "CP-SAT"

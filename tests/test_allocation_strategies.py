@@ -154,7 +154,7 @@ def test_optimal_is_never_worse_than_auction() -> None:
         p = problem_for(tree, units)
         for objective in ("makespan", "total"):
             base = auction(p, objective)
-            got = optimise(p, objective, time_limit=1.0).schedule
+            got = optimise(p, objective, time_limit=0.3).schedule  # never worse at any limit
             assert got.key(objective) <= base.key(objective)
 
 
@@ -282,6 +282,6 @@ def test_larger_mixed_trees_keep_the_invariants() -> None:
         for strategy in ("nearest", "auction", "optimal"):
             for objective in ("makespan", "total"):
                 plan = plan_mission(tree, units, strategy=strategy, objective=objective,
-                                    time_limit=1.0)
+                                    time_limit=0.3)  # the invariants hold at any limit
                 assert plan.feasible
                 assert check_invariants(plan, tree, units) == []

@@ -145,6 +145,7 @@ def _same_values(columns: Sequence[Column], rows: list[list[str]], csv_rows: lis
                 assert number == pytest.approx(value, abs=0.51 * 10.0**-digits)
 
 
+@pytest.mark.slow
 def test_plots_are_valid_pngs(result: BenchResult, tmp_path: Path) -> None:
     import matplotlib.image
     from PIL import Image

@@ -20,6 +20,7 @@ def main(argv: list[str]) -> int:
     return cli_main(argv)
 
 
+@pytest.mark.slow
 def test_generate_save_and_bench_the_saved_files(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -18,6 +18,9 @@ from delegation.bench.generate import GeneratorOptions, generate_scenario
 from delegation.bench.runner import RunRecord, run_bench, scenarios_from_dicts
 from delegation.bench.scale import run_scale
 
+#: One worker runs these: the Dask cluster (three Python processes) starts once.
+pytestmark = [pytest.mark.xdist_group("dask"), pytest.mark.slow]
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Fields that measure time: the only ones allowed to differ between executors.
 TIMES = ("wall_time", "solve_time")

@@ -1,5 +1,7 @@
 """The operator's commands, run as an operator runs them: child processes against a real broker
-with a live fleet, engine and service (`LocalSystem`), output not on a terminal."""
+with a live fleet, engine and service (`LocalSystem`), output not on a terminal. One-shot commands
+are forked from a process that imported the CLI once (`cli_forks`); long-running ones, stopped by
+signals, are started afresh."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker
 from delegation.scenario import load_scenario
@@ -27,7 +30,13 @@ from delegation.service import ServiceConfig
 pytestmark = pytest.mark.mqtt
 
 ROOT = Path(__file__).resolve().parents[1]
-SPEEDUP = 20.0
+#: Simulated seconds per wall second: the usv0's 270 m move-to (90 s) takes under 2 s.
+SPEEDUP = 50.0
+#: Every command first waits for the service's heartbeat (not retained): at 10 Hz that is at most
+#: 0.1 s instead of up to a second, on each of the ~40 commands here. The units beat at 5 Hz so
+#: that ``agents --wait 1`` sees each of them five times.
+SERVICE_RATE = 10.0
+UNIT_RATE = 5.0
 WP = {"latitude": 57.7608, "longitude": 16.6800, "altitude": 40.0}
 
 
@@ -45,16 +54,17 @@ def open_ended(root: str, unit: str) -> dict[str, Any]:
 def live(broker: LocalBroker) -> Iterator[dict[str, str]]:
     scenario = load_scenario(ROOT / "scenarios" / "demo.yaml")
     prefix = f"test-{uuid.uuid4().hex[:10]}"
-    config = replace(ServiceConfig(), profiles=scenario.profiles())
-    with LocalSystem(scenario.units(), settings=broker.settings(), config=config, prefix=prefix,
-                     speedup=SPEEDUP):
+    config = replace(ServiceConfig(), profiles=scenario.profiles(), rate=SERVICE_RATE)
+    units = scenario.units()
+    with LocalSystem(units, settings=broker.settings(), config=config, prefix=prefix,
+                     speedup=SPEEDUP, rates={u.name: UNIT_RATE for u in units}):
         yield {"port": str(broker.settings().port), "prefix": prefix}
 
 
 def cli(live: dict[str, str], args: list[str], timeout: float = 60.0,
         cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(_argv(live, args), env=_env(), capture_output=True, text=True,
-                          timeout=timeout, cwd=cwd, stdin=subprocess.DEVNULL)
+    """A one-shot command, in a child process forked with the CLI imported (`cli_forks`)."""
+    return cli_forks.run(_argv(live, args)[3:], _env(), cwd, timeout)
 
 
 def _argv(live: dict[str, str], args: list[str]) -> list[str]:
@@ -117,6 +127,7 @@ def _mission_file(tmp_path: Path, name: str, tree: dict[str, Any]) -> str:
     return str(path)
 
 
+@pytest.mark.slow
 def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path: Path) -> None:
     base = uuid.uuid4().hex[:6]
     a, b = f"{base}a0-0000-4000-8000-000000000001", f"{base}b0-0000-4000-8000-000000000002"
@@ -124,7 +135,7 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     fb = _mission_file(tmp_path, "b.json", open_ended(b, "/dji1"))
 
     # submit stops following (timeout): full id, plain progress lines, and how to go on
-    r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "4"])
+    r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "2"])
     assert r.returncode == 1, r.stdout + r.stderr
     assert f"mission {a} started" in r.stdout
     assert f"mission {a[:8]} running" in r.stdout  # a plain line, not a live table
@@ -170,6 +181,7 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     assert r.returncode == 1 and "already ended" in r.stderr
 
 
+@pytest.mark.slow
 def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) -> None:
     tree = {"name": "conc", "children": [
         {"name": "move-to", "params": {"waypoint": WP}},
@@ -185,7 +197,7 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
     assert all(len(line) <= 80 for line in r.stdout.splitlines())
     bids = json.loads(cli(live, ["bids", f, "--json"]).stdout)
     assert {b["unit"] for b in bids} >= {"/dji0", "/dji1", "/usv0"}
-    r = cli(live, ["agents", "--wait", "2"])  # piped: 80 columns, nothing dropped
+    r = cli(live, ["agents", "--wait", "1"])  # piped: 80 columns, nothing dropped
     assert r.returncode == 0 and all(len(line) <= 80 for line in r.stdout.splitlines())
     assert "move-to" in r.stdout and "usv0" in r.stdout
     r = cli(live, ["submit", f, "--json", "--speedup", str(SPEEDUP), "--timeout", "60"])
@@ -201,6 +213,7 @@ def test_bids_and_plan_for_the_live_fleet(live: dict[str, str], tmp_path: Path) 
         "/dji0", "/dji1", "/usv0"}
 
 
+@pytest.mark.slow
 def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
                                                        tmp_path: Path) -> None:
     root = str(uuid.uuid4())
@@ -231,6 +244,7 @@ def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
     assert cli(live, ["cancel", root]).returncode == 0
 
 
+@pytest.mark.slow
 def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
                                                         tmp_path: Path) -> None:
     """A second service (no profiles) on the same fleet: its log, in JSON, at INFO by default,

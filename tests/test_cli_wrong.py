@@ -1,25 +1,27 @@
 """Wrong invocations, as an operator types them (docs/findings: operators.md, the table of 47):
 each gives one line naming what is wrong and exit 2 (usage) or 1 (input), never a traceback.
 
-Run as a user would: ``python -m delegation`` in a child process. Rows that need a broker use a
-closed local port ({closed}); the one that needs a live broker is a test of its own. Left out of
-the findings' table: rows that need a full mission run (impossible mission, no engine: unchanged
-and rated 5), the unreachable-host row (a 10 s connect deadline) and ``demo`` rows (another
-engineer edits ``demo``). Rows that were wrong and now work (B10, B11, B12) expect exit 0.
+Run as a user would: ``python -m delegation`` in a child process (forked from one that imported
+the CLI once: `cli_forks`). Rows that need a broker use a closed local port ({closed}); the one
+that needs a live broker is a test of its own. Left out of the findings' table: rows that need a
+full mission run (impossible mission, no engine: unchanged and rated 5), the unreachable-host row
+(a 10 s connect deadline) and ``demo`` rows (another engineer edits ``demo``). Rows that were
+wrong and now work (B10, B11, B12) expect exit 0.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 
+import cli_forks
 from delegation.runtime.broker import LOOPBACK, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,9 +124,7 @@ def run_cli(args: str, env: dict[str, str], cwd: Path, timeout: float = 60.0
     full.update(env)
     full["PYTHONPATH"] = str(ROOT / "src")
     full["COLUMNS"] = "80"
-    return subprocess.run(f"{sys.executable} -m delegation {args}", shell=True, cwd=cwd,
-                          env=full, capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
+    return cli_forks.run(shlex.split(args), full, cwd, timeout)  # as a shell would split it
 
 
 @pytest.fixture(scope="module")

@@ -35,13 +35,14 @@ def test_demo_runs_to_success_and_writes_a_map(tmp_path: Path,
     for var in ("WARAPS_BROKER", "WARAPS_PORT"):
         monkeypatch.delenv(var, raising=False)  # the demo must start its own broker
     out = tmp_path / "out"
-    assert main(["demo", "--speedup", "30", "--out", str(out)]) == 0
+    assert main(["demo", "--speedup", "60", "--out", str(out)]) == 0
     assert_png(out / "map.png")
     assert_png(out / "gantt.png")  # planned vs flown
     plan = json.loads((out / "plan.json").read_text())
     assert plan["feasible"] and plan["strategy"] == "auction"
 
 
+@pytest.mark.slow
 def test_demo_runs_the_mission_twice_and_prints_plan_vs_flown(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -51,7 +52,7 @@ def test_demo_runs_the_mission_twice_and_prints_plan_vs_flown(
     for var in ("WARAPS_BROKER", "WARAPS_PORT"):
         monkeypatch.delenv(var, raising=False)
     out = tmp_path / "out"
-    assert main(["demo", "--speedup", "30", "--missions", "2", "--no-profiles",
+    assert main(["demo", "--speedup", "60", "--missions", "2", "--no-profiles",
                  "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "plan vs flown, per mission" in text
@@ -87,7 +88,7 @@ def test_mission_files_of_every_kind(tmp_path: Path) -> None:
 def running(mqtt_settings: BrokerSettings, prefix: str) -> Iterator[list[str]]:
     """The demo scenario's fleet, engine and service on the test broker; yields CLI flags."""
     scenario = load_scenario(find_scenario("demo"))
-    with LocalSystem.from_scenario(scenario, settings=mqtt_settings, prefix=prefix, speedup=30.0):
+    with LocalSystem.from_scenario(scenario, settings=mqtt_settings, prefix=prefix, speedup=60.0):
         yield ["--broker", mqtt_settings.host, "--port", str(mqtt_settings.port),
                "--prefix", prefix]
 
@@ -106,7 +107,7 @@ def test_submit_follows_a_mission_and_agents_lists_units(
             "children": [{"name": "move-to", "params": {
                 "waypoint": {"latitude": 57.7609, "longitude": 16.6805, "altitude": 30.0}}}]}
     mission.write_text(json.dumps(tree))
-    assert main(["submit", str(mission), "--speedup", "30", *running]) == 0
+    assert main(["submit", str(mission), "--speedup", "60", *running]) == 0
     out = capsys.readouterr().out
     assert "succeeded" in out and "move-to" in out
 
@@ -131,6 +132,7 @@ def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, p
 
 
 @pytest.mark.mqtt
+@pytest.mark.slow
 def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerSettings,
                                                           prefix: str, tmp_path: Path) -> None:
     import signal

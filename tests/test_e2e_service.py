@@ -103,7 +103,7 @@ def fleet_units() -> list[UnitState]:
 @pytest.fixture
 def runtime(mqtt_settings: BrokerSettings, prefix: str,
             collector: Callable[..., Any]) -> Iterator[Runtime]:
-    yield from start_runtime(mqtt_settings, prefix, fleet_units(), collector, speedup=40.0)
+    yield from start_runtime(mqtt_settings, prefix, fleet_units(), collector, speedup=100.0)
 
 
 def partial_tree() -> dict[str, Any]:
@@ -251,7 +251,7 @@ def example_runtime(mqtt_settings: BrokerSettings, prefix: str,
                        ["go-home", "move-to", "move-path", "search-area"]),
              make_unit("agent1", "air", FRAME.geopoint(60, 0, 30),
                        ["go-home", "move-to", "move-path", "search-area"])]
-    yield from start_runtime(mqtt_settings, prefix, units, collector, speedup=20.0,
+    yield from start_runtime(mqtt_settings, prefix, units, collector, speedup=50.0,
                              example_agent=True)
 
 

@@ -23,6 +23,7 @@ def _run(argv: list[str], results: dict[str, int]) -> threading.Thread:
 
 
 @pytest.mark.mqtt
+@pytest.mark.slow
 def test_engine_and_sim_commands(
     mqtt_settings: BrokerSettings, prefix: str, collector, tmp_path: Path
 ) -> None:

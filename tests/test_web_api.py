@@ -8,6 +8,7 @@ Events are read from /api/events by a thread and waited on with deadlines.
 from __future__ import annotations
 
 import json
+import os
 import re
 import select
 import shutil
@@ -26,7 +27,8 @@ from typing import Any
 import httpx
 import pytest
 
-from delegation.fleet import make_unit
+import cli_forks
+from delegation.fleet import FleetRegistry, make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
@@ -44,7 +46,10 @@ pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
 
 FRAME = LocalFrame(57.7605, 16.6815)
 TASKS = ["move-to", "move-path", "search-area", "look-at-position"]
-SPEEDUP = 10.0
+SPEEDUP = 30.0
+#: The page judges a unit lost after 3 heartbeat periods, here at least 1.5 s (its default is 5 s):
+#: ``lost0`` beats at 4 Hz, so the rule applies unchanged, in a third of the time.
+LOST_AFTER = 1.5
 ALICE, BOB, CAROL = "alice-token-1", "bob-token-22", "carol-token-333"  # carol: an operator
 
 
@@ -159,10 +164,15 @@ def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Itera
     with LocalSystem(units, settings=settings, prefix=prefix, speedup=SPEEDUP,
                      config=config) as system:
         bridge = Bridge(settings, prefix=prefix, service=system.config.name).start()
+        bridge.view.timeout = FleetRegistry(min_timeout=LOST_AFTER).timeout
         server = WebServer(create_app(bridge, users=read_users(users_file)), "127.0.0.1",
                            0).start()
         events = Events(server.url, ALICE).start()
         try:
+            # Whichever test a worker runs first, the page has seen both units where they are.
+            events.wait(lambda k, d: k == "units" and {u["name"] for u in d["units"]
+                                                       if u.get("latitude") is not None}
+                        >= {"dji0", "dji1"}, 15.0, "both units with a position")
             with httpx.Client(base_url=server.url, timeout=60.0) as http:
                 yield Page(system, server.url, settings, prefix, http, events, users_file)
         finally:
@@ -283,7 +293,8 @@ def test_signals_and_cancel_with_the_owners_rights(page: Page) -> None:
 
 def test_a_lost_unit_is_shown_lost(page: Page) -> None:
     extra = SimFleet(page.settings, [make_unit("lost0", "air", FRAME.geopoint(-80.0, 0.0, 30.0),
-                                               TASKS)], prefix=page.prefix).start()
+                                               TASKS)], prefix=page.prefix,
+                     rates={"lost0": 4.0}).start()
     try:
         page.events.wait(lambda k, d: k == "units" and any(
             u["name"] == "lost0" and u["status"] == "alive" for u in d["units"]), 15.0,
@@ -439,7 +450,8 @@ def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:
 
 
 def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> None:
-    bridge = Bridge(page.settings, prefix=page.prefix, sender="ops")  # not started: no I/O
+    # not started: no I/O; a start waits 4 request timeouts, 1 s (not 5), for the heartbeat
+    bridge = Bridge(page.settings, prefix=page.prefix, sender="ops", request_timeout=0.25)
     try:
         with WebServer(create_app(bridge), "127.0.0.1", 0) as server:
             config = httpx.get(f"{server.url}/api/config", timeout=10.0).json()
@@ -453,8 +465,7 @@ def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> N
 
 
 def _run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "delegation", *args], capture_output=True,
-                          text=True, timeout=timeout, check=False)
+    return cli_forks.run(list(args), dict(os.environ), timeout=timeout)  # forked, CLI imported
 
 
 @pytest.mark.parametrize(("args", "says"), [
@@ -557,7 +568,7 @@ def test_buffered_reads_over_tls(tmp_path: Path, prefix: str) -> None:
 
 def test_cli_demo_serves_the_page_while_its_mission_runs(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "20",
+        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "40",
          "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None

@@ -1,0 +1,180 @@
+"""``python -m delegation ARGS`` without paying for Python's start and the CLI's imports each time.
+
+A test that runs the CLI as an operator does (a child process: its exit code, its stdout and
+stderr, never a traceback) spends about 0.3 s of CPU per command importing numpy, shapely,
+pydantic and the CLI before the command even starts; the suite runs a few hundred. This module is
+both sides of a small fork server:
+
+* run as a script, it imports the CLI once, then for each request read from stdin (one JSON line:
+  argv, environment, working directory) forks a child that sets them, points its stdin at
+  /dev/null and its stdout and stderr at files, and runs ``delegation`` as ``python -m`` does
+  (``runpy``, ``__main__``). The child ends as that interpreter would: ``SystemExit`` codes,
+  atexit handlers, a traceback and exit 1 for an uncaught exception. The answer (exit code and
+  both outputs) goes back as one JSON line;
+* `run` is `subprocess.run` for the CLI: through a server of this process's own (`CliForks`,
+  started on first use, one at a time; it ends when this process closes its stdin, at exit).
+
+Each command is still its own process, forked from a parent that has imported the CLI and done
+nothing else, so commands share nothing. What this does not cover is the import itself: tests
+that start ``python -m delegation`` with `subprocess` (long-running commands, signals, the
+deployment doc's shell session) still do.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import importlib
+import json
+import os
+import runpy
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The server's answers go out on this descriptor (a copy of its stdout; closed in children).
+_REPLIES = -1
+#: What most commands import: the CLI, planning, the broker client, bench, the tables.
+PRELOAD = ("delegation.cli.runtime", "delegation.allocation.planner", "delegation.scenario",
+           "delegation.runtime.client", "delegation.messages", "delegation.bench.runner",
+           "rich.console", "rich.table")
+
+
+# --------------------------------------------------------------------------- the server side
+
+
+def _child(request: dict[str, Any], out: int, err: int) -> None:
+    """In the forked child: become ``python -m delegation ARGV`` (never returns)."""
+    os.close(_REPLIES)
+    devnull = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(devnull, 0)
+    os.dup2(out, 1)
+    os.dup2(err, 2)
+    os.chdir(request["cwd"])
+    os.environ.clear()
+    os.environ.update(request["env"])
+    sys.path[0] = os.getcwd()  # as ``python -m`` has it, and after it PYTHONPATH's folders
+    sys.path[1:1] = [p for p in request["env"].get("PYTHONPATH", "").split(os.pathsep)
+                     if p and p not in sys.path]
+    sys.argv = ["delegation", *request["argv"]]
+    runpy.run_module("delegation", run_name="__main__", alter_sys=True)
+    raise SystemExit(0)  # the interpreter's own exit: atexit handlers, non-daemon threads
+
+
+def _exits_within(pid: int, timeout: float) -> bool:
+    """True once the child ``pid`` has exited (not yet reaped), False at the deadline."""
+    if hasattr(os, "pidfd_open"):  # Linux: a descriptor that becomes readable at the exit
+        exited = os.pidfd_open(pid)
+        try:
+            return bool(select.select([exited], [], [], timeout)[0])
+        finally:
+            os.close(exited)
+    exited = threading.Event()  # elsewhere: a thread waits for the exit without reaping it
+
+    def wait() -> None:
+        with contextlib.suppress(ChildProcessError):
+            os.waitid(os.P_PID, pid, os.WEXITED | os.WNOWAIT)
+        exited.set()
+
+    threading.Thread(target=wait, daemon=True).start()
+    return exited.wait(timeout)
+
+
+def _answer(request: dict[str, Any]) -> dict[str, Any] | None:
+    """Fork one command and wait for it; None in the child (which then exits)."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        pid = os.fork()
+        if pid == 0:
+            _child(request, out.fileno(), err.fileno())
+        if not _exits_within(pid, float(request["timeout"])):
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return {"timeout": True}
+        _, status = os.waitpid(pid, 0)
+        out.seek(0)
+        err.seek(0)
+        return {"code": os.waitstatus_to_exitcode(status),
+                "stdout": out.read().decode("utf-8", "replace"),
+                "stderr": err.read().decode("utf-8", "replace")}
+
+
+def serve() -> None:
+    """Answer requests on stdin until it closes."""
+    for name in PRELOAD:  # paid once, here (a module renamed since is only not preloaded)
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
+
+    global _REPLIES
+    _REPLIES = os.dup(1)
+    replies = os.fdopen(_REPLIES, "w")
+    for line in sys.stdin:
+        answer = _answer(json.loads(line))
+        replies.write(json.dumps(answer) + "\n")
+        replies.flush()
+
+
+# --------------------------------------------------------------------------- the test side
+
+
+class CliForks:
+    """The fork server, started on first use; `run` is `subprocess.run` for the CLI."""
+
+    def __init__(self) -> None:
+        self._proc: subprocess.Popen[str] | None = None
+        self._lock = threading.Lock()
+
+    def _server(self) -> subprocess.Popen[str]:
+        if self._proc is None or self._proc.poll() is not None:
+            env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+            self._proc = subprocess.Popen([sys.executable, __file__], env=env, text=True,
+                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        return self._proc
+
+    def run(self, argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
+            timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+        """``python -m delegation *argv`` with exactly ``env``, in ``cwd``, stdin empty."""
+        request = {"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()), "timeout": timeout}
+        with self._lock:
+            proc = self._server()
+            assert proc.stdin is not None and proc.stdout is not None
+            proc.stdin.write(json.dumps(request) + "\n")
+            proc.stdin.flush()
+            line = proc.stdout.readline()
+        if not line:
+            raise RuntimeError("the CLI fork server ended")
+        answer = json.loads(line)
+        if answer.get("timeout"):
+            raise subprocess.TimeoutExpired(["delegation", *argv], timeout)
+        return subprocess.CompletedProcess(["delegation", *argv], answer["code"],
+                                           answer["stdout"], answer["stderr"])
+
+    def close(self) -> None:
+        if self._proc is not None:
+            assert self._proc.stdin is not None
+            self._proc.stdin.close()
+            try:
+                self._proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(10)
+            self._proc = None
+
+
+_shared = CliForks()
+atexit.register(_shared.close)
+
+
+def run(argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
+        timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    """``python -m delegation *argv`` with exactly ``env``, in ``cwd`` (`CliForks.run`)."""
+    return _shared.run(argv, env, cwd, timeout)
+
+
+if __name__ == "__main__":
+    serve()
