@@ -41,9 +41,9 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The server's answers go out on this descriptor (a copy of its stdout; closed in children).
 _REPLIES = -1
 #: What most commands import: the CLI, planning, the broker client, bench, the tables.
-PRELOAD = ("delegation.cli.runtime", "delegation.allocation.planner", "delegation.scenario",
-           "delegation.runtime.client", "delegation.messages", "delegation.bench.runner",
-           "rich.console", "rich.table")
+PRELOAD = ("delegation.cli", "delegation.cli.demo", "delegation.allocation.planner",
+           "delegation.scenario", "delegation.runtime.client", "delegation.messages",
+           "delegation.bench.runner", "rich.console", "rich.table")
 
 
 # --------------------------------------------------------------------------- the server side
