@@ -212,14 +212,16 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
                       f"{prefix}/unit/+/+/+/sensor/position")
     units = [make_unit("dji0", "air", FRAME.geopoint(0, 0, 30), ["move-to"],
                        speeds={"slow": 4.0, "standard": 8.0, "fast": 14.0})]
-    # 400 m at 8 m/s = 50 s of mission time; x10: about 5 s of wall time, the kill in the middle.
+    # 1200 m at 8 m/s = 150 s of mission time; x10: about 15 s of wall time, the kill early on, so
+    # that the restart ends before the mission does (catching up on an end missed while no service
+    # was up is issue 22).
     with LocalSystem(units, settings=mqtt_settings, config=config, service=False,
                      speedup=10.0, rates={"dji0": 5.0}):
         first = serves(name, state)
         first_uuid = _wait_new_heartbeat(watch, base, set(), timeout=30)
         for topic in ("op0/heartbeat", "dji0/heartbeat", "dji0/sensor/position"):
             _wait_seen_after_start(watch, base, f"{prefix}/unit/+/+/{topic}", first_uuid)
-        tree = {"name": "move-to", "params": {"waypoint": FRAME.geopoint(400, 0, 30).to_wire()}}
+        tree = {"name": "move-to", "params": {"waypoint": FRAME.geopoint(1200, 0, 30).to_wire()}}
         command = {"command": "delegate", "start": True, "tst": tree, "sender": "test"}
         started = _request(watch, base, dict(command, **{"com-uuid": "c-1"}), timeout=30)
         assert started["response"] == "started", started
