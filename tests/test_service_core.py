@@ -309,18 +309,40 @@ def test_no_engine_or_silent_engine_fails_clearly() -> None:
     core = ServiceCore(ServiceConfig(prefix=PREFIX, engine_timeout=5.0))
     feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to"], 100.0)
     tree = partial_tree()
-    answer = on(core.on_message(f"{BASE}/tst/command", start_tst(tree), 100.5), "tst/response")
+    # just started: the command waits (a bounded while) for the engine to be heard ...
+    assert core.on_message(f"{BASE}/tst/command", start_tst(tree), 100.5) == Effects()
+    assert core.on_tick(102.9) == Effects()
+    # ... and is refused, naming the engine, once ``listen_first`` has passed without it
+    answer = on(core.on_tick(103.0), "tst/response")
     assert answer[0]["response"] == "failed" and "op0" in answer[0]["fail-reason"]
 
-    feed_engine(core, 101.0)
-    planned = run_jobs(core, core.on_message(f"{BASE}/tst/command", start_tst(tree, "c-2"), 101.0),
-                       101.0)
+    feed_engine(core, 104.0)
+    planned = run_jobs(core, core.on_message(f"{BASE}/tst/command", start_tst(tree, "c-2"), 104.0),
+                       104.0)
     assert on(planned, "op0/tst/command")
-    assert core.on_tick(105.0).publish == []
-    expired = core.on_tick(106.5)
+    assert core.on_tick(108.0).publish == []
+    expired = core.on_tick(109.5)
     answer = on(expired, "tst/response")
     assert answer[0]["response"] == "failed" and "did not answer" in answer[0]["fail-reason"]
     assert on(expired, "delegation/feedback")[0]["status"] == "failed"
+
+
+def test_a_command_that_arrives_before_the_engine_is_heard_waits_for_it() -> None:
+    """A service that has just started has not heard the (unretained) heartbeats yet: a start
+    sent at once is neither refused nor planned for a partial fleet; it goes on when the engine
+    is heard, and a later command is not held at all."""
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    assert core.on_message(f"{BASE}/tst/command", start_tst(partial_tree()), 50.0) == Effects()
+    feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to"], 50.4)
+    hb = HeartBeat(agent_type="ground", agent_uuid="engine", levels=["tst execution"],
+                   name="op0", rate=1.0, stamp=50.6)
+    released = core.on_message(f"{ENGINE}/heartbeat", encode(hb), 50.6)
+    assert [j.key for j in released.jobs] == [("tst", "c-1")]
+    assert [u.name for u in released.jobs[0].units] == ["dji0"]
+    assert on(run_jobs(core, released, 50.7), "op0/tst/command")
+    bids = json.dumps({"com-uuid": "b-1", "command": "get-bids", "tst": partial_tree()}).encode()
+    assert [j.key for j in core.on_message(f"{BASE}/delegation/command", bids, 50.8).jobs] == [
+        ("delegation", "b-1")]
 
 
 def test_status_messages(core: ServiceCore) -> None:

@@ -42,6 +42,10 @@ class ServiceConfig:
     #: After the service's own reconnect, peers get this long on top of their timeout to be
     #: heard again (MQTT clients here reconnect with a back-off of up to 8 s).
     reconnect_grace: float = 10.0
+    #: For this many seconds after the service starts listening, a command that plans waits
+    #: (rather than being refused or planned for the part of the fleet heard so far) until the
+    #: engine has been heard: peers' heartbeats come once a second and are not retained.
+    listen_first: float = 3.0
     #: Units whose battery (state of charge, 0..1) is below this are not planned for.
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).

@@ -108,6 +108,10 @@ class ServiceCore:
         self.engine = EngineLink(c, self.fleet)
         self.identity = c.identity(agent_uuid or str(uuid.uuid4()))
         self._offline_since: float | None = None
+        #: When this core first heard anything (its listening began), and the planning commands
+        #: that arrived before the engine was heard, held until it is or ``listen_first`` passed.
+        self._listening_since: float | None = None
+        self._held: list[tuple[Face, WireModel, CommandKey]] = []
         #: ``now`` as epoch seconds (the offset learnt from `status`): mission records' stamps.
         self._epoch = Epoch()
         self.topics = Topics.under(c.base_topic)
@@ -214,6 +218,12 @@ class ServiceCore:
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         """One message from the broker (a command on a shared or a per-client command topic)."""
+        if self._listening_since is None:
+            self._listening_since = now
+        effects = self._message(topic, payload, now)
+        return effects.extend(self._release_held(now)) if self._held else effects
+
+    def _message(self, topic: str, payload: bytes, now: float) -> Effects:
         faces: tuple[tuple[Face, str], ...] = (("tst", self.topics.tst_command),
                                                ("delegation", self.topics.delegation_command))
         for face, command_topic in faces:
@@ -235,8 +245,10 @@ class ServiceCore:
 
     def on_tick(self, now: float) -> Effects:
         """Answer ``failed`` the engine commands that were never answered."""
+        if self._listening_since is None:
+            self._listening_since = now
         self.view.log_silent(now)
-        effects = Effects()
+        effects = self._release_held(now) if self._held else Effects()
         for got in self.engine.expire(now):
             effects.extend(self.engine_use.answer(got, now))
         effects.extend(self.lifecycle.cancel_deadlines(now))
@@ -281,10 +293,34 @@ class ServiceCore:
         if arrival.effects is not None or arrival.command is None:
             return arrival.effects or Effects()
         key = arrival.key
+        if self._warming(now) and isinstance(arrival.command, StartTst | Delegate | GetBids):
+            log.info("command %s on %s held until the engine %s is heard (at most %.1f s)",
+                     key[1], face, self.config.engine, self.config.listen_first)
+            self._held.append((face, arrival.command, key))
+            return Effects()
+        return self._act(face, arrival.command, key, now)
+
+    def _warming(self, now: float) -> bool:
+        """True while the service has just begun listening and has not heard its engine yet."""
+        since = self._listening_since
+        return (since is not None and now < since + self.config.listen_first
+                and self.engine.base(now) is None)
+
+    def _release_held(self, now: float) -> Effects:
+        """Act on the held commands, in arrival order, once the engine is heard or the wait ends."""
+        if self._warming(now):
+            return Effects()
+        held, self._held = self._held, []
+        effects = Effects()
+        for face, command, key in held:
+            effects.extend(self._act(face, command, key, now))
+        return effects
+
+    def _act(self, face: Face, command: WireModel, key: CommandKey, now: float) -> Effects:
         try:
             if face == "tst":
-                return self._tst_command(arrival.command, key, now)
-            return self._delegation_command(arrival.command, key, now)
+                return self._tst_command(command, key, now)
+            return self._delegation_command(command, key, now)
         except InputError as exc:
             return self.desk.fail(face, key, key[1], exc.fail_reason)
 
