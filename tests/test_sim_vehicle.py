@@ -67,7 +67,7 @@ def test_move_to_takes_distance_over_speed() -> None:
     assert events == [TaskEvent("t1", "finished")]
     assert distance_m(v.position, target) < 0.5
     assert not v.busy and v.speed == 0.0
-    assert v.status_of("t1") == "finished"
+    assert v.status_of("t1") == "success"  # query-status: the seed's word
 
 
 def test_one_big_step_equals_many_small_ones() -> None:
@@ -142,7 +142,7 @@ def test_pause_continue_abort() -> None:
     run_until(v, 10.0)
     assert distance_m(START, v.position) == pytest.approx(100.0, abs=0.5)
     assert v.signal("t", "$abort") == (None, TaskEvent("t", "aborted"))
-    assert not v.busy and v.status_of("t") == "aborted"
+    assert not v.busy and v.status_of("t") == "failed"  # query-status words (seed 12.1)
     assert v.signal("t", "$abort") == (INVALID_TASK_UUID, None)
 
 
@@ -231,3 +231,33 @@ def test_every_task_runs_to_its_end(name: str, params: dict, open_ended: bool) -
         assert v.altitude == 0.0
     if name.startswith("search"):
         assert v.odometer > 150.0  # it flew a sweep, not a straight line
+
+
+@pytest.mark.parametrize(
+    ("how", "word"),
+    [
+        ("running", "running"),
+        ("paused", "running"),  # still on the unit: the seed has no "paused" for query-status
+        ("finished", "success"),
+        ("enough", "success"),  # the example agent's $enough
+        ("aborted", "failed"),
+        ("battery", "failed"),
+        ("never", "unknown"),
+    ],
+)
+def test_query_status_answers_in_the_seeds_words(how: str, word: str) -> None:
+    """Seed 12.1: query-status returns "the status of the task (running, failed, success,
+    unknown)", whatever words the feedback used."""
+    v = vehicle(example=how == "enough", battery=0.001 if how == "battery" else None)
+    north = 10.0 if how == "finished" else 5000.0
+    go = {"waypoint": at(0.0, north).to_wire(), "speed": "standard"}
+    if how != "never":
+        assert v.start_task("move-to", go, "t") is None
+    if how in ("paused", "aborted", "enough"):
+        v.signal("t", {"paused": "$pause", "aborted": "$abort", "enough": "$enough"}[how])
+    elif how == "finished":
+        assert [e.status for e in run_until(v, 5.0)] == ["finished"]
+    elif how == "battery":
+        run_until(v, 30.0, dt=1.0)
+        assert "t" not in v.tasks
+    assert v.status_of("t") == word

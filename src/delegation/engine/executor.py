@@ -777,10 +777,17 @@ class TreeExecutor:
         return actions
 
     def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
-        """A unit's answer to ``query-status``: its task's state, applied as feedback."""
+        """A unit's answer to ``query-status`` in the seed's words (running, failed, success,
+        unknown; older units answer with feedback words), applied as feedback: ``running`` says
+        the task is still on, so a paused node stays paused; ``failed`` after our ``$abort`` is
+        the abort done (the seed has no word for aborted)."""
+        found = self._task(self._task_node.get(task_uuid))
+        if response == "running":
+            return []  # still on the unit, as the node says (running or paused)
+        if response == "failed" and found is not None and found[1].abort_sent:
+            response = "aborted"
         if response != "unknown":
             return self.on_feedback(task_uuid, response, now)
-        found = self._task(self._task_node.get(task_uuid))
         if found is None or found[1].terminal or found[1].attempt.task_uuid != task_uuid:
             return []
         tree, node = found

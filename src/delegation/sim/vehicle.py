@@ -60,6 +60,17 @@ class TaskState(StrEnum):
 
 ENDED = frozenset({TaskState.FINISHED, TaskState.ENOUGH, TaskState.FAILED, TaskState.ABORTED})
 
+#: A task's state in the seed's words for ``query-status`` (seed 12.1: "running, failed, success,
+#: unknown"): a paused task is still on (running); ``$abort`` ended it unsuccessfully (failed).
+QUERY_WORDS: dict[str, str] = {
+    TaskState.RUNNING: "running",
+    TaskState.PAUSED: "running",
+    TaskState.FINISHED: "success",
+    TaskState.ENOUGH: "success",
+    TaskState.FAILED: "failed",
+    TaskState.ABORTED: "failed",
+}
+
 
 @dataclass(frozen=True, slots=True)
 class VehiclePolicy:
@@ -144,11 +155,13 @@ class SimVehicle:
         return [(t.name, t.uuid) for t in self.tasks.values()]
 
     def status_of(self, task_uuid: str) -> str:
-        """For query-status: a task's state, or ``unknown``."""
+        """For query-status: a task's state in the seed's words (`QUERY_WORDS`), or ``unknown``
+        for a task this vehicle never ran or has forgotten."""
         task = self.tasks.get(task_uuid)
         if task is not None:
-            return task.state.value
-        return self.history.get(task_uuid, "unknown")
+            return QUERY_WORDS[task.state]
+        state = self.history.get(task_uuid)
+        return "unknown" if state is None else QUERY_WORDS[state]
 
     # ---- commands
 
