@@ -300,7 +300,7 @@ class EngineCore:
         if isinstance(action, SendStartTask):
             return StartTask(
                 com_uuid=action.com_uuid,
-                execution_unit=f"/{action.unit}",
+                execution_unit=action.unit,  # "dji0", as every seed example (no slash)
                 sender=self.name,
                 task=TaskSpecMsg(name=action.name, params=action.params),
                 task_uuid=action.task_uuid,
