@@ -261,3 +261,33 @@ def test_query_status_answers_in_the_seeds_words(how: str, word: str) -> None:
         run_until(v, 30.0, dt=1.0)
         assert "t" not in v.tasks
     assert v.status_of("t") == word
+
+
+@pytest.mark.parametrize(
+    ("flags", "ends"),
+    [({}, True), ({"hold-flag": True}, False), ({"loop-flag": True}, False),
+     ({"loop-flag": False, "hold-flag": False}, True)],
+    ids=["plain", "hold", "loop", "flags-false"],
+)
+def test_navigate_loops_or_holds_until_enough(flags: dict[str, bool], ends: bool) -> None:
+    """Seed 9.14: navigate ends at its last waypoint unless loop-flag (round the waypoints again)
+    or hold-flag (stay at the last) keeps it on until $enough."""
+    unit = make_unit("dji0", "air", START, ["navigate"], speeds={"standard": 10.0})
+    v = SimVehicle(unit)
+    square = [at(0.0, 100.0), at(100.0, 100.0), at(100.0, 0.0), at(0.0, 0.0)]  # 400 m round
+    params = {"waypoints": [p.to_wire() for p in square], "speed": ["standard"], **flags}
+    assert v.start_task("navigate", params, "n") is None
+    events = run_until(v, 45.0, dt=0.5)  # 41 s for the waypoints at 10 m/s
+    if ends:
+        assert [e.status for e in events] == ["finished"]
+        return
+    assert events == [] and v.status_of("n") == "running"
+    here = v.position
+    if "hold-flag" in flags:
+        assert distance_m(here, square[-1]) < 0.5 and v.speed == 0.0
+    else:  # round again: 45 s at 10 m/s is 450 m, 50 m into the second round, going north
+        assert distance_m(here, at(0.0, 50.0)) < 0.5 and v.speed == 10.0
+        assert v.tasks["n"].travelled == pytest.approx(450.0, abs=2.0)
+    run_until(v, 200.0, dt=1.0)
+    assert v.status_of("n") == "running"
+    assert v.signal("n", "$enough")[1] == TaskEvent("n", "finished")

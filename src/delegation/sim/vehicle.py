@@ -72,6 +72,18 @@ QUERY_WORDS: dict[str, str] = {
 }
 
 
+#: A navigate loop shorter than this (m) is flown as a hold: its waypoints are one point.
+LOOP_MIN_M = 1.0
+
+
+def _loop_length(loop: tuple[tuple[float, float, float], ...]) -> float:
+    """Metres once round a closed loop of (east, north, altitude) points."""
+    if len(loop) < 2:
+        return 0.0
+    return sum(math.hypot(b[0] - a[0], b[1] - a[1])
+               for a, b in zip(loop, loop[1:] + loop[:1], strict=True))
+
+
 @dataclass(frozen=True, slots=True)
 class VehiclePolicy:
     """How a vehicle's task handling departs from ours (the example agent's is in
@@ -94,6 +106,7 @@ class SimTask:
     legs: list[tuple[float, float, float]]  # remaining (east, north, altitude) points
     speed: float
     hold: float  # seconds to stay after the last leg; math.inf: until $enough
+    loop: tuple[tuple[float, float, float], ...] = ()  # flown again and again (navigate loop-flag)
     state: TaskState = TaskState.RUNNING
     fail_reason: str = ""
     travelled: float = 0.0
@@ -217,7 +230,11 @@ class SimVehicle:
         elif name == "land":
             legs.append((here[0], here[1], points[-1].altitude if points else 0.0))
         hold = math.inf if geometry.open_ended else float(geometry.fixed_time)
-        return SimTask(task_uuid, name, vehicle, legs, speed, hold)
+        # navigate's loop-flag: round the waypoints until $enough (a loop of no length: a hold)
+        loop = tuple(legs) if name == "navigate" and params.get("loop-flag") is True else ()
+        if _loop_length(loop) <= LOOP_MIN_M:
+            loop = ()
+        return SimTask(task_uuid, name, vehicle, legs, speed, hold, loop)
 
     def signal(self, task_uuid: str, signal: str) -> tuple[str | None, TaskEvent | None]:
         """Apply ``$abort``/``$enough``/``$pause``/``$continue``: (fail reason or None, event)."""
@@ -262,6 +279,10 @@ class SimVehicle:
                 continue
             remaining = dt
             if task.vehicle and task.legs:
+                remaining = self._move(task, remaining)
+                moving = True
+            while task.loop and not task.legs and remaining > 0.0:
+                task.legs = list(task.loop)  # round again, from the first waypoint
                 remaining = self._move(task, remaining)
                 moving = True
             if not task.legs and remaining > 0.0:
