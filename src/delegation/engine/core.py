@@ -29,6 +29,7 @@ from delegation.errors import InputError
 from delegation.messages import (
     ExecFeedback,
     ExecResponse,
+    HeartBeat,
     MessageError,
     NodeStatus,
     Ping,
@@ -84,6 +85,8 @@ class EngineCore:
         self._impostors: set[tuple[str, str]] = set()
         self._command_topic = identity.topic("tst/command")
         self.heard: dict[str, float] = {}
+        self.agent_uuids: dict[str, str] = {}
+        """Unit name -> the agent-uuid of its last heartbeat (a new one: it rebooted)."""
         """Unit name -> when its last heartbeat arrived (``now``)."""
         self._reconnected_at: float | None = None
         self.catch_up_gap = 3.0
@@ -126,7 +129,9 @@ class EngineCore:
             return Effects()
         if parsed.rest == "heartbeat":
             actions = self.executor.unit_seen(parsed.name, now)
-            if self._missed(parsed.name, now):
+            if self._rebooted(parsed.name, topic, payload):
+                actions += self.executor.unit_rebooted(parsed.name, now)
+            elif self._missed(parsed.name, now):
                 log.info("%s: /%s is back: asking for its tasks' status", self.name, parsed.name)
                 actions += self.executor.query(parsed.name)
             self.heard[parsed.name] = now
@@ -143,6 +148,25 @@ class EngineCore:
             log.warning("%s: ignoring %s: no heartbeat of %s yet", self.name, base, name)
         else:
             log.warning("%s: ignoring %s: %s is bound to %s", self.name, base, name, bound)
+
+    def _rebooted(self, unit: str, topic: str, payload: bytes) -> bool:
+        """True when ``unit``'s heartbeat carries another ``agent-uuid`` than before: the seed's
+        sign that it rebooted and lost its history of commands (12.1)."""
+        try:
+            beat = decode(topic, payload)
+        except MessageError as exc:
+            log.debug("%s: unreadable heartbeat of /%s: %s", self.name, unit, exc)
+            return False
+        agent_uuid = getattr(beat, "agent_uuid", None)
+        if not isinstance(beat, HeartBeat) or not agent_uuid:
+            return False
+        before = self.agent_uuids.get(unit)
+        self.agent_uuids[unit] = agent_uuid
+        if before is None or before == agent_uuid:
+            return False
+        log.warning("%s: /%s rebooted (agent-uuid %s, was %s): its tasks are gone",
+                    self.name, unit, agent_uuid, before)
+        return True
 
     def _missed(self, unit: str, now: float) -> bool:
         """True when messages from ``unit`` may have been lost: its heartbeat comes back after a

@@ -643,6 +643,21 @@ class TreeExecutor:
         self._drain(now, actions)
         return actions
 
+    def unit_rebooted(self, unit: str, now: float) -> list[Action]:
+        """``unit``'s heartbeat carries a new ``agent-uuid``: it rebooted and lost its history
+        (seed 12.1), so every task it accepted from us and that has not ended is gone: failed,
+        naming the reboot (the service re-delegates them). A start-task not answered yet goes on
+        being re-sent: the rebooted unit may take it now."""
+        unit = unit.strip("/")
+        actions: list[Action] = []
+        why = f"/{unit} rebooted (a new agent-uuid in its heartbeat): the task it ran is gone"
+        for tree in list(self.trees.values()):
+            for node in tree.tasks():
+                if node.unit == unit and node.started and node.attempt.answered:
+                    self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
+        self._drain(now, actions)
+        return actions
+
     def _task(self, uid: str | None) -> tuple[Tree, TaskNode] | None:
         tree = self.trees.get(self._node_tree.get(uid or "", ""))
         node = tree.nodes.get(uid or "") if tree is not None else None
