@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -519,3 +520,34 @@ def test_start_task_names_the_unit_as_the_seed_examples_do(spelt: str, accepted:
     answer = sim.on_message(sim.identity.topic("exec/command"), json.dumps(start).encode(), 1.0)
     (response,) = [json.loads(o.payload) for o in answer.publish if o.topic.endswith("response")]
     assert response["response"] == ("running" if accepted else "failed"), response
+
+
+SEED = Path(__file__).parent / "fixtures" / "seed"
+
+
+@pytest.mark.parametrize("path", sorted(SEED.glob("11.1.*.json")), ids=lambda p: p.name)
+def test_the_seeds_single_task_start_tst_to_the_engine_itself_is_refused_at_once(
+        path: Path) -> None:
+    """Seed 11.1.x: one task with execunit /op0 sent to op0, this engine: answered failed at once
+    naming the node and why (was: start-task to itself, failed ~10 s later)."""
+    c = engine("dji0")
+    effects = send(c, path.read_bytes())
+    (answer,) = on(effects, RESPONSE)
+    assert answer["response"] == "failed"
+    assert answer["fail-reason"].startswith("root (")
+    assert "execunit: /op0 is this TST engine, which runs no tasks" in answer["fail-reason"]
+    assert c.trees == {} and on(effects, FEEDBACK) == []
+    assert [o for o in effects.publish if "exec/command" in o.topic] == []
+
+
+@pytest.mark.parametrize(("units", "refused"), [
+    (("/dji0", "/dji0"), []),
+    (("/dji0", "/op0"), ["root/children[1]"]),
+    (("/op0", "/op0"), ["root/children[0]", "root/children[1]"]),
+])
+def test_tasks_for_the_engine_are_named(units: tuple[str, str], refused: list[str]) -> None:
+    c = engine("dji0")
+    (answer,) = on(send(c, start_tst(ctl("seq", "R", task("a", units[0]), task("b", units[1])))),
+                   RESPONSE)
+    assert answer["response"] == ("failed" if refused else "started")
+    assert [w for w in refused if w not in answer.get("fail-reason", "")] == []

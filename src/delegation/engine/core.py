@@ -25,7 +25,7 @@ from delegation.engine.executor import (
     TreeExecutor,
 )
 from delegation.engine.tree import Tree
-from delegation.errors import InputError
+from delegation.errors import InputError, InputProblem
 from delegation.messages import (
     ExecFeedback,
     ExecResponse,
@@ -50,7 +50,7 @@ from delegation.messages import (
 from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
 from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
-from delegation.tst.node import parse_tree
+from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, parse_tree, walk, where
 
 log = logging.getLogger(__name__)
 
@@ -244,7 +244,9 @@ class EngineCore:
         if isinstance(command, Ping):
             return self._answer(key, command.com_uuid, "pong")
         if isinstance(command, StartTst):
-            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now)
+            tree = parse_tree(command.tst)
+            self._refuse_own_tasks(tree)
+            root_uuid, actions = self.executor.start_tree(tree, now)
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))
@@ -259,6 +261,21 @@ class EngineCore:
             reason = f"{name} is not supported by the TST engine"
             return self._answer(key, getattr(command, "com_uuid", ""), "failed", reason)
         return self._answer(key, command.com_uuid, "ok").extend(self._carry_out(actions))
+
+    def _refuse_own_tasks(self, root: TstNode) -> None:
+        """``InputError`` naming every task node whose execunit is this engine: the engine
+        executes trees, not tasks, and a start-task to itself would go unanswered until it
+        failed (the seed's single-task start-tst examples name ``/op0``, the engine's name)."""
+        problems = [
+            InputProblem(where(path, node), f"{node.common_key}.execunit",
+                         f"/{self.name} is this TST engine, which runs no tasks: name the unit "
+                         f"that is to run {node.name} (e.g. /dji0)")
+            for path, node in walk(root)
+            if not node.is_control
+            and _fixed_unit(node.execunit) == self.name
+        ]
+        if problems:
+            raise InputError(problems)
 
     def _answer(
         self,
@@ -341,3 +358,12 @@ class EngineCore:
             root_flag=change.root_flag,
             status=change.status.value,
         )
+
+
+def _fixed_unit(execunit: object) -> str | None:
+    """The unit a node's execunit names (``/dji0`` -> ``dji0``), None for an alias or free."""
+    try:
+        kind, name = classify_execunit(execunit)
+    except TypeError:
+        return None
+    return name if kind is ExecUnitKind.FIXED else None
