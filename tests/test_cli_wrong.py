@@ -48,6 +48,8 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("plan free.json --fleet nodesc.yaml --json", {}, 0, ""),  # a mission for a fleet file (B13)
     ("plan free.json --fleet demo", {}, 0, ""),
     ("plan free.json --fleet free.json", {}, 1, "agents"),
+    ("plan controls.json --fleet demo", {}, 1, "root: children: the tree has no task node (3 "
+                                               "control nodes only): there is nothing to plan"),
     ("plan impossible.yaml --format json", {}, 1, ""),  # infeasible: the plan, and exit 1
     ("bench", {}, 1, "give scenario files/folders"),
     (f"bench {DEMO} --strategies greedy,auction", {}, 1, "'greedy': unknown strategy"),
@@ -117,6 +119,8 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "badparam.json").write_text(json.dumps(BADPARAM))
     (d / "typo.json").write_text(json.dumps(TYPO))
     (d / "list.json").write_text("[1, 2]")
+    (d / "controls.json").write_text(json.dumps(
+        {"name": "seq", "children": [{"name": "conc", "children": []}] * 2}))
     (d / "command.json").write_text(json.dumps({"command": "start-tst", "com-uuid": "c1",
                                                 "tst": FREE}))
     (d / "badprofile.json").write_text(json.dumps({"dji0": {"speeds": {}}, "ugv": 3}))
