@@ -346,7 +346,7 @@ class EngineCore:
                 task=TaskSpecMsg(name=action.name, params=action.params),
                 task_uuid=action.task_uuid,
             )
-        return SignalTask(com_uuid=action.com_uuid, signal=action.signal.value, sender=self.name,
+        return SignalTask(com_uuid=action.com_uuid, signal=str(action.signal), sender=self.name,
                           task_uuid=action.task_uuid)
 
     def _feedback(self, change: NodeChanged) -> TstFeedback:
