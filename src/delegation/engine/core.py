@@ -29,7 +29,6 @@ from delegation.errors import InputError, InputProblem
 from delegation.messages import (
     ExecFeedback,
     ExecResponse,
-    HeartBeat,
     MessageError,
     NodeStatus,
     Ping,
@@ -47,6 +46,7 @@ from delegation.messages import (
     WireModel,
     decode,
 )
+from delegation.messages.errors import json_value
 from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
 from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
@@ -152,13 +152,13 @@ class EngineCore:
     def _rebooted(self, unit: str, topic: str, payload: bytes) -> bool:
         """True when ``unit``'s heartbeat carries another ``agent-uuid`` than before: the seed's
         sign that it rebooted and lost its history of commands (12.1)."""
-        try:
-            beat = decode(topic, payload)
+        try:  # the agent-uuid alone: 14 us a heartbeat, where a full decode takes ~90 us
+            beat = json_value(payload, topic)
         except MessageError as exc:
             log.debug("%s: unreadable heartbeat of /%s: %s", self.name, unit, exc)
             return False
-        agent_uuid = getattr(beat, "agent_uuid", None)
-        if not isinstance(beat, HeartBeat) or not agent_uuid:
+        agent_uuid = beat.get("agent-uuid") if isinstance(beat, dict) else None
+        if not isinstance(agent_uuid, str) or not agent_uuid or len(agent_uuid) > 128:
             return False
         before = self.agent_uuids.get(unit)
         self.agent_uuids[unit] = agent_uuid
