@@ -134,7 +134,9 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     base = uuid.uuid4().hex[:6]
     a, b = f"{base}a0-0000-4000-8000-000000000001", f"{base}b0-0000-4000-8000-000000000002"
     fa = _mission_file(tmp_path, "a.json", open_ended(a, "/dji0"))
-    fb = _mission_file(tmp_path, "b.json", open_ended(b, "/dji1"))
+    # b spelt as the seed's 11.1 examples spell it: common-params, not common_params
+    fb = _mission_file(tmp_path, "b.json", json.loads(
+        json.dumps(open_ended(b, "/dji1")).replace('"common_params"', '"common-params"')))
 
     # submit stops following (timeout): full id, plain progress lines, and how to go on
     r = cli(live, ["submit", fa, "--speedup", str(SPEEDUP), "--timeout", "2"])
@@ -143,7 +145,8 @@ def test_submit_list_status_signal_follow_cancel(live: dict[str, str], tmp_path:
     assert f"mission {a[:8]} running" in r.stdout  # a plain line, not a live table
     assert f"re-attach: delegation follow {a[:8]}" in r.stdout
     assert "delegation cancel" in r.stdout
-    assert cli(live, ["submit", fb, "--timeout", "1"]).returncode == 1
+    r = cli(live, ["submit", fb, "--timeout", "1"])
+    assert r.returncode == 1 and f"mission {b} started" in r.stdout, r.stdout
 
     r = cli(live, ["missions", "--json"])
     rows = {m["root-uuid"]: m for m in json.loads(r.stdout)}

@@ -48,6 +48,8 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("plan free.json --fleet nodesc.yaml --json", {}, 0, ""),  # a mission for a fleet file (B13)
     ("plan free.json --fleet demo", {}, 0, ""),
     ("plan free.json --fleet free.json", {}, 1, "agents"),
+    ("plan controls.json --fleet demo", {}, 1, "root: children: the tree has no task node (3 "
+                                               "control nodes only): there is nothing to plan"),
     ("plan impossible.yaml --format json", {}, 1, ""),  # infeasible: the plan, and exit 1
     ("bench", {}, 1, "give scenario files/folders"),
     (f"bench {DEMO} --strategies greedy,auction", {}, 1, "'greedy': unknown strategy"),
@@ -74,7 +76,13 @@ CASES: list[tuple[str, dict[str, str], int, str]] = [
     ("sim demo --speedup 0 --port {closed}", {}, 1, "--speedup"),
     ("sim demo --role bogus", {}, 2, "invalid choice: 'bogus'"),
     ("engine --agent-type spaceship", {}, 2, "invalid choice: 'spaceship'"),
-    ("serve --profiles free.json", {}, 1, "a profile must be an object"),
+    ("serve --profiles free.json", {}, 1, "this is a mission (a TST), not a profiles file"),
+    ("serve --profiles command.json", {}, 1, "this is a command, not a profiles file"),
+    ("serve --profiles badprofile.json", {}, 1, "a profile must be an object"),
+    ("serve --time-limit -1", {}, 2, "--time-limit: must be a positive number, not -1"),
+    ("serve --time-limit 0", {}, 2, "--time-limit: must be a positive number, not 0"),
+    ("serve --time-limit 61", {}, 2, "--time-limit: 61 s is above the service's maximum of 60"),
+    ("serve --max-speed -5", {}, 2, "--max-speed: must be a positive number"),
     ("submit nope.json", {}, 1, "cannot read"),
     ("submit list.json", {}, 1, "must hold a JSON/YAML object"),
     ("submit obj.json", {}, 1, "no TST found"),
@@ -111,6 +119,11 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "badparam.json").write_text(json.dumps(BADPARAM))
     (d / "typo.json").write_text(json.dumps(TYPO))
     (d / "list.json").write_text("[1, 2]")
+    (d / "controls.json").write_text(json.dumps(
+        {"name": "seq", "children": [{"name": "conc", "children": []}] * 2}))
+    (d / "command.json").write_text(json.dumps({"command": "start-tst", "com-uuid": "c1",
+                                                "tst": FREE}))
+    (d / "badprofile.json").write_text(json.dumps({"dji0": {"speeds": {}}, "ugv": 3}))
     (d / "obj.json").write_text('{"a": 1}')
     (d / "bad.yaml").write_text("name: [x\nagents:\n")
     (d / "scenarios").mkdir()
@@ -154,3 +167,17 @@ def test_submit_to_a_service_that_is_not_there(workdir: Path, mqtt_settings: Any
     assert result.returncode == 1
     assert "no heartbeat from 'delegator9'" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.mqtt
+def test_tls_against_a_plain_port_names_tls(workdir: Path, mqtt_settings: Any) -> None:
+    """A TLS client on a plain MQTT port sees the connection reset: the error says it was the
+    TLS handshake and that the port may be plain, not just "Connection reset by peer"."""
+    port = mqtt_settings.port
+    result = run_cli(f"agents --broker 127.0.0.1 --tls --port {port} --wait 2", {}, workdir)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    line = result.stderr.strip()
+    assert len(line.splitlines()) == 1, line
+    assert f"cannot connect to mqtts://127.0.0.1:{port}: the TLS handshake failed" in line
+    assert f"is port {port} a plain MQTT port?" in line

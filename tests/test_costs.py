@@ -276,6 +276,28 @@ def test_work_per_task_type() -> None:
     assert t.capable.all()
 
 
+@pytest.mark.parametrize(
+    ("flags", "open_ended"),
+    [({}, False), ({"loop-flag": False, "hold-flag": False}, False),
+     ({"continue-flag": True}, False), ({"loop-flag": True}, True), ({"hold-flag": True}, True),
+     ({"loop-flag": True, "hold-flag": True}, True)],
+    ids=["plain", "flags-false", "continue", "loop", "hold", "both"],
+)
+def test_navigate_loops_or_holds_until_enough(flags: dict[str, bool], open_ended: bool) -> None:
+    """Seed 9.14: navigate with loop-flag loops the waypoints, with hold-flag holds after them,
+    until $enough: open-ended (travel to the first waypoint counts), not done at the last."""
+    drone = unit(tasks=("navigate",), speeds={"slow": 2.0, "standard": 4.0, "fast": 8.0})
+    pts = [wire(0, 100), wire(300, 100), wire(300, 500)]
+    t = cost_tables([drone], [make_node("navigate", params={"waypoints": pts, **flags})],
+                    frame=GRANSO)
+    assert bool(t.open_ended[0]) is open_ended
+    assert t.dist_unit_to_start()[0, 0] == pytest.approx(100.0, rel=1e-4)
+    if open_ended:
+        assert t.work_time[0, 0] == 0.0
+    else:
+        assert t.work_time[0, 0] == pytest.approx(700.0 / 4.0, rel=1e-4)
+
+
 def test_dist_semantics_for_in_place_and_home_tasks() -> None:
     drone = unit(home=GRANSO.geopoint(100, 0))
     tasks = [

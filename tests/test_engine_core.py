@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -20,9 +21,12 @@ from delegation.engine import (
     check_instantiated,
 )
 from delegation.errors import InputError
+from delegation.fleet import make_unit
+from delegation.geo import GeoPoint
 from delegation.messages import ExecFeedback, ExecResponse, HeartBeat, encode
 from delegation.messages import NodeStatus as S
 from delegation.runtime.core import Core, Effects, Identity
+from delegation.sim.core import SimUnitCore
 from delegation.tst.node import parse_tree
 
 WP = {"latitude": 57.76, "longitude": 16.68, "altitude": 40.0}
@@ -439,7 +443,7 @@ def test_start_task_goes_to_the_base_topic_learnt_from_the_heartbeat() -> None:
     (start,) = on(effects, f"{DJI0}/exec/command")
     assert (start["command"], start["execution-unit"], start["sender"]) == (
         "start-task",
-        "/dji0",
+        "dji0",  # as every seed example (10.1.x), without the execunit's slash
         "op0",
     )
     assert start["task"]["name"] == "move-to" and start["task"]["params"]["speed"] == "standard"
@@ -501,3 +505,49 @@ def test_unanswered_start_task_is_resent_on_tick() -> None:
     (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
     assert on(c.on_tick(2.5), f"{DJI0}/exec/command") == []  # sent at 1.0
     assert on(c.on_tick(3.0), f"{DJI0}/exec/command") == [start]  # same com-uuid and task-uuid
+
+
+@pytest.mark.parametrize(("spelt", "accepted"), [("dji0", True), ("/dji0", True),
+                                                 ("usv0", False), ("/usv0", False)])
+def test_start_task_names_the_unit_as_the_seed_examples_do(spelt: str, accepted: bool) -> None:
+    """Seed 10.1.x: ``"execution-unit": "dji0"`` in every start-task (the tree's execunit is
+    ``/dji0``); the simulated unit takes either spelling of its own name, and no other name."""
+    c = engine("dji0")
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a", "/dji0")))), f"{DJI0}/exec/command")
+    assert start["execution-unit"] == "dji0"
+    sim = SimUnitCore(make_unit("dji0", "air", GeoPoint(**WP), ["move-to"]), prefix="test")
+    start["execution-unit"] = spelt
+    answer = sim.on_message(sim.identity.topic("exec/command"), json.dumps(start).encode(), 1.0)
+    (response,) = [json.loads(o.payload) for o in answer.publish if o.topic.endswith("response")]
+    assert response["response"] == ("running" if accepted else "failed"), response
+
+
+SEED = Path(__file__).parent / "fixtures" / "seed"
+
+
+@pytest.mark.parametrize("path", sorted(SEED.glob("11.1.*.json")), ids=lambda p: p.name)
+def test_the_seeds_single_task_start_tst_to_the_engine_itself_is_refused_at_once(
+        path: Path) -> None:
+    """Seed 11.1.x: one task with execunit /op0 sent to op0, this engine: answered failed at once
+    naming the node and why (was: start-task to itself, failed ~10 s later)."""
+    c = engine("dji0")
+    effects = send(c, path.read_bytes())
+    (answer,) = on(effects, RESPONSE)
+    assert answer["response"] == "failed"
+    assert answer["fail-reason"].startswith("root (")
+    assert "execunit: /op0 is this TST engine, which runs no tasks" in answer["fail-reason"]
+    assert c.trees == {} and on(effects, FEEDBACK) == []
+    assert [o for o in effects.publish if "exec/command" in o.topic] == []
+
+
+@pytest.mark.parametrize(("units", "refused"), [
+    (("/dji0", "/dji0"), []),
+    (("/dji0", "/op0"), ["root/children[1]"]),
+    (("/op0", "/op0"), ["root/children[0]", "root/children[1]"]),
+])
+def test_tasks_for_the_engine_are_named(units: tuple[str, str], refused: list[str]) -> None:
+    c = engine("dji0")
+    (answer,) = on(send(c, start_tst(ctl("seq", "R", task("a", units[0]), task("b", units[1])))),
+                   RESPONSE)
+    assert answer["response"] == ("failed" if refused else "started")
+    assert [w for w in refused if w not in answer.get("fail-reason", "")] == []

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +20,7 @@ import pytest
 
 from delegation.engine import EngineOptions, NodeChanged, SendSignal, SendStartTask, TreeExecutor
 from delegation.engine.executor import Action
+from delegation.errors import InputError
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint
 from delegation.messages import ExecResponse, encode
@@ -82,8 +84,9 @@ class Fleet:
                 self.signalled.append((self.node_of[a.task_uuid], a.signal))
                 if self.answer_signals:
                     pending += self.executor.on_response(getattr(a, "com_uuid", ""), "ok", self.now)
-                    pending += self.executor.on_feedback(
-                        a.task_uuid, UNIT_FEEDBACK[a.signal], self.now)
+                    if a.signal in UNIT_FEEDBACK:  # task-specific signals change no status
+                        pending += self.executor.on_feedback(
+                            a.task_uuid, UNIT_FEEDBACK[a.signal], self.now)
 
     def check_order(self, uid: str) -> None:
         """A task starts only when every earlier child of each ``seq`` above it has ended."""
@@ -458,6 +461,97 @@ def test_a_unit_answers_a_resent_signal_task_again_and_never_runs_it_twice() -> 
                "task-uuid": "t1"}, 2.0)
     assert send_unit(pause, 3.0) == answer  # a late copy of $pause: answered, not applied again
     assert sim.vehicle.status_of("t1") == "running" and sim.commands_handled == 3
+
+
+# --------------------------------------------------------------------------- task-specific signals
+
+
+def conc_ab() -> dict[str, Any]:
+    return ctl("conc", "R", task("a", "/dji0"), task("b", "/dji1"))
+
+
+#: (name, tree, steps before, the signal (how, node, name), signalled, refused with)
+TASK_SIGNALS: list[tuple[str, Any, list[tuple[str, ...]], tuple[str, str, str],
+                         list[tuple[str, str]], str | None]] = [
+    ("to a running task: sent to its unit as it is", seq_abc, [],
+     ("node", "a", "zoom-in"), [("a", "zoom-in")], None),
+    ("to a task not started: refused, nothing sent", seq_abc, [],
+     ("node", "b", "zoom-in"), [], "'zoom-in': move-to b has not started"),
+    ("to a control node alone: refused", conc_ab, [],
+     ("node", "R", "zoom-in"), [], "is a control node (signal-tst-tree sends it"),
+    ("signal-tst-tree: every running task under the node", conc_ab, [],
+     ("tree", "R", "battery-is-charged"),
+     [("a", "battery-is-charged"), ("b", "battery-is-charged")], None),
+    ("signal-tst-tree: only the running ones", seq_abc, [],
+     ("tree", "R", "zoom-in"), [("a", "zoom-in")], None),
+    ("signal-tst-tree with nothing running under it: refused", nested, [],
+     ("tree", "S", "zoom-in"), [], "'zoom-in': no running task under seq S"),
+    ("to a tree that ended: nothing to do (answered ok)", seq_abc,
+     [("finished", "a"), ("finished", "b"), ("finished", "c")],
+     ("tree", "R", "zoom-in"), [], None),
+    ("signal-unit: that unit's running tasks", conc_ab, [],
+     ("unit", "dji1", "zoom-in"), [("b", "zoom-in")], None),
+    ("an unknown $-signal is still refused", seq_abc, [],
+     ("node", "a", "$zoom"), [], "'$zoom' is not one of $enough, $pause, $continue, $abort"),
+    ("an empty name is refused", seq_abc, [], ("node", "a", ""), [], "is no signal name"),
+    ("a padded name is refused", seq_abc, [], ("node", "a", " zoom"), [], "is no signal name"),
+    ("a 200-character name is refused", seq_abc, [], ("node", "a", "z" * 200), [],
+     "is no signal name"),
+]
+
+
+@pytest.mark.parametrize(("name", "tree", "before", "signal", "signalled", "refused"),
+                         TASK_SIGNALS, ids=[c[0] for c in TASK_SIGNALS])
+def test_task_specific_signals_on_the_tst_face(
+        name: str, tree: Any, before: list[tuple[str, ...]], signal: tuple[str, str, str],
+        signalled: list[tuple[str, str]], refused: str | None) -> None:
+    """Seed 12.2.2: "Signal names starting with $ is system signals. Other names are specific
+    for the task": forwarded to the running tasks they reach, never refused for their name."""
+    run = Fleet.of(tree())
+    for step in before:
+        run.step(*step)
+    statuses = {uid: run.last(uid) for uid in run.history}
+    if refused is None:
+        run.step(*signal)
+    else:
+        with pytest.raises(InputError, match=re.escape(refused)):
+            run.step(*signal)
+    assert [(u, str(s)) for u, s in run.signalled] == signalled
+    assert {uid: run.last(uid) for uid in statuses} == statuses  # no status changed
+
+
+def test_a_task_specific_signal_waits_for_the_start_and_is_resent_until_answered() -> None:
+    run = Fleet.of(seq_abc(), answer_starts=False, answer_signals=False, resend_after=2.0,
+                   max_attempts=3)
+    (start,) = [a for a in run.out if isinstance(a, SendStartTask)]
+    run.step("node", "a", "zoom-in")  # the start-task is not answered yet: held back
+    assert run.signalled == []
+    run.take(run.executor.on_response(start.com_uuid, "running", run.now,
+                                      task_uuid=start.task_uuid))
+    assert run.signalled == [("a", "zoom-in")]
+    (sent,) = [a for a in run.out if isinstance(a, SendSignal)]
+    resent = [a for a in run.executor.tick(run.now + 2.5) if isinstance(a, SendSignal)]
+    assert resent == [sent]  # the same com-uuid
+    run.executor.tick(run.now + 5.0)
+    gave_up = run.executor.tick(run.now + 7.5)
+    assert [(a.node_uuid, a.status, a.fail_reason) for a in gave_up
+            if isinstance(a, NodeChanged)] == [
+        ("a", S.RUNNING, "/dji0 did not answer zoom-in (3 attempts)")]
+
+
+def test_the_core_forwards_a_task_specific_signal_to_the_unit() -> None:
+    c = engine("dji0")
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
+    c.on_message(f"{DJI0}/exec/response",
+                 encode(ExecResponse(response="running", response_to=start["com-uuid"])), 1.5)
+    signal = {"com-uuid": "s1", "command": "signal-tst-node", "node-uuid": "a", "sender": "t",
+              "signal": "battery-is-charged"}
+    effects = send(c, signal, 2.0)
+    (answer,) = on(effects, f"{c.base}/tst/response")
+    assert answer["response"] == "ok", answer
+    (sent,) = on(effects, f"{DJI0}/exec/command")
+    assert (sent["command"], sent["signal"], sent["task-uuid"]) == (
+        "signal-task", "battery-is-charged", start["task-uuid"])
 
 
 # --------------------------------------------------------------------------- depth and width

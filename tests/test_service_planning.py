@@ -9,7 +9,7 @@ from delegation.errors import InputError
 from delegation.messages import MissionStatus
 from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore, run_job
-from delegation.service.jobs import PlanDone
+from delegation.service.jobs import JobFailed, PlanDone
 from delegation.service.planning import MAX_REPLANS
 from delegation.tst.validate import ValidatedTree
 from test_service_core import feed_engine, feed_unit, on, partial_tree
@@ -75,3 +75,27 @@ def test_a_start_plan_using_a_unit_busy_meanwhile_is_planned_again() -> None:
         assert [j.id for j in again.jobs] == [2 + attempt] and again.publish == []
     sent = core.planning.planned(job, result.plan, 101.2, 0.01)  # the budget is spent: sent
     assert on(sent, "op0/tst/command") and core.timings[-1].received == 100.5
+
+
+def _control_only(width: int, kind: str = "seq") -> dict[str, object]:
+    return {"name": "seq", "common_params": {"node-uuid": "root-1"},
+            "children": [{"name": kind, "children": []} for _ in range(width)]}
+
+
+@pytest.mark.parametrize(("tree", "nodes"), [
+    ({"name": "seq", "common_params": {"node-uuid": "root-1"}, "children": []}, 1),
+    (_control_only(1, "conc"), 2),
+    (_control_only(1000), 1001),  # a seq of ~1,000 control children: no RecursionError either
+])
+def test_a_tree_of_control_nodes_only_is_answered_clearly(tree: dict[str, object],
+                                                          nodes: int) -> None:
+    """Issue 20 item 7: was "planner: internal error: ValueError: zero-size array to reduction
+    operation minimum"; now the command fails naming what is wrong."""
+    core = _core()
+    [job] = core.planning.job("delegation", KEY, tree, 101.0,
+                              core.planning.options(None, None, None), start=True,
+                              source="delegate").jobs
+    result = run_job(job)
+    assert isinstance(result, JobFailed)
+    assert result.reason == (f"root: children: the tree has no task node ({nodes} control "
+                             "nodes only): there is nothing to plan")

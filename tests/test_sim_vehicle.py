@@ -67,7 +67,7 @@ def test_move_to_takes_distance_over_speed() -> None:
     assert events == [TaskEvent("t1", "finished")]
     assert distance_m(v.position, target) < 0.5
     assert not v.busy and v.speed == 0.0
-    assert v.status_of("t1") == "finished"
+    assert v.status_of("t1") == "success"  # query-status: the seed's word
 
 
 def test_one_big_step_equals_many_small_ones() -> None:
@@ -142,7 +142,7 @@ def test_pause_continue_abort() -> None:
     run_until(v, 10.0)
     assert distance_m(START, v.position) == pytest.approx(100.0, abs=0.5)
     assert v.signal("t", "$abort") == (None, TaskEvent("t", "aborted"))
-    assert not v.busy and v.status_of("t") == "aborted"
+    assert not v.busy and v.status_of("t") == "failed"  # query-status words (seed 12.1)
     assert v.signal("t", "$abort") == (INVALID_TASK_UUID, None)
 
 
@@ -231,3 +231,63 @@ def test_every_task_runs_to_its_end(name: str, params: dict, open_ended: bool) -
         assert v.altitude == 0.0
     if name.startswith("search"):
         assert v.odometer > 150.0  # it flew a sweep, not a straight line
+
+
+@pytest.mark.parametrize(
+    ("how", "word"),
+    [
+        ("running", "running"),
+        ("paused", "running"),  # still on the unit: the seed has no "paused" for query-status
+        ("finished", "success"),
+        ("enough", "success"),  # the example agent's $enough
+        ("aborted", "failed"),
+        ("battery", "failed"),
+        ("never", "unknown"),
+    ],
+)
+def test_query_status_answers_in_the_seeds_words(how: str, word: str) -> None:
+    """Seed 12.1: query-status returns "the status of the task (running, failed, success,
+    unknown)", whatever words the feedback used."""
+    v = vehicle(example=how == "enough", battery=0.001 if how == "battery" else None)
+    north = 10.0 if how == "finished" else 5000.0
+    go = {"waypoint": at(0.0, north).to_wire(), "speed": "standard"}
+    if how != "never":
+        assert v.start_task("move-to", go, "t") is None
+    if how in ("paused", "aborted", "enough"):
+        v.signal("t", {"paused": "$pause", "aborted": "$abort", "enough": "$enough"}[how])
+    elif how == "finished":
+        assert [e.status for e in run_until(v, 5.0)] == ["finished"]
+    elif how == "battery":
+        run_until(v, 30.0, dt=1.0)
+        assert "t" not in v.tasks
+    assert v.status_of("t") == word
+
+
+@pytest.mark.parametrize(
+    ("flags", "ends"),
+    [({}, True), ({"hold-flag": True}, False), ({"loop-flag": True}, False),
+     ({"loop-flag": False, "hold-flag": False}, True)],
+    ids=["plain", "hold", "loop", "flags-false"],
+)
+def test_navigate_loops_or_holds_until_enough(flags: dict[str, bool], ends: bool) -> None:
+    """Seed 9.14: navigate ends at its last waypoint unless loop-flag (round the waypoints again)
+    or hold-flag (stay at the last) keeps it on until $enough."""
+    unit = make_unit("dji0", "air", START, ["navigate"], speeds={"standard": 10.0})
+    v = SimVehicle(unit)
+    square = [at(0.0, 100.0), at(100.0, 100.0), at(100.0, 0.0), at(0.0, 0.0)]  # 400 m round
+    params = {"waypoints": [p.to_wire() for p in square], "speed": ["standard"], **flags}
+    assert v.start_task("navigate", params, "n") is None
+    events = run_until(v, 45.0, dt=0.5)  # 41 s for the waypoints at 10 m/s
+    if ends:
+        assert [e.status for e in events] == ["finished"]
+        return
+    assert events == [] and v.status_of("n") == "running"
+    here = v.position
+    if "hold-flag" in flags:
+        assert distance_m(here, square[-1]) < 0.5 and v.speed == 0.0
+    else:  # round again: 45 s at 10 m/s is 450 m, 50 m into the second round, going north
+        assert distance_m(here, at(0.0, 50.0)) < 0.5 and v.speed == 10.0
+        assert v.tasks["n"].travelled == pytest.approx(450.0, abs=2.0)
+    run_until(v, 200.0, dt=1.0)
+    assert v.status_of("n") == "running"
+    assert v.signal("n", "$enough")[1] == TaskEvent("n", "finished")

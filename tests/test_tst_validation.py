@@ -232,6 +232,33 @@ def test_search_polygon_that_crosses_itself() -> None:
     assert "crosses itself" in p.message
 
 
+@pytest.mark.parametrize(
+    ("area", "refused"),
+    [
+        # three points on a line in degrees: 1e-18 deg² by float rounding, not exactly zero
+        ([gp(57.760, 16.680), gp(57.761, 16.6813), gp(57.762, 16.6826)], True),
+        # a sliver a few cm wide and 100 m long
+        ([gp(57.760, 16.680), gp(57.7609, 16.680), gp(57.760, 16.6800001)], True),
+        # the same point three times
+        ([gp(57.760, 16.680)] * 3, True),
+        # a triangle 11 m by 6 m (mean width 2.2 m) is a (small) area
+        ([gp(57.760, 16.680), gp(57.7601, 16.680), gp(57.760, 16.6801)], False),
+        (SQUARE, False),
+        # the one-element-list form of a point is read as the point
+        ([[p] for p in SQUARE], False),
+    ],
+    ids=["collinear", "sliver", "one-point", "tiny-triangle", "square", "wrapped-points"],
+)
+def test_search_polygon_area_is_judged_in_metres(area: list[Any], refused: bool) -> None:
+    data = {"name": "search-area", "params": {"area": area, "target-size": 2.0}}
+    if not refused:
+        assert parse_and_validate(data).name == "search-area"
+        return
+    found = problems_of(data)
+    assert [(p.field, "has no area" in p.message) for p in found] == [("params.area", True)]
+    assert "m²" in found[0].message and "1 m wide" in found[0].message
+
+
 def test_search_areas_names_the_bad_area() -> None:
     a, b, c, d = SQUARE
     data = {"name": "search-areas", "params": {"areas": [SQUARE, [a, c, b, d], SQUARE[:1]]}}

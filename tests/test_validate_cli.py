@@ -248,3 +248,27 @@ def test_too_deep_tree_names_the_node(
 
 def test_json_too_deep_for_python(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert run(tmp_path, capsys, "[" * 100_000) == (1, ["invalid JSON: nested too deeply"])
+
+
+@pytest.mark.parametrize(
+    ("options", "expected"),
+    [
+        ({"strategy": "greedy"}, "delegate: strategy: unknown strategy 'greedy'; expected one of"),
+        ({"objective": "speed"}, "delegate: objective: unknown objective 'speed'"),
+        ({"time-limit": 61}, "delegate: time-limit: 61 s is above this service's maximum of 60 s"),
+        ({"strategy": "auction", "objective": "makespan", "time-limit": 5}, None),
+        ({}, None),
+    ],
+    ids=["unknown-strategy", "unknown-objective", "time-limit-too-long", "good", "defaults"],
+)
+def test_delegate_options_are_checked_as_the_service_would(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], options: dict[str, Any],
+    expected: str | None,
+) -> None:
+    command = {"com-uuid": "c", "command": "delegate", "tst": good_tree(), **options}
+    code, lines = run(tmp_path, capsys, command)
+    if expected is None:
+        assert (code, lines) == (0, ["OK: delegate command with a TST of 3 nodes, 2 tasks"])
+        return
+    assert code == 1
+    assert len(lines) == 1 and lines[0].startswith(expected), lines

@@ -184,6 +184,33 @@ def test_units_appear_on_the_map(page: Any, served: Served) -> None:
     expect(page.locator("#events li[data-kind='unit-new']").first).to_be_visible()
 
 
+def test_the_grid_labels_each_line_once(page: Any) -> None:
+    """Without tiles the map's metric grid labels each line in view once, east along the top and
+    north along the left edge (labels drawn per tile repeated mid-view); still so after a pan."""
+    overlay = page.locator("#map canvas.metric-grid-labels")
+    expect(overlay).to_have_count(1, timeout=15_000)
+    expect(overlay).to_have_attribute("data-labels", re.compile(r"E.*N"))
+
+    def labels() -> list[str]:
+        found = json.loads(str(overlay.get_attribute("data-labels")))
+        assert len(found) == len(set(found)), f"a label repeats: {found}"
+        assert any(t.endswith(" E") for t in found) and any(t.endswith(" N") for t in found)
+        return list(found)
+
+    before = labels()
+    box = page.locator("#map").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    page.mouse.move(cx - 400, cy - 300, steps=8)
+    page.mouse.up()
+    page.wait_for_function(
+        "(old) => document.querySelector('#map canvas.metric-grid-labels').dataset.labels !== old",
+        arg=json.dumps(before, separators=(",", ":")))
+    after = labels()
+    assert after != before
+
+
 def test_a_submitted_mission_shows_its_plan_and_succeeds(page: Any, served: Served) -> None:
     page.fill("#mission-text", DEMO.read_text())
     page.click("#btn-preview")
@@ -244,6 +271,92 @@ def test_a_submitted_mission_shows_its_plan_and_succeeds(page: Any, served: Serv
     shot(page, "mission.png")
     page.click("#detail-close")
     expect(detail).to_be_hidden()
+
+
+def test_start_runs_the_previewed_plan_the_operator_picks(page: Any, served: Served) -> None:
+    """Every strategy ticked, previewed for the total-time objective: the page suggests the plan
+    best by that objective (not the first ticked, nor the shortest makespan); the operator picks
+    another with a click on its row; Start names it, runs it (its plan is the one previewed), and
+    a changed objective forgets the preview rather than start a plan nobody compared."""
+    page.fill("#mission-text", DEMO.read_text())
+    page.select_option("#objective", "total")
+    page.click("#btn-preview")
+    rows = page.locator("#preview tbody tr")
+    expect(rows).to_have_count(3, timeout=60_000)
+    previewed = {}
+    for i in range(3):
+        row = rows.nth(i)
+        previewed[str(row.get_attribute("data-strategy"))] = (
+            float(str(row.get_attribute("data-makespan"))),
+            float(str(row.get_attribute("data-total-time"))))
+    assert set(previewed) == {"nearest", "auction", "optimal"}
+    suggested = min(previewed, key=lambda k: previewed[k][1])
+    expect(page.locator(f'#preview tr[data-strategy="{suggested}"] input[type=radio]')
+           ).to_be_checked()
+    expect(page.locator("#btn-start")).to_have_text(f"Start {suggested}")
+    picked = "auction" if suggested != "auction" else "nearest"  # deterministic planners
+    page.click(f'#preview tr[data-strategy="{picked}"] td:nth-child(2)')  # the name, not the radio
+    expect(page.locator(f'#preview tr[data-strategy="{picked}"] input[type=radio]')).to_be_checked()
+    expect(page.locator("#btn-start")).to_have_text(f"Start {picked}")
+
+    page.select_option("#objective", "makespan")  # not what was compared: the preview goes
+    expect(page.locator("#preview")).to_be_hidden()
+    expect(page.locator("#btn-start")).to_have_text("Start")
+    page.select_option("#objective", "total")
+    page.click("#btn-preview")
+    expect(page.locator(f'#preview tr[data-strategy="{picked}"]')).to_have_count(1,
+                                                                                 timeout=60_000)
+    page.click(f'#preview tr[data-strategy="{picked}"] td:nth-child(3)')
+    expect(page.locator("#btn-start")).to_have_text(f"Start {picked}")
+
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    mission_id = str(result.get_attribute("data-mission-id"))
+    expect(result).to_contain_text(f"with {picked}")
+    state = page.evaluate("fetch('/api/state').then((r) => r.json())")
+    (started,) = [m for m in state["missions"] if m["id"] == mission_id]
+    assert started["strategy"] == picked, started
+    assert started["planned-makespan"] == pytest.approx(previewed[picked][0], abs=1e-3), (
+        "the started plan is the one previewed", started, previewed)
+    page.click("#btn-cancel")
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
+                                                               timeout=30_000)
+
+
+def _plan(makespan: float | None, total: float | None, distance: float = 100.0,
+          **more: Any) -> dict[str, Any]:
+    return {"makespan": makespan, "total-time": total, "total-distance": distance, **more}
+
+
+# (plans in the order ticked, objective, the suggestion)
+SUGGESTIONS: list[tuple[dict[str, Any], str, str | None]] = [
+    ({"nearest": _plan(90, 100), "auction": _plan(60, 120), "optimal": _plan(70, 95)},
+     "makespan", "auction"),
+    ({"nearest": _plan(90, 100), "auction": _plan(60, 120), "optimal": _plan(70, 95)},
+     "total", "optimal"),
+    # a plan leaving a task unassigned is shorter, not better
+    ({"nearest": _plan(20, 20, unassigned=["t3"]), "auction": _plan(60, 120)},
+     "makespan", "auction"),
+    ({"nearest": _plan(20, 20, feasible=False), "auction": _plan(60, 120)}, "makespan", "auction"),
+    # ties on the objective: the other measure, then distance, then the order ticked
+    ({"nearest": _plan(60, 130), "auction": _plan(60, 120)}, "makespan", "auction"),
+    ({"nearest": _plan(60, 120, 900), "auction": _plan(60, 120, 800)}, "makespan", "auction"),
+    ({"nearest": _plan(60, 120), "auction": _plan(60, 120)}, "makespan", "nearest"),
+    # unknown measures (open-ended tasks) rank last, not first
+    ({"nearest": _plan(None, None), "auction": _plan(60, 120)}, "makespan", "auction"),
+    ({"nearest": {"fail-reason": "timeout"}, "auction": _plan(60, 120)}, "makespan", "auction"),
+    ({"nearest": {"fail-reason": "timeout"}}, "makespan", None),
+]
+
+
+def test_the_suggested_plan_is_best_by_the_objective(page: Any) -> None:
+    """The page's suggestion (submit.js ``suggest``), table-driven in the page's own browser."""
+    found = page.evaluate(
+        "async (cases) => { const m = await import('/static/submit.js');"
+        " return cases.map(([plans, objective]) => m.suggest(plans, objective)); }",
+        [[plans, objective] for plans, objective, _ in SUGGESTIONS])
+    assert found == [expected for _, _, expected in SUGGESTIONS]
 
 
 FAR_MOVE = {

@@ -13,6 +13,8 @@ Every strategy plans on the same ``CostTables`` so that their plans mean the sam
   =========================  ================================  ===================================
   move-to                    waypoint                          none
   move-path, navigate        first -> last waypoint            polyline length / speed
+                                                               (navigate with ``loop-flag`` or
+                                                               ``hold-flag``: open-ended)
   search-area                the sweep's two ends              boustrophedon path length / speed
   search-areas               first sweep's start -> last end   all sweeps + connectors / speed
   search-around-position     the sweep's ends (circle)         boustrophedon path length / speed
@@ -189,7 +191,13 @@ def task_geometry(node: TstNode) -> TaskGeometry:
         return TaskGeometry("point", (read_geopoint(p["waypoint"]),))
     if name in ("move-path", "navigate"):
         pts = tuple(read_geopoint(v) for v in p["waypoints"])
-        return TaskGeometry("path", pts) if pts else TaskGeometry("inplace")
+        # navigate with loop-flag or hold-flag loops the waypoints or holds after the last one
+        # until $enough (seed 9.14): open-ended, like an observe-position without a duration.
+        until_enough = name == "navigate" and (p.get("loop-flag") is True
+                                               or p.get("hold-flag") is True)
+        if not pts:
+            return TaskGeometry("inplace", open_ended=until_enough)
+        return TaskGeometry("path", pts, open_ended=until_enough)
     if name == "search-area":
         area = tuple(read_geopoint(v) for v in p["area"])
         return TaskGeometry("areas", areas=(area,), target_size=_target_size(p))

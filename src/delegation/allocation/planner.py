@@ -20,6 +20,7 @@ from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
 from delegation.errors import InputError, InputProblem
 from delegation.tst import TstNode, with_defaults, with_uuids
+from delegation.tst.node import walk
 from delegation.tst.validate import DEFAULT_LIMITS, Limits, ValidatedTree, validate_tree
 
 if TYPE_CHECKING:
@@ -75,6 +76,10 @@ def plan_mission(
     clock = time.perf_counter()
     check_options(strategy, objective, time_limit)
     tree = (tree if isinstance(tree, ValidatedTree) else validate_tree(tree, limits)).root
+    if not any(not node.is_control for _, node in walk(tree)):
+        raise InputError(InputProblem(
+            "root", "children", f"the tree has no task node ({sum(1 for _ in walk(tree))} "
+            "control nodes only): there is nothing to plan"))
     warnings = plausibility_notes(tree, units)
     for warning in warnings:
         log.warning("implausible input: %s", warning)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from delegation.cli.options import Stopped
+from delegation.errors import DelegationError
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -136,7 +137,7 @@ def run_mission(
         console.print(f"[red]not started[/]: {answer.get('fail-reason')}")
         return None
     started = time.monotonic()
-    root = str(answer["plan"]["tst"].get("common_params", {}).get("node-uuid", ""))
+    root = mission_id(answer["plan"])
     try:  # from here on a stop leaves a running mission behind: always say how to go on
         console.print(f"mission {root} started", soft_wrap=True)
         for note in answer["plan"].get("notes") or []:  # default speeds, suspicious input
@@ -153,6 +154,17 @@ def run_mission(
         if hint:
             still_running_hint(console, root, progress.status)
     return progress
+
+
+def mission_id(plan: dict[str, Any]) -> str:
+    """A started mission's id: its tree's root node-uuid, under either spelling of the common
+    params (the plan keeps the operator's: ``common_params`` or ``common-params``)."""
+    tree = plan.get("tst")
+    for key in ("common_params", "common-params"):
+        common = tree.get(key) if isinstance(tree, dict) else None
+        if isinstance(common, dict) and isinstance(common.get("node-uuid"), str):
+            return str(common["node-uuid"])
+    raise DelegationError("the service started a mission but its plan names no root node-uuid")
 
 
 def _print_summary(console: Console, progress: MissionProgress, wall: float) -> None:

@@ -76,6 +76,12 @@ def read_profiles(path: str) -> dict[str, dict[str, Any]]:
     data = read_object(path)
     if "agents" in data:
         return load_scenario(path).profiles()
+    kind = ("a command" if isinstance(data.get("command"), str)
+            else "a mission (a TST)" if isinstance(data.get("name"), str) else None)
+    if kind:  # a profile is an object: a string "name" or "command" is no unit's profile
+        raise InputError(InputProblem(
+            path, "", f"this is {kind}, not a profiles file: give a scenario (its agents) or "
+            "an object of profiles keyed by unit name or agent type"))
     bad = [k for k, v in data.items() if not isinstance(v, dict)]
     if bad:
         raise InputError(

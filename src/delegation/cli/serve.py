@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from delegation.cli.connect import add_broker_args, client_settings
 from delegation.cli.inputs import read_profiles
-from delegation.cli.options import fraction
+from delegation.cli.options import UsageError, fraction, positive_float
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.cli.ui import add_http_args
 from delegation.topics import AGENT_TYPES, ROLES
@@ -47,7 +47,7 @@ def register(subparsers: Any) -> None:
     )
     serve.add_argument(
         "--max-speed",
-        type=float,
+        type=positive_float,
         default=100.0,
         metavar="M/S",
         help="the highest explicit speed a task may ask for (default 100)",
@@ -67,7 +67,8 @@ def _service_args(p: argparse.ArgumentParser) -> None:
         help="default strategy for start-tst",
     )
     p.add_argument("--objective", default="makespan", choices=OBJECTIVE_CHOICES)
-    p.add_argument("--time-limit", type=float, default=2.0)
+    p.add_argument("--time-limit", type=positive_float, default=2.0, metavar="S",
+                   help="default planner time limit (s, at most 60; default 2)")
     p.add_argument("--agent-type", default="ground", choices=AGENT_TYPES,
                    help="agent-type in the heartbeat topic (default ground)")
     p.add_argument("--role", default="simulation", choices=ROLES,
@@ -123,6 +124,9 @@ def _serve(args: argparse.Namespace) -> int:
         operators=frozenset(args.operator),
         max_speed=args.max_speed,
     )
+    if config.time_limit > config.max_time_limit:
+        raise UsageError(f"--time-limit: {config.time_limit:g} s is above the service's maximum "
+                         f"of {config.max_time_limit:g} s")
     if args.http:
         from delegation.cli.ui import page_options
 

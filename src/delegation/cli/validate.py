@@ -82,6 +82,27 @@ def _tasks(tree: Any) -> Any:
     return (n for _, n in walk(tree) if not n.is_control)
 
 
+def _option_problems(message: Any) -> list[Any]:
+    """A ``delegate``'s strategy, objective and time limit, by the rule a default service applies
+    (`service.jobs.plan_options`): the message codec cannot know which strategies are installed,
+    so a name that is neither built in nor installed passed as OK and failed only when sent."""
+    from delegation.errors import InputError, InputProblem
+    from delegation.messages.delegation_api import Delegate
+    from delegation.service.config import ServiceConfig
+    from delegation.service.jobs import PlanOptions, plan_options
+
+    if not isinstance(message, Delegate):
+        return []
+    config = ServiceConfig()
+    defaults = PlanOptions(config.strategy, config.objective, config.time_limit)
+    try:
+        plan_options(message.strategy, message.objective, message.time_limit,
+                     defaults=defaults, max_time_limit=config.max_time_limit)
+    except InputError as exc:
+        return [InputProblem(message.command, p.field, p.message) for p in exc.problems]
+    return []
+
+
 def run(args: argparse.Namespace) -> int:
     from delegation.messages.check import check_bytes
 
@@ -101,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{label}: {scenario}" if ok else scenario)  # problems name the file already
             continue
         result = check_bytes(_as_json(name, payload), source="")
+        if result.ok:
+            result.problems.extend(_option_problems(result.message))
         if result.ok:
             print(f"{label}: OK: {result.summary}")
             continue

@@ -25,7 +25,7 @@ from delegation.engine.executor import (
     TreeExecutor,
 )
 from delegation.engine.tree import Tree
-from delegation.errors import InputError
+from delegation.errors import InputError, InputProblem
 from delegation.messages import (
     ExecFeedback,
     ExecResponse,
@@ -46,10 +46,11 @@ from delegation.messages import (
     WireModel,
     decode,
 )
+from delegation.messages.errors import json_value
 from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
 from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
-from delegation.tst.node import parse_tree
+from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, parse_tree, walk, where
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +85,8 @@ class EngineCore:
         self._impostors: set[tuple[str, str]] = set()
         self._command_topic = identity.topic("tst/command")
         self.heard: dict[str, float] = {}
+        self.agent_uuids: dict[str, str] = {}
+        """Unit name -> the agent-uuid of its last heartbeat (a new one: it rebooted)."""
         """Unit name -> when its last heartbeat arrived (``now``)."""
         self._reconnected_at: float | None = None
         self.catch_up_gap = 3.0
@@ -126,7 +129,9 @@ class EngineCore:
             return Effects()
         if parsed.rest == "heartbeat":
             actions = self.executor.unit_seen(parsed.name, now)
-            if self._missed(parsed.name, now):
+            if self._rebooted(parsed.name, topic, payload):
+                actions += self.executor.unit_rebooted(parsed.name, now)
+            elif self._missed(parsed.name, now):
                 log.info("%s: /%s is back: asking for its tasks' status", self.name, parsed.name)
                 actions += self.executor.query(parsed.name)
             self.heard[parsed.name] = now
@@ -143,6 +148,25 @@ class EngineCore:
             log.warning("%s: ignoring %s: no heartbeat of %s yet", self.name, base, name)
         else:
             log.warning("%s: ignoring %s: %s is bound to %s", self.name, base, name, bound)
+
+    def _rebooted(self, unit: str, topic: str, payload: bytes) -> bool:
+        """True when ``unit``'s heartbeat carries another ``agent-uuid`` than before: the seed's
+        sign that it rebooted and lost its history of commands (12.1)."""
+        try:  # the agent-uuid alone: 14 us a heartbeat, where a full decode takes ~90 us
+            beat = json_value(payload, topic)
+        except MessageError as exc:
+            log.debug("%s: unreadable heartbeat of /%s: %s", self.name, unit, exc)
+            return False
+        agent_uuid = beat.get("agent-uuid") if isinstance(beat, dict) else None
+        if not isinstance(agent_uuid, str) or not agent_uuid or len(agent_uuid) > 128:
+            return False
+        before = self.agent_uuids.get(unit)
+        self.agent_uuids[unit] = agent_uuid
+        if before is None or before == agent_uuid:
+            return False
+        log.warning("%s: /%s rebooted (agent-uuid %s, was %s): its tasks are gone",
+                    self.name, unit, agent_uuid, before)
+        return True
 
     def _missed(self, unit: str, now: float) -> bool:
         """True when messages from ``unit`` may have been lost: its heartbeat comes back after a
@@ -220,7 +244,9 @@ class EngineCore:
         if isinstance(command, Ping):
             return self._answer(key, command.com_uuid, "pong")
         if isinstance(command, StartTst):
-            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now)
+            tree = parse_tree(command.tst)
+            self._refuse_own_tasks(tree)
+            root_uuid, actions = self.executor.start_tree(tree, now)
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))
@@ -235,6 +261,21 @@ class EngineCore:
             reason = f"{name} is not supported by the TST engine"
             return self._answer(key, getattr(command, "com_uuid", ""), "failed", reason)
         return self._answer(key, command.com_uuid, "ok").extend(self._carry_out(actions))
+
+    def _refuse_own_tasks(self, root: TstNode) -> None:
+        """``InputError`` naming every task node whose execunit is this engine: the engine
+        executes trees, not tasks, and a start-task to itself would go unanswered until it
+        failed (the seed's single-task start-tst examples name ``/op0``, the engine's name)."""
+        problems = [
+            InputProblem(where(path, node), f"{node.common_key}.execunit",
+                         f"/{self.name} is this TST engine, which runs no tasks: name the unit "
+                         f"that is to run {node.name} (e.g. /dji0)")
+            for path, node in walk(root)
+            if not node.is_control
+            and _fixed_unit(node.execunit) == self.name
+        ]
+        if problems:
+            raise InputError(problems)
 
     def _answer(
         self,
@@ -300,12 +341,12 @@ class EngineCore:
         if isinstance(action, SendStartTask):
             return StartTask(
                 com_uuid=action.com_uuid,
-                execution_unit=f"/{action.unit}",
+                execution_unit=action.unit,  # "dji0", as every seed example (no slash)
                 sender=self.name,
                 task=TaskSpecMsg(name=action.name, params=action.params),
                 task_uuid=action.task_uuid,
             )
-        return SignalTask(com_uuid=action.com_uuid, signal=action.signal.value, sender=self.name,
+        return SignalTask(com_uuid=action.com_uuid, signal=str(action.signal), sender=self.name,
                           task_uuid=action.task_uuid)
 
     def _feedback(self, change: NodeChanged) -> TstFeedback:
@@ -317,3 +358,12 @@ class EngineCore:
             root_flag=change.root_flag,
             status=change.status.value,
         )
+
+
+def _fixed_unit(execunit: object) -> str | None:
+    """The unit a node's execunit names (``/dji0`` -> ``dji0``), None for an alias or free."""
+    try:
+        kind, name = classify_execunit(execunit)
+    except TypeError:
+        return None
+    return name if kind is ExecUnitKind.FIXED else None

@@ -132,7 +132,8 @@ class SendSignal:
 
     unit: str
     task_uuid: str
-    signal: Signal
+    signal: Signal | str
+    """A built-in `Signal` or a task-specific name (seed 12.2.2), sent as it is."""
     com_uuid: str
 
 
@@ -173,7 +174,7 @@ class _SignalOut:
 
     unit: str
     task_uuid: str
-    signal: Signal
+    signal: Signal | str
     node_uuid: str
     sends: int
     sent_at: float
@@ -458,10 +459,15 @@ class TreeExecutor:
                 self._todo.append(("advance", tree, n.uuid, ""))
 
     def _signal_task(
-        self, tree: Tree, node: TaskNode, signal: Signal, now: float, actions: list[Action]
+        self, tree: Tree, node: TaskNode, signal: Signal | str, now: float,
+        actions: list[Action],
     ) -> None:
-        """Deliver a signal to one task node, whatever state it is in (docs/protocol.md §12.1)."""
+        """Deliver a signal to one task node, whatever state it is in (docs/protocol.md §12.1);
+        a task-specific one only to a task the unit may be running (`_task_signal_targets`)."""
         if node.terminal:
+            return
+        if not isinstance(signal, Signal) and not node.sent:
+            log.info("task %s: task-specific signal %r dropped: nothing runs", node.uuid, signal)
             return
         if not node.sent:
             # Not sent to the unit (not its turn yet, or waiting): the engine decides alone.
@@ -486,7 +492,7 @@ class TreeExecutor:
         self._send_signal(node, signal, now, actions)
 
     def _send_signal(
-        self, node: TaskNode, signal: Signal, now: float, actions: list[Action]
+        self, node: TaskNode, signal: Signal | str, now: float, actions: list[Action]
     ) -> None:
         """A ``signal-task`` with a fresh com-uuid, re-sent by `tick` until answered."""
         com = self.new_uuid()
@@ -577,6 +583,10 @@ class TreeExecutor:
         actions: list[Action] = []
         if node.terminal:
             return actions
+        if not isinstance(sig, Signal):
+            for task in self._task_signal_targets(tree, node, sig, whole):
+                self._signal_task(tree, task, sig, now, actions)
+            return actions
         if isinstance(node, TaskNode):
             self._signal_task(tree, node, sig, now, actions)
         else:
@@ -589,6 +599,30 @@ class TreeExecutor:
                 self._hold_control(tree, node, sig, whole, now, actions)
         self._drain(now, actions)
         return actions
+
+    @staticmethod
+    def _task_signal_targets(
+        tree: Tree, node: ExecNode, name: str, whole: bool
+    ) -> list[TaskNode]:
+        """The task nodes a task-specific signal goes to (docs/protocol.md §12.1): the node
+        itself, or with ``whole`` every task under it, whose start-task is out and that has not
+        ended; `InputError` when there is none (the engine cannot act on one itself)."""
+        if isinstance(node, TaskNode):
+            if node.started:
+                return [node]
+            raise InputError(InputProblem(
+                "node-uuid", "node-uuid", f"task-specific signal {name!r}: {node.name} "
+                f"{node.uuid} has not started (only a running task can take it)"))
+        targets = [n for n in tree.subtree(node) if isinstance(n, TaskNode) and n.started]
+        if not whole:
+            raise InputError(InputProblem(
+                "node-uuid", "node-uuid", f"task-specific signal {name!r}: {node.name} "
+                f"{node.uuid} is a control node (signal-tst-tree sends it to its running tasks)"))
+        if not targets:
+            raise InputError(InputProblem(
+                "node-uuid", "node-uuid", f"task-specific signal {name!r}: no running task "
+                f"under {node.name} {node.uuid}"))
+        return targets
 
     def signal_node(self, node_uuid: str, signal: str, now: float) -> list[Action]:
         """``signal-tst-node``: the signal to this node alone (docs/protocol.md §12.2); raises
@@ -619,13 +653,22 @@ class TreeExecutor:
         return self.trees[root]
 
     @staticmethod
-    def _check_signal(signal: str) -> Signal:
-        try:
-            return Signal(signal)
-        except ValueError:
-            raise InputError(
-                InputProblem("signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
-            ) from None
+    def _check_signal(signal: str) -> Signal | str:
+        """A built-in signal (``$...``: one of `SIGNALS`), or a task-specific name (seed 12.2.2:
+        "Signal names starting with $ is system signals. Other names are specific for the
+        task"), passed on to the task's unit as it is."""
+        if signal.startswith("$"):
+            try:
+                return Signal(signal)
+            except ValueError:
+                raise InputError(InputProblem(
+                    "signal", "signal", f"{signal!r} is not one of {', '.join(SIGNALS)} (names "
+                    "without $ are task-specific)")) from None
+        if not signal or len(signal) > 128 or not signal.isprintable() or signal.strip() != signal:
+            raise InputError(InputProblem(
+                "signal", "signal", f"{signal[:40]!r} is no signal name (1-128 printable "
+                "characters, no leading or trailing space)"))
+        return signal
 
     # ---- inputs from units
 
@@ -640,6 +683,21 @@ class TreeExecutor:
             for node in tree.tasks():
                 if node.unit == unit and node.status is NodeStatus.WAITING and not node.sent:
                     self._try_start(tree, node, now, actions)
+        self._drain(now, actions)
+        return actions
+
+    def unit_rebooted(self, unit: str, now: float) -> list[Action]:
+        """``unit``'s heartbeat carries a new ``agent-uuid``: it rebooted and lost its history
+        (seed 12.1), so every task it accepted from us and that has not ended is gone: failed,
+        naming the reboot (the service re-delegates them). A start-task not answered yet goes on
+        being re-sent: the rebooted unit may take it now."""
+        unit = unit.strip("/")
+        actions: list[Action] = []
+        why = f"/{unit} rebooted (a new agent-uuid in its heartbeat): the task it ran is gone"
+        for tree in list(self.trees.values()):
+            for node in tree.tasks():
+                if node.unit == unit and node.started and node.attempt.answered:
+                    self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
         self._drain(now, actions)
         return actions
 
@@ -715,7 +773,7 @@ class TreeExecutor:
         if out.signal is Signal.ABORT and node.abort_answered_at is None:
             node.abort_answered_at = now
         if response not in ("ok", "running", "paused", "finished", "aborted", "enough"):
-            why = f"/{node.unit} refused {out.signal.value}: {fail_reason or response}"
+            why = f"/{node.unit} refused {out.signal}: {fail_reason or response}"
             log.info("task %s: %s", out.task_uuid, why)
             self._set(tree, node, node.status, actions, why)
         return actions
@@ -777,10 +835,17 @@ class TreeExecutor:
         return actions
 
     def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
-        """A unit's answer to ``query-status``: its task's state, applied as feedback."""
+        """A unit's answer to ``query-status`` in the seed's words (running, failed, success,
+        unknown; older units answer with feedback words), applied as feedback: ``running`` says
+        the task is still on, so a paused node stays paused; ``failed`` after our ``$abort`` is
+        the abort done (the seed has no word for aborted)."""
+        found = self._task(self._task_node.get(task_uuid))
+        if response == "running":
+            return []  # still on the unit, as the node says (running or paused)
+        if response == "failed" and found is not None and found[1].abort_sent:
+            response = "aborted"
         if response != "unknown":
             return self.on_feedback(task_uuid, response, now)
-        found = self._task(self._task_node.get(task_uuid))
         if found is None or found[1].terminal or found[1].attempt.task_uuid != task_uuid:
             return []
         tree, node = found
@@ -819,7 +884,7 @@ class TreeExecutor:
                 actions.append(SendSignal(out.unit, out.task_uuid, out.signal, com))
                 continue
             del self._signals[com]
-            why = f"/{out.unit} did not answer {out.signal.value} ({out.sends} attempts)"
+            why = f"/{out.unit} did not answer {out.signal} ({out.sends} attempts)"
             log.warning("task %s: %s", out.task_uuid, why)
             found = self._task(out.node_uuid)
             if found is None or found[1].terminal:

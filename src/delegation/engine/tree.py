@@ -100,7 +100,7 @@ class TaskNode(ExecNode):
     """``$abort`` went out to the unit."""
     abort_answered_at: float | None = None
     """The unit answered our ``$abort``: its ``aborted`` feedback is awaited from then."""
-    pending: list[Signal] = field(default_factory=list)
+    pending: list[Signal | str] = field(default_factory=list)
     """Signals that arrived before the unit answered the start-task, in order."""
     signals: set[str] = field(default_factory=set)
     """Com-uuids of this node's signal-tasks still out (unanswered)."""

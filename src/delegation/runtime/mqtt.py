@@ -49,6 +49,12 @@ class MqttConnectError(MqttError):
     """The broker could not be reached or refused the connection."""
 
 
+#: OpenSSL's reasons when the other end does not speak TLS at all (a plain MQTT port).
+_PLAIN_PORT_SSL_REASONS = frozenset(
+    {"WRONG_VERSION_NUMBER", "RECORD_LAYER_FAILURE", "PACKET_LENGTH_TOO_LONG", "HTTP_REQUEST"}
+)
+
+
 # --------------------------------------------------------------------------- values
 
 
@@ -232,7 +238,7 @@ class MqttClient:
             else:
                 client.connect(s.host, s.port, s.keepalive)
         except (OSError, ValueError, ssl.SSLError) as exc:
-            self._connack_reason = str(exc) or type(exc).__name__
+            self._connack_reason = self._connect_failure(exc)
             return -1
         self._client = client
         client.loop_start()
@@ -244,6 +250,20 @@ class MqttClient:
         if code != 0:
             self._shutdown_client()
         return code
+
+    def _connect_failure(self, exc: BaseException) -> str:
+        """Why a connect failed, naming TLS when the handshake did: a TLS client on a plain
+        MQTT port sees only "Connection reset by peer" or an SSL record error."""
+        text = str(exc) or type(exc).__name__
+        plain_port = (
+            isinstance(exc, ConnectionResetError | ConnectionAbortedError | ssl.SSLEOFError)
+            or (isinstance(exc, ssl.SSLError) and exc.reason in _PLAIN_PORT_SSL_REASONS)
+            or (isinstance(exc, TimeoutError) and "handshake" in text)  # a broker that waits
+        )  # not a certificate that fails to verify: that message says so already
+        if self.settings.tls and plain_port:
+            return (f"the TLS handshake failed ({text}); is port {self.settings.port} a plain "
+                    "MQTT port? (--tls or WARAPS_TLS_CONNECTION asks for TLS)")
+        return text
 
     def _shutdown_client(self) -> None:
         client, self._client = self._client, None

@@ -60,6 +60,29 @@ class TaskState(StrEnum):
 
 ENDED = frozenset({TaskState.FINISHED, TaskState.ENOUGH, TaskState.FAILED, TaskState.ABORTED})
 
+#: A task's state in the seed's words for ``query-status`` (seed 12.1: "running, failed, success,
+#: unknown"): a paused task is still on (running); ``$abort`` ended it unsuccessfully (failed).
+QUERY_WORDS: dict[str, str] = {
+    TaskState.RUNNING: "running",
+    TaskState.PAUSED: "running",
+    TaskState.FINISHED: "success",
+    TaskState.ENOUGH: "success",
+    TaskState.FAILED: "failed",
+    TaskState.ABORTED: "failed",
+}
+
+
+#: A navigate loop shorter than this (m) is flown as a hold: its waypoints are one point.
+LOOP_MIN_M = 1.0
+
+
+def _loop_length(loop: tuple[tuple[float, float, float], ...]) -> float:
+    """Metres once round a closed loop of (east, north, altitude) points."""
+    if len(loop) < 2:
+        return 0.0
+    return sum(math.hypot(b[0] - a[0], b[1] - a[1])
+               for a, b in zip(loop, loop[1:] + loop[:1], strict=True))
+
 
 @dataclass(frozen=True, slots=True)
 class VehiclePolicy:
@@ -83,6 +106,7 @@ class SimTask:
     legs: list[tuple[float, float, float]]  # remaining (east, north, altitude) points
     speed: float
     hold: float  # seconds to stay after the last leg; math.inf: until $enough
+    loop: tuple[tuple[float, float, float], ...] = ()  # flown again and again (navigate loop-flag)
     state: TaskState = TaskState.RUNNING
     fail_reason: str = ""
     travelled: float = 0.0
@@ -144,11 +168,13 @@ class SimVehicle:
         return [(t.name, t.uuid) for t in self.tasks.values()]
 
     def status_of(self, task_uuid: str) -> str:
-        """For query-status: a task's state, or ``unknown``."""
+        """For query-status: a task's state in the seed's words (`QUERY_WORDS`), or ``unknown``
+        for a task this vehicle never ran or has forgotten."""
         task = self.tasks.get(task_uuid)
         if task is not None:
-            return task.state.value
-        return self.history.get(task_uuid, "unknown")
+            return QUERY_WORDS[task.state]
+        state = self.history.get(task_uuid)
+        return "unknown" if state is None else QUERY_WORDS[state]
 
     # ---- commands
 
@@ -204,7 +230,11 @@ class SimVehicle:
         elif name == "land":
             legs.append((here[0], here[1], points[-1].altitude if points else 0.0))
         hold = math.inf if geometry.open_ended else float(geometry.fixed_time)
-        return SimTask(task_uuid, name, vehicle, legs, speed, hold)
+        # navigate's loop-flag: round the waypoints until $enough (a loop of no length: a hold)
+        loop = tuple(legs) if name == "navigate" and params.get("loop-flag") is True else ()
+        if _loop_length(loop) <= LOOP_MIN_M:
+            loop = ()
+        return SimTask(task_uuid, name, vehicle, legs, speed, hold, loop)
 
     def signal(self, task_uuid: str, signal: str) -> tuple[str | None, TaskEvent | None]:
         """Apply ``$abort``/``$enough``/``$pause``/``$continue``: (fail reason or None, event)."""
@@ -249,6 +279,10 @@ class SimVehicle:
                 continue
             remaining = dt
             if task.vehicle and task.legs:
+                remaining = self._move(task, remaining)
+                moving = True
+            while task.loop and not task.legs and remaining > 0.0:
+                task.legs = list(task.loop)  # round again, from the first waypoint
                 remaining = self._move(task, remaining)
                 moving = True
             if not task.legs and remaining > 0.0:

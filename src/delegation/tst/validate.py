@@ -16,7 +16,7 @@ from typing import Any
 from shapely.geometry import LinearRing, Polygon
 
 from delegation.errors import InputError, InputProblem, short_repr
-from delegation.geo import GeoPoint
+from delegation.geo import GeoPoint, LocalFrame
 from delegation.tst.catalogue import CATALOGUE, SPEED_CLASSES, ParamType, TaskSpec
 from delegation.tst.node import (
     TstNode,
@@ -55,6 +55,9 @@ DEFAULT_LIMITS = Limits()
 _SIZES: dict[str, bool] = {"target-size": False, "radius": False, "distance": True}
 #: Params that are heights (m), checked against ``Limits.altitude``.
 _HEIGHTS = frozenset({"height", "height-above-takeoff", "z"})
+#: The narrowest mean width (m: area over half the perimeter) a search polygon may have: thinner
+#: is a line (collinear points), not an area to search.
+MIN_AREA_WIDTH_M = 1.0
 
 
 def _is_number(v: Any) -> bool:
@@ -170,14 +173,25 @@ def _speed_problems(value: Any, field: str, limits: Limits) -> list[tuple[str, s
 
 
 def _polygon_problems(points: list[Any], field: str) -> list[tuple[str, str]]:
+    """A search polygon must be simple and have a width worth searching, judged in metres: in
+    degrees, three collinear points give an area of 1e-18 (float rounding) rather than 0, and a
+    sliver of a few cm² passed an exact-zero test."""
     if len(points) < 3:
         return [(field, f"a search polygon needs at least 3 points, got {len(points)}")]
+    points = [p[0] if isinstance(p, list) else p for p in points]  # the one-element-list form
     coords = [(float(p["longitude"]), float(p["latitude"])) for p in points]
     ring = LinearRing(coords)
     if not ring.is_simple:
         return [(field, "the polygon crosses itself")]
-    if Polygon(coords).area == 0.0:
-        return [(field, "the polygon has no area (its points are on a line)")]
+    lats, lons = [c[1] for c in coords], [c[0] for c in coords]
+    frame = LocalFrame((min(lats) + max(lats)) / 2.0, (min(lons) + max(lons)) / 2.0)
+    east, north = frame.to_xy(lats, lons)
+    metric = Polygon(list(zip(east.tolist(), north.tolist(), strict=True)))
+    width = metric.area / (metric.length / 2.0) if metric.length > 0 else 0.0
+    if width < MIN_AREA_WIDTH_M:
+        return [(field, f"the polygon has no area: {metric.area:.3g} m² over "
+                        f"{metric.length / 2.0:.3g} m, under {MIN_AREA_WIDTH_M:g} m wide "
+                        "(its points are on a line)")]
     return []
 
 

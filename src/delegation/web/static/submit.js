@@ -1,8 +1,34 @@
 // The submit panel: paste or drop a mission file, preview its plan with each strategy (a dry run,
-// POST /api/plan), draw the chosen plan, start it (POST /api/missions).
+// POST /api/plan), suggest the best by the chosen objective, draw the plan the operator picks (a
+// click on its row), start that strategy (POST /api/missions; the Start button names it).
 
 import * as api from "./api.js";
 import { h, say, secs } from "./dom.js";
+
+/** A plan's rank for the suggestion, lowest best: complete plans before plans with unassigned
+ * tasks or marked infeasible (fewer tasks make a shorter plan), then the objective the operator
+ * chose (makespan or total time), then the other one, then distance; unknown values last. */
+function rank(p, objective) {
+  const num = (v) => (typeof v === "number" && Number.isFinite(v) ? v : Infinity);
+  const [first, second] = objective === "total" ? ["total-time", "makespan"] : ["makespan", "total-time"];
+  return [p.feasible === false ? 1 : 0, (p.unassigned || []).length, num(p[first]), num(p[second]), num(p["total-distance"])];
+}
+
+function better(a, b) {
+  for (let i = 0; i < a.length; i++) if (a[i] !== b[i]) return a[i] < b[i];
+  return false;
+}
+
+/** The strategy whose previewed plan the page suggests (null when none was planned); the first
+ * of equals, in the order the plans came (the order of the strategies ticked). */
+export function suggest(plans, objective) {
+  let best = null;
+  for (const [name, p] of Object.entries(plans)) {
+    if (p["fail-reason"]) continue;
+    if (best === null || better(rank(p, objective), rank(plans[best], objective))) best = name;
+  }
+  return best;
+}
 
 function metres(v) {
   if (v === null || v === undefined) return "–";
@@ -47,10 +73,20 @@ export class SubmitPanel {
       if (f) this.load(f);
     });
     this.text.addEventListener("input", () => this.forget());
+    // Start plans again with the picked strategy and the objective and time limit in the form:
+    // changing either after a preview would start another plan than the one compared.
+    this.objective.addEventListener("change", () => this.forget());
+    this.timeLimit.addEventListener("input", () => this.forget());
+    this.startButton = document.getElementById("btn-start");
     document.getElementById("btn-preview").addEventListener("click", () => this.preview());
     document.getElementById("btn-start").addEventListener("click", () => this.start());
     this.table.querySelector("tbody").addEventListener("change", (ev) => {
       if (ev.target.name === "chosen") this.choose(ev.target.value);
+    });
+    // a click anywhere on a plan's row picks it, not only on its small radio button
+    this.table.querySelector("tbody").addEventListener("click", (ev) => {
+      const tr = ev.target.closest("tr[data-strategy]");
+      if (tr && !tr.classList.contains("unplanned")) this.choose(tr.dataset.strategy);
     });
   }
 
@@ -66,6 +102,8 @@ export class SubmitPanel {
     this.chosen = null;
     this.table.hidden = true;
     this.store.map.setPreview(null);
+    this.startButton.textContent = "Start";
+    delete this.startButton.dataset.strategy;
   }
 
   request(extra) {
@@ -103,14 +141,13 @@ export class SubmitPanel {
       const res = await api.plan(this.request({ strategies: this.strategies() }));
       this.plans = res.plans || {};
       const rows = [];
-      let best = null;
       for (const [name, p] of Object.entries(this.plans)) {
         const failed = Boolean(p["fail-reason"]) || p.feasible === false;
-        if (!failed && (best === null || p.makespan < this.plans[best].makespan)) best = name;
         const units = new Set((p.assignments || []).map((a) => a.execunit));
         const note = p["fail-reason"] || (p.unassigned && p.unassigned.length ? `${p.unassigned.length} unassigned` : p.fallback ? `= ${p.fallback}` : "");
         rows.push(
-          h("tr", { "data-strategy": name, "data-makespan": p.makespan ?? "", class: failed ? "failed" : "" },
+          h("tr", { "data-strategy": name, "data-makespan": p.makespan ?? "", "data-total-time": p["total-time"] ?? "",
+                    class: [failed ? "failed" : "", p["fail-reason"] ? "unplanned" : ""].join(" ").trim() },
             h("td", {}, h("input", { type: "radio", name: "chosen", value: name, disabled: Boolean(p["fail-reason"]) })),
             h("td", {}, name),
             h("td", { class: "num" }, secs(p.makespan)),
@@ -123,6 +160,7 @@ export class SubmitPanel {
       }
       this.table.querySelector("tbody").replaceChildren(...rows);
       this.table.hidden = false;
+      const best = suggest(this.plans, this.objective.value);
       if (best) this.choose(best);
     });
   }
@@ -133,6 +171,9 @@ export class SubmitPanel {
     if (radio) radio.checked = true;
     for (const tr of this.table.querySelectorAll("tbody tr")) tr.classList.toggle("chosen", tr.dataset.strategy === name);
     this.store.map.setPreview(this.plans[name]);
+    // the button says which plan it starts
+    this.startButton.textContent = `Start ${name}`;
+    this.startButton.dataset.strategy = name;
   }
 
   start() {
