@@ -78,6 +78,12 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--min-battery", type=fraction, default=0.2, metavar="FRACTION",
                    help="units with a battery below this (0..1) are not planned for")
+    p.add_argument("--fleet", action="append", default=[], metavar="UNIT",
+                   help="a unit this service manages (repeatable; default: every unit no other "
+                   "delegator says it manages); said in its delegation_info")
+    p.add_argument("--bid-window", type=float, default=1.0, metavar="SECONDS",
+                   help="how long to wait for other delegators' offers before planning "
+                   "(default 1; 0 plans with the own fleet only)")
     p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
                    help="a unit busy in another mission: planned from when and where it is free "
                    "(wait), left out (exclude), or ignored (share)")
@@ -103,6 +109,9 @@ def _serve(args: argparse.Namespace) -> int:
         commitments=args.commitments,
         operators=frozenset(args.operator),
         max_speed=args.max_speed,
+        fleet=frozenset(args.fleet),
+        bid_window=args.bid_window,
+        federate=args.bid_window > 0,
     )
     if args.http:
         from delegation.cli.ui import page_options

@@ -61,6 +61,14 @@ class ServiceConfig:
     max_payload: int = MAX_PAYLOAD
     #: The highest explicit speed (m/s) a task may ask for.
     max_speed: float = 100.0
+    #: The units this service manages (``serve --fleet``; said in its ``delegation_info``).
+    #: Empty: every unit it sees that no other delegator says it manages (DESIGN 3.14).
+    fleet: frozenset[str] = frozenset()
+    #: Seconds the service waits for other delegators' offers before it plans (docs/protocol.md
+    #: §15); a delegator that has not answered by then is left out, said in the plan's notes.
+    bid_window: float = 1.0
+    #: Ask other delegators for offers at all (off: plan with the own fleet only).
+    federate: bool = True
 
     @property
     def limits(self) -> Limits:

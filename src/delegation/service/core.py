@@ -211,6 +211,7 @@ class ServiceCore:
             f"{self.topics.delegation_command}/+",
             f"{p}/unit/+/+/+/heartbeat",
             f"{p}/unit/+/+/+/direct_execution_info",
+            f"{p}/unit/+/+/+/delegation_info",
             f"{p}/unit/+/+/+/sensor_info",
             f"{p}/unit/+/+/+/sensor/#",
             *self.engine.subscriptions(),
@@ -271,7 +272,8 @@ class ServiceCore:
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
         self._epoch.offset = stamp - now
-        return status_messages(self.config, self.identity, self.book, stamp)
+        return status_messages(self.config, self.identity, self.book, stamp,
+                               self.view.summary(now))
 
     def _fleet_events(self, now: float) -> Effects:
         """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
