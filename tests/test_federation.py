@@ -103,3 +103,144 @@ def _delegation(core: ServiceCore, command: dict[str, Any], now: float = 101.0) 
     from test_service_core import delegation
 
     return delegation(core, command, now)
+
+
+# --------------------------------------------------------------------------- item 2: offers
+
+GRANSO = (57.7605, 16.6815)
+LINKOPING = (58.3900, 15.5700)
+B_BASE = f"{PREFIX}/unit/ground/simulation/delegator-b"
+
+
+def _move(uuid: str, lat: float, lon: float) -> dict[str, Any]:
+    return {"name": "move-to", "common_params": {"node-uuid": uuid},
+            "params": {"waypoint": {"latitude": lat, "longitude": lon, "altitude": 20.0}}}
+
+
+def two_site_tree() -> dict[str, Any]:
+    """One task near each fleet: the best plan sends each to the fleet near it."""
+    return {"name": "conc", "common_params": {"node-uuid": "root-f"},
+            "children": [_move("near-a", GRANSO[0] + 0.002, GRANSO[1]),
+                         _move("near-b", LINKOPING[0] + 0.002, LINKOPING[1])]}
+
+
+def partner() -> ServiceCore:
+    """delegator-b: its own service with b-air0 and its engine, hearing delegator0 as one."""
+    b = ServiceCore(ServiceConfig(prefix=PREFIX, name="delegator-b", engine="op-b"))
+    feed_unit(b, "b-air0", *LINKOPING, ["move-to"], 100.0)
+    hb = HeartBeat(agent_type="ground", agent_uuid="engine-b", levels=["tst execution"],
+                   name="op-b", rate=1.0, stamp=100.0)
+    b.on_message(f"{PREFIX}/unit/ground/simulation/op-b/heartbeat", encode(hb), 100.0)
+    feed_delegator(b, 100.0, name="delegator0", tasks=["move-to", "search-area"],
+                   managed=["dji0"])
+    return b
+
+
+def _delegate(core: ServiceCore, tree: dict[str, Any], now: float, com: str = "fed-1",
+              **extra: Any) -> Any:
+    command = {"com-uuid": com, "sender": "test", "command": "delegate", "tst": tree, **extra}
+    return core.on_message(f"{PREFIX}/unit/ground/simulation/delegator0/delegation/command",
+                           json.dumps(command).encode(), now)
+
+
+def _asks(effects: Any) -> list[tuple[str, dict[str, Any]]]:
+    return [(o.topic, json.loads(o.payload)) for o in effects.publish
+            if "/delegation/command/" in o.topic]
+
+
+def _answer_asks(b: ServiceCore, a: ServiceCore, asks: list[tuple[str, dict[str, Any]]],
+                 now: float) -> Any:
+    """delegator-b plans each ask (its worker), its answers reach delegator0."""
+    from test_service_core import run_jobs
+
+    released = []
+    for topic, ask in asks:
+        answered = run_jobs(b, b.on_message(topic, json.dumps(ask).encode(), now), now)
+        assert answered.jobs == []  # b asked nobody: the caller is a delegator
+        for o in answered.publish:
+            if o.topic.endswith("/delegation/response/delegator0"):
+                released.extend(a.on_message(o.topic, o.payload, now).jobs)
+    return released
+
+
+def test_offers_are_asked_in_parallel_and_compete_with_own_units() -> None:
+    from test_service_core import run_jobs
+
+    a, b = two_fleets(), partner()
+    held = _delegate(a, two_site_tree(), 101.0)
+    assert held.jobs == []  # planning waits for the offers
+    asks = _asks(held)
+    assert sorted(ask["tst"]["common_params"]["node-uuid"] for _, ask in asks) == [
+        "near-a", "near-b"]  # every child b can take, at once
+    for topic, ask in asks:
+        assert topic == f"{B_BASE}/delegation/command/delegator0"
+        assert ask["preview"] is True and ask["sender"] == "delegator0"
+    jobs = _answer_asks(b, a, asks, 101.2)
+    assert len(jobs) == 1 and len(jobs[0].offers) == 2
+    from delegation.runtime.core import Effects
+
+    answer = on(run_jobs(a, Effects(jobs=jobs), 101.3), "delegation/response")[0]
+    plan = answer["plan"]
+    assert answer["response"] == "ok" and plan["feasible"] is True
+    units = {x["node-uuid"]: x["execunit"] for x in plan["assignments"]}
+    assert units == {"near-a": "/dji0", "near-b": "/delegator-b"}
+    tree = plan["tst"]
+    assert tree["common_params"]["node-uuid"] == "root-f"
+    sent = {c["common_params"]["node-uuid"]: c["common_params"]["execunit"]
+            for c in tree["children"]}
+    assert sent == {"near-a": "/dji0", "near-b": "/delegator-b"}
+    assert any("offer taken: root/children[1]" in n and "delegator-b" in n for n in plan["notes"])
+    assert any("offer not taken: delegator-b for root/children[0]" in n for n in plan["notes"])
+    # Own fleet alone would fly dji0 ~70 km: the federated makespan is far below it.
+    own_only = ServiceCore(ServiceConfig(prefix=PREFIX, federate=False))
+    feed_unit(own_only, "dji0", *GRANSO, ["move-to", "search-area"], 100.0)
+    feed_engine(own_only, 100.0)
+    alone = on(run_jobs(own_only, _delegate(own_only, two_site_tree(), 101.0), 101.0),
+               "delegation/response")[0]["plan"]
+    assert plan["makespan"] < 0.1 * alone["makespan"]
+
+
+def test_a_silent_delegator_is_left_out_at_the_end_of_the_window() -> None:
+    a = two_fleets(ServiceConfig(prefix=PREFIX, bid_window=0.8))
+    held = _delegate(a, two_site_tree(), 101.0)
+    assert held.jobs == [] and len(_asks(held)) == 2
+    assert a.on_tick(101.7).jobs == []  # within the window: still waiting
+    [job] = a.on_tick(101.8).jobs  # the window ends: planned without it
+    assert job.offers == ()
+    assert any("delegator-b did not answer within 0.8 s: left out of root/children[1]" in n
+               for n in job.notes)
+    assert len(a.offers.durations) == 1 and abs(a.offers.durations[0] - 0.8) < 1e-9
+
+
+def test_a_refusal_is_said_in_the_notes_and_a_late_answer_ignored() -> None:
+    a = two_fleets()
+    asks = _asks(_delegate(a, two_site_tree(), 101.0))
+    refuse = {"com-uuid": "r1", "response": "failed", "response-to": asks[0][1]["com-uuid"],
+              "fail-reason": "not today"}
+    topic = f"{B_BASE}/delegation/response/delegator0"
+    assert a.on_message(topic, json.dumps(refuse).encode(), 101.1).jobs == []
+    # From someone we did not ask: ignored.
+    impostor = {**refuse, "response-to": asks[1][1]["com-uuid"]}
+    other = f"{PREFIX}/unit/ground/simulation/mallory/delegation/response/delegator0"
+    assert a.on_message(other, json.dumps(impostor).encode(), 101.1).jobs == []
+    [job] = a.on_message(topic, json.dumps({**refuse, "com-uuid": "r2"} | {
+        "response-to": asks[1][1]["com-uuid"]}).encode(), 101.2).jobs
+    assert sum("made no offer" in n and "not today" in n for n in job.notes) == 2
+    late = a.on_message(topic, json.dumps(refuse).encode(), 101.3)
+    assert late.jobs == [] and late.publish == []
+
+
+def test_no_offers_asked_without_offerable_subtrees_or_for_a_delegator() -> None:
+    a = two_fleets()
+    single = _move("only", *GRANSO)
+    assert len(_delegate(a, single, 101.0, com="one").jobs) == 1  # a lone task: not offered
+    fixed = two_site_tree()
+    fixed["children"][1]["common_params"]["execunit"] = "/dji0"
+    effects = _delegate(a, fixed, 101.0, com="fixed")
+    assert [ask["tst"]["common_params"]["node-uuid"] for _, ask in _asks(effects)] == ["near-a"]
+    b = partner()  # delegator0 is a delegator to b: b plans its ask with its own fleet
+    command = {"com-uuid": "ask", "sender": "delegator0", "command": "delegate", "preview": True,
+               "tst": two_site_tree()}
+    got = b.on_message(f"{B_BASE}/delegation/command/delegator0", json.dumps(command).encode(),
+                       101.0)
+    assert len(got.jobs) == 1 and _asks(got) == []

@@ -83,6 +83,7 @@ from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import BidsDone, Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.lifecycle import LEVELS, Epoch, Lifecycle, status_messages
 from delegation.service.missions import MissionBook
+from delegation.service.offers import OfferDesk
 from delegation.service.planning import Planning, Timing
 from delegation.service.repair import Repair
 from delegation.topics import parse_unit_topic
@@ -121,7 +122,8 @@ class ServiceCore:
         self.lifecycle = Lifecycle(book, self.desk, Cancels(c.engine, c.cancel_timeout),
                                    self._epoch)
         shared = (c, book, self.desk, self.view, self.engine, self.lifecycle)
-        self.planning = Planning(*shared)
+        self.offers = OfferDesk(c, self.fleet)
+        self.planning = Planning(*shared, offers=self.offers)
         self.repair = Repair(*shared, planning=self.planning)
         self.engine_use = EngineUse(*shared, repair=self.repair)
 
@@ -215,6 +217,7 @@ class ServiceCore:
             f"{p}/unit/+/+/+/sensor_info",
             f"{p}/unit/+/+/+/sensor/#",
             *self.engine.subscriptions(),
+            *self.offers.subscriptions(),
         ]
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
@@ -241,6 +244,8 @@ class ServiceCore:
             return Effects()
         if parsed.name == self.config.engine and parsed.rest in ("tst/response", "tst/feedback"):
             return self.engine_use.receive(topic, payload, now)
+        if self.offers.is_answer(topic):
+            return Effects(jobs=self.offers.receive(topic, payload, now))
         self.view.observe(topic, payload, now)
         return self._fleet_events(now)
 
@@ -253,6 +258,7 @@ class ServiceCore:
         for got in self.engine.expire(now):
             effects.extend(self.engine_use.answer(got, now))
         effects.extend(self.lifecycle.cancel_deadlines(now))
+        effects.jobs.extend(self.offers.expire(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
         return effects.extend(self._fleet_events(now))

@@ -1,0 +1,222 @@
+"""Planning with other delegators' offers (DESIGN 3.14, docs/protocol.md §15.2): which subtrees
+may be offered, what an offer says, and the plan that lets offers compete with our own units.
+
+Runs on the planner worker (like `delegation.service.jobs.run_job`): pure computation, no
+messages. Only the children of a root ``conc`` are offered: they start together, so a delegated
+child's offer (its makespan, measured from when the delegator starts it) combines with our own
+part as ``max`` (makespan) and ``+`` (total time). A ``seq``'s children would tie the delegator's
+schedule to ours (it may start only when we finish the previous child, from positions the offer
+did not know): not offered yet.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import uuid as uuid_module
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from delegation.allocation import Assignment, Objective, Plan, plan_mission
+from delegation.fleet import Delegator, UnitState
+from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, walk, where
+from delegation.tst.validate import DEFAULT_LIMITS, Limits, with_defaults
+
+log = logging.getLogger(__name__)
+
+#: Seconds of planner time each candidate combination gets (auction: milliseconds): the offers
+#: are compared with the fast strategy, the chosen combination is planned with the one asked for.
+COMPARE_TIME_LIMIT = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class Offer:
+    """A delegator's answer to a plan-only ``delegate`` of one subtree: what its plan says."""
+
+    delegator: str
+    child_uuid: str
+    makespan: float
+    total_time: float
+    total_distance: float
+    #: The delegator's plan's assignments (JSON, hyphenated keys), for our plan's times.
+    assignments: tuple[Mapping[str, Any], ...] = ()
+
+    @classmethod
+    def of(cls, delegator: str, child: TstNode, plan: Mapping[str, Any]) -> Offer | str:
+        """The offer in a delegator's plan, or why it is none (infeasible, unreadable, a task of
+        the subtree missing from its assignments)."""
+        if plan.get("feasible") is not True:
+            return "its plan is infeasible"
+        try:
+            numbers = [float(plan[k]) for k in ("makespan", "total-time", "total-distance")]
+        except (KeyError, TypeError, ValueError):
+            return "its plan has no makespan/total-time/total-distance"
+        if not all(math.isfinite(x) and x >= 0.0 for x in numbers):
+            return "its plan's times are not finite"
+        raw = plan.get("assignments")
+        assignments = tuple(a for a in raw if isinstance(a, Mapping)) if isinstance(raw, list) \
+            else ()
+        tasks = {n.node_uuid for _, n in walk(child) if not n.is_control}
+        if not tasks <= {a.get("node-uuid") for a in assignments}:
+            return "its plan does not assign every task of the subtree"
+        makespan, total_time, total_distance = numbers
+        return cls(delegator, child.node_uuid or "", makespan, total_time, total_distance,
+                   assignments)
+
+
+def offerable_children(root: TstNode) -> list[tuple[str, TstNode]]:
+    """(path, child) of the children that may be offered (docs/protocol.md §15.2): those of a
+    root ``conc`` with at least two children, whose subtree names no unit (no fixed ``execunit``)
+    and shares no alias with the rest of the tree."""
+    if root.name != "conc" or len(root.children) < 2:
+        return []
+    aliases: dict[str, set[int]] = {}
+    fixed: set[int] = set()
+    for i, child in enumerate(root.children):
+        for _, node in walk(child):
+            kind, name = classify_execunit(node.execunit)
+            if kind is ExecUnitKind.FIXED:
+                fixed.add(i)
+            elif kind is ExecUnitKind.ALIAS:
+                aliases.setdefault(name, set()).add(i)
+    shared = {i for users in aliases.values() if len(users) > 1 for i in users}
+    return [(where(f"root/children[{i}]", c), c) for i, c in enumerate(root.children)
+            if i not in fixed and i not in shared and c.node_uuid]
+
+
+def takers(child: TstNode, delegators: Sequence[Delegator]) -> list[Delegator]:
+    """The delegators whose fleet lists every task of ``child``."""
+    names = {n.name for _, n in walk(child) if not n.is_control}
+    return [d for d in delegators if d.alive and d.can_take(names)]
+
+
+@dataclass(frozen=True, slots=True)
+class _Score:
+    unassigned: int
+    primary: float
+    secondary: float
+
+    def key(self) -> tuple[int, float, float]:
+        return (self.unassigned, self.primary, self.secondary)
+
+
+class FederatedPlanner:
+    """Chooses which offered children go to which delegator (greedily, one child at a time, the
+    one that improves the objective most; each delegator takes at most one child) and builds the
+    plan: our part planned as usual, each delegated child whole with the delegator as its
+    ``execunit``."""
+
+    def __init__(self, root: TstNode, units: Sequence[UnitState], offers: Sequence[Offer], *,
+                 strategy: str, objective: str, time_limit: float, engine_unit: str,
+                 limits: Limits = DEFAULT_LIMITS) -> None:
+        self.root = root
+        self.units = tuple(units)
+        children = {c.node_uuid for c in root.children}
+        self.offers = [o for o in offers if o.child_uuid in children]
+        self.strategy, self.objective = strategy, Objective(objective)
+        self.time_limit, self.engine_unit, self.limits = time_limit, engine_unit, limits
+        self._scores: dict[frozenset[tuple[str, str]], _Score] = {}
+
+    def own_tree(self, chosen: Mapping[str, Offer]) -> TstNode | None:
+        """The root without the delegated children (None when nothing is left for us)."""
+        kept = [c for c in self.root.children if c.node_uuid not in chosen]
+        return self.root.with_children(kept) if kept else None
+
+    def score(self, chosen: Mapping[str, Offer]) -> _Score:
+        """(tasks nobody takes, objective, the other measure) of giving ``chosen`` away."""
+        memo = frozenset((k, o.delegator) for k, o in chosen.items())
+        if memo in self._scores:
+            return self._scores[memo]
+        own_tree = self.own_tree(chosen)
+        own = None if own_tree is None else plan_mission(
+            own_tree, self.units, strategy="auction", objective=self.objective,
+            time_limit=min(self.time_limit, COMPARE_TIME_LIMIT), engine_unit=self.engine_unit,
+            limits=self.limits)
+        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in chosen.values())])
+        total = (own.total_time if own else 0.0) + sum(o.total_time for o in chosen.values())
+        primary, secondary = (makespan, total) if self.objective is Objective.MAKESPAN \
+            else (total, makespan)
+        score = self._scores[memo] = _Score(len(own.unassigned) if own else 0, primary, secondary)
+        return score
+
+    def choose(self) -> dict[str, Offer]:
+        """Child uuid -> the offer taken (greedy; empty when our own fleet does better)."""
+        chosen: dict[str, Offer] = {}
+        best = self.score(chosen)
+        while True:
+            used = {o.delegator for o in chosen.values()}
+            candidates = [o for o in self.offers
+                          if o.child_uuid not in chosen and o.delegator not in used]
+            trials = [(self.score({**chosen, o.child_uuid: o}), o) for o in candidates]
+            better = [t for t in trials if t[0].key() < best.key()]
+            if not better:
+                return chosen
+            best, offer = min(better, key=lambda t: t[0].key())
+            chosen[offer.child_uuid] = offer
+
+    def plan(self) -> Plan:
+        """The plan: our own plan for what is kept, the offers for what is delegated."""
+        chosen = self.choose()
+        baseline = self.score({})
+        own_tree = self.own_tree(chosen)
+        own = None if own_tree is None else plan_mission(
+            own_tree, self.units, strategy=self.strategy, objective=self.objective,
+            time_limit=self.time_limit, engine_unit=self.engine_unit, limits=self.limits)
+        if not chosen and own is not None:
+            own.notes.extend(self._notes(chosen, baseline))
+            return own
+        return self._assemble(own, chosen, baseline)
+
+    def _assemble(self, own: Plan | None, chosen: Mapping[str, Offer], baseline: _Score) -> Plan:
+        source = with_defaults(self.root)
+        delegated = [c.with_common_values({"execunit": f"/{chosen[c.node_uuid].delegator}"})
+                     for c in source.children if c.node_uuid is not None and c.node_uuid in chosen]
+        if own is None:
+            kids: list[TstNode] = []
+        elif own.tst.name == "conc" and own.tst.node_uuid == self.root.node_uuid:
+            kids = list(own.tst.children)
+        else:  # regrouped: our part becomes one child under the caller's root
+            kids = [own.tst.with_common_values({"node-uuid": str(uuid_module.uuid4())})
+                    if own.tst.node_uuid == self.root.node_uuid else own.tst]
+        tst = source.with_children([]).with_common_values(
+            {"execunit": f"/{self.engine_unit}"}).with_children([*kids, *delegated])
+        offers = list(chosen.values())
+        theirs = [Assignment(str(a.get("node-uuid")), str(a.get("name", "")), f"/{o.delegator}",
+                             float(a.get("start", 0.0)), float(a.get("end", 0.0)),
+                             float(a.get("travel-time", 0.0)), float(a.get("work-time", 0.0)),
+                             float(a.get("distance", 0.0)))
+                  for o in offers for a in o.assignments]
+        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in offers)])
+        precedence = None if own is None or own.precedence_makespan is None else max(
+            [own.precedence_makespan, *(o.makespan for o in offers)])
+        return Plan(
+            strategy=self.strategy, objective=self.objective.value,
+            feasible=own is None or own.feasible, makespan=makespan,
+            total_time=(own.total_time if own else 0.0) + sum(o.total_time for o in offers),
+            total_distance=((own.total_distance if own else 0.0)
+                            + sum(o.total_distance for o in offers)),
+            solve_time=own.solve_time if own else 0.0, bound=None, gap=None,
+            assignments=sorted([*(own.assignments if own else []), *theirs],
+                               key=lambda a: (a.start, a.execunit)),
+            unassigned=list(own.unassigned) if own else [],
+            tst=tst, routes=dict(own.routes) if own else {},
+            notes=[*(own.notes if own else []), *self._notes(chosen, baseline)],
+            source=source, precedence_makespan=precedence,
+        )
+
+    def _notes(self, chosen: Mapping[str, Offer], baseline: _Score) -> list[str]:
+        """Which subtree went where and why, and the offers not taken."""
+        paths = {c.node_uuid: where(f"root/children[{i}]", c)
+                 for i, c in enumerate(self.root.children)}
+        what = "makespan" if self.objective is Objective.MAKESPAN else "total time"
+        own_alone = (f"{baseline.primary:.0f} s" if not baseline.unassigned
+                     else f"{baseline.unassigned} task(s) nobody here can take")
+        notes = [f"offer taken: {paths[k]} goes to {o.delegator} (its {what} "
+                 f"{o.makespan if what == 'makespan' else o.total_time:.0f} s; "
+                 f"{self.score(chosen).primary:.0f} s in all, own fleet alone: {own_alone})"
+                 for k, o in chosen.items()]
+        notes += [f"offer not taken: {o.delegator} for {paths[o.child_uuid]} (makespan "
+                  f"{o.makespan:.0f} s)" for o in self.offers
+                  if chosen.get(o.child_uuid) is not o]
+        return notes
