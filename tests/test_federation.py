@@ -10,9 +10,10 @@ import json
 from typing import Any
 
 from delegation.fleet import FleetRegistry
-from delegation.messages import DelegationInfo, HeartBeat, encode
+from delegation.messages import DelegationInfo, HeartBeat, decode, encode
+from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore
-from test_service_core import PREFIX, feed_engine, feed_unit, on
+from test_service_core import PREFIX, delegation, feed_engine, feed_unit, on, run_jobs
 
 OTHER = f"{PREFIX}/unit/ground/simulation/delegator-b"
 
@@ -29,8 +30,6 @@ def feed_delegator(core: ServiceCore | FleetRegistry, now: float, *, name: str =
                           units_managed=["b-air0"] if managed is None else managed)
     for rest, payload in (("heartbeat", encode(hb)), ("delegation_info", encode(info))):
         if isinstance(core, FleetRegistry):
-            from delegation.messages import decode
-
             core.observe(f"{base}/{rest}", decode(f"{base}/{rest}", payload), now)
         else:
             core.on_message(f"{base}/{rest}", payload, now)
@@ -100,8 +99,6 @@ def test_our_delegation_info_says_what_our_fleet_can_do_and_whom_we_manage() -> 
 
 
 def _delegation(core: ServiceCore, command: dict[str, Any], now: float = 101.0) -> Any:
-    from test_service_core import delegation
-
     return delegation(core, command, now)
 
 
@@ -151,8 +148,6 @@ def _asks(effects: Any) -> list[tuple[str, dict[str, Any]]]:
 def _answer_asks(b: ServiceCore, a: ServiceCore, asks: list[tuple[str, dict[str, Any]]],
                  now: float) -> Any:
     """delegator-b plans each ask (its worker), its answers reach delegator0."""
-    from test_service_core import run_jobs
-
     released = []
     for topic, ask in asks:
         answered = run_jobs(b, b.on_message(topic, json.dumps(ask).encode(), now), now)
@@ -164,8 +159,6 @@ def _answer_asks(b: ServiceCore, a: ServiceCore, asks: list[tuple[str, dict[str,
 
 
 def test_offers_are_asked_in_parallel_and_compete_with_own_units() -> None:
-    from test_service_core import run_jobs
-
     a, b = two_fleets(), partner()
     held = _delegate(a, two_site_tree(), 101.0)
     assert held.jobs == []  # planning waits for the offers
@@ -177,8 +170,6 @@ def test_offers_are_asked_in_parallel_and_compete_with_own_units() -> None:
         assert ask["preview"] is True and ask["sender"] == "delegator0"
     jobs = _answer_asks(b, a, asks, 101.2)
     assert len(jobs) == 1 and len(jobs[0].offers) == 2
-    from delegation.runtime.core import Effects
-
     answer = on(run_jobs(a, Effects(jobs=jobs), 101.3), "delegation/response")[0]
     plan = answer["plan"]
     assert answer["response"] == "ok" and plan["feasible"] is True
