@@ -235,3 +235,40 @@ def test_no_offers_asked_without_offerable_subtrees_or_for_a_delegator() -> None
     got = b.on_message(f"{B_BASE}/delegation/command/delegator0", json.dumps(command).encode(),
                        101.0)
     assert len(got.jobs) == 1 and _asks(got) == []
+
+
+def test_the_tasks_at_a_partners_site_are_offered_to_it_as_one_bundle() -> None:
+    a, b = two_fleets(), partner()
+    feed_unit(b, "b-air1", LINKOPING[0], LINKOPING[1] + 0.01, ["move-to"], 100.0)
+    tree = two_site_tree()
+    tree["children"].append(_move("near-b2", LINKOPING[0] - 0.003, LINKOPING[1]))
+    asks = _asks(_delegate(a, tree, 101.0))
+    [bundle] = [ask for _, ask in asks if ask["tst"]["name"] == "conc"]
+    assert [c["common_params"]["node-uuid"] for c in bundle["tst"]["children"]] == [
+        "near-b", "near-b2"]
+    assert len(asks) == 4  # three single children and the bundle
+    [job] = _answer_asks(b, a, asks, 101.2)
+    plan = on(run_jobs(a, Effects(jobs=[job]), 101.3), "delegation/response")[0]["plan"]
+    units = {x["node-uuid"]: x["execunit"] for x in plan["assignments"]}
+    assert units == {"near-a": "/dji0", "near-b": "/delegator-b", "near-b2": "/delegator-b"}
+    [sent] = [c for c in plan["tst"]["children"]
+              if c["common_params"].get("execunit") == "/delegator-b"]
+    assert sent["name"] == "conc"
+    assert sent["common_params"]["node-uuid"] == bundle["tst"]["common_params"]["node-uuid"]
+    assert any(n.startswith("offer taken: root/children[1] (move-to near-b), root/children[2] "
+                            "(move-to near-b2) goes to delegator-b") for n in plan["notes"])
+
+
+def test_a_subtree_another_delegators_engine_hands_us_is_not_offered_again() -> None:
+    b = partner()
+    hb = HeartBeat(agent_type="ground", agent_uuid="op-a", levels=["tst execution"], name="op-a",
+                   rate=1.0, stamp=100.0)
+    b.on_message(f"{PREFIX}/unit/ground/simulation/op-a/heartbeat", encode(hb), 100.0)
+    start = {"com-uuid": "from-op-a", "command": "start-tst", "sender": "op-a",
+             "receiver": "delegator-b", "tst": two_site_tree()}
+    got = b.on_message(f"{B_BASE}/tst/command", json.dumps(start).encode(), 101.0)
+    assert len(got.jobs) == 1 and _asks(got) == []
+    # The same from an operator would ask delegator0 (it can take move-to) first.
+    operator = {**start, "com-uuid": "from-op", "sender": "operator"}
+    asked = b.on_message(f"{B_BASE}/tst/command", json.dumps(operator).encode(), 101.0)
+    assert asked.jobs == [] and len(_asks(asked)) == 2

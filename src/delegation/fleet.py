@@ -431,6 +431,11 @@ class FleetRegistry:
         rec = self._units.get(name.strip("/"))
         return rec.base_topic if rec is not None else None
 
+    def levels(self, name: str) -> tuple[str, ...]:
+        """The levels of the unit's last heartbeat (none when never heard)."""
+        rec = self._units.get(name.strip("/"))
+        return rec.levels if rec is not None else ()
+
     def names(self) -> list[str]:
         """Every unit heard of, sorted."""
         return sorted(self._units)

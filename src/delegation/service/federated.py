@@ -19,8 +19,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from delegation.allocation import Assignment, Objective, Plan, plan_mission
+from delegation.costs import task_geometry
 from delegation.fleet import Delegator, UnitState
-from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, walk, where
+from delegation.geo import GeoPoint, distance_m
+from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, make_node, walk, where
 from delegation.tst.validate import DEFAULT_LIMITS, Limits, with_defaults
 
 log = logging.getLogger(__name__)
@@ -32,20 +34,25 @@ COMPARE_TIME_LIMIT = 0.5
 
 @dataclass(frozen=True, slots=True)
 class Offer:
-    """A delegator's answer to a plan-only ``delegate`` of one subtree: what its plan says."""
+    """A delegator's answer to a plan-only ``delegate`` of one subtree: what its plan says.
+
+    ``covers`` are the root's children the subtree holds: one child, or a bundle of several
+    under a ``conc`` of ours (``bundle``, its node uuid, sent in the request)."""
 
     delegator: str
-    child_uuid: str
+    covers: tuple[str, ...]
     makespan: float
     total_time: float
     total_distance: float
     #: The delegator's plan's assignments (JSON, hyphenated keys), for our plan's times.
     assignments: tuple[Mapping[str, Any], ...] = ()
+    bundle: str = ""
 
     @classmethod
-    def of(cls, delegator: str, child: TstNode, plan: Mapping[str, Any]) -> Offer | str:
-        """The offer in a delegator's plan, or why it is none (infeasible, unreadable, a task of
-        the subtree missing from its assignments)."""
+    def of(cls, delegator: str, subtree: TstNode, plan: Mapping[str, Any],
+           covers: tuple[str, ...]) -> Offer | str:
+        """The offer in a delegator's plan for ``subtree``, or why it is none (infeasible,
+        unreadable, a task of the subtree missing from its assignments)."""
         if plan.get("feasible") is not True:
             return "its plan is infeasible"
         try:
@@ -57,12 +64,12 @@ class Offer:
         raw = plan.get("assignments")
         assignments = tuple(a for a in raw if isinstance(a, Mapping)) if isinstance(raw, list) \
             else ()
-        tasks = {n.node_uuid for _, n in walk(child) if not n.is_control}
+        tasks = {n.node_uuid for _, n in walk(subtree) if not n.is_control}
         if not tasks <= {a.get("node-uuid") for a in assignments}:
             return "its plan does not assign every task of the subtree"
         makespan, total_time, total_distance = numbers
-        return cls(delegator, child.node_uuid or "", makespan, total_time, total_distance,
-                   assignments)
+        bundle = (subtree.node_uuid or "") if covers != (subtree.node_uuid,) else ""
+        return cls(delegator, covers, makespan, total_time, total_distance, assignments, bundle)
 
 
 def offerable_children(root: TstNode) -> list[tuple[str, TstNode]]:
@@ -91,6 +98,44 @@ def takers(child: TstNode, delegators: Sequence[Delegator]) -> list[Delegator]:
     return [d for d in delegators if d.alive and d.can_take(names)]
 
 
+def anchor(child: TstNode) -> GeoPoint | None:
+    """Where a subtree begins: the first point of its first task that has one."""
+    for _, node in walk(child):
+        if node.is_control:
+            continue
+        try:
+            g = task_geometry(node)
+        except (KeyError, TypeError, ValueError):
+            continue
+        points = [*g.points, *(a[0] for a in g.areas if a)]
+        if points:
+            return points[0]
+    return None
+
+
+def bundles(children: Sequence[tuple[str, TstNode]], delegators: Sequence[Delegator],
+            own: Sequence[GeoPoint], positions: Mapping[str, GeoPoint]
+            ) -> dict[str, list[tuple[str, TstNode]]]:
+    """Per delegator, the offerable children nearer to one of the units it manages (by
+    ``positions``: every unit's is on the broker) than to any of ours (``own``) and to any
+    other delegator's that could take them: a site's tasks, for the partner at that site.
+    Only bundles of two or more children (single children are offered anyway)."""
+    near: dict[str, list[tuple[str, TstNode]]] = {}
+    for path, child in children:
+        where_ = anchor(child)
+        if where_ is None:
+            continue
+        best, best_d = "", min((distance_m(where_, p) for p in own), default=math.inf)
+        for d in takers(child, delegators):
+            dist = min((distance_m(where_, positions[u]) for u in d.units_managed
+                        if u in positions), default=math.inf)
+            if dist < best_d:
+                best, best_d = d.name, dist
+        if best:
+            near.setdefault(best, []).append((path, child))
+    return {d: kids for d, kids in near.items() if len(kids) >= 2}
+
+
 @dataclass(frozen=True, slots=True)
 class _Score:
     unassigned: int
@@ -113,19 +158,20 @@ class FederatedPlanner:
         self.root = root
         self.units = tuple(units)
         children = {c.node_uuid for c in root.children}
-        self.offers = [o for o in offers if o.child_uuid in children]
+        self.offers = [o for o in offers if o.covers and set(o.covers) <= children]
         self.strategy, self.objective = strategy, Objective(objective)
         self.time_limit, self.engine_unit, self.limits = time_limit, engine_unit, limits
-        self._scores: dict[frozenset[tuple[str, str]], _Score] = {}
+        self._scores: dict[frozenset[tuple[str, tuple[str, ...]]], _Score] = {}
 
-    def own_tree(self, chosen: Mapping[str, Offer]) -> TstNode | None:
+    def own_tree(self, chosen: Sequence[Offer]) -> TstNode | None:
         """The root without the delegated children (None when nothing is left for us)."""
-        kept = [c for c in self.root.children if c.node_uuid not in chosen]
+        gone = {k for o in chosen for k in o.covers}
+        kept = [c for c in self.root.children if c.node_uuid not in gone]
         return self.root.with_children(kept) if kept else None
 
-    def score(self, chosen: Mapping[str, Offer]) -> _Score:
+    def score(self, chosen: Sequence[Offer]) -> _Score:
         """(tasks nobody takes, objective, the other measure) of giving ``chosen`` away."""
-        memo = frozenset((k, o.delegator) for k, o in chosen.items())
+        memo = frozenset((o.delegator, o.covers) for o in chosen)
         if memo in self._scores:
             return self._scores[memo]
         own_tree = self.own_tree(chosen)
@@ -133,32 +179,33 @@ class FederatedPlanner:
             own_tree, self.units, strategy="auction", objective=self.objective,
             time_limit=min(self.time_limit, COMPARE_TIME_LIMIT), engine_unit=self.engine_unit,
             limits=self.limits)
-        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in chosen.values())])
-        total = (own.total_time if own else 0.0) + sum(o.total_time for o in chosen.values())
+        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in chosen)])
+        total = (own.total_time if own else 0.0) + sum(o.total_time for o in chosen)
         primary, secondary = (makespan, total) if self.objective is Objective.MAKESPAN \
             else (total, makespan)
         score = self._scores[memo] = _Score(len(own.unassigned) if own else 0, primary, secondary)
         return score
 
-    def choose(self) -> dict[str, Offer]:
-        """Child uuid -> the offer taken (greedy; empty when our own fleet does better)."""
-        chosen: dict[str, Offer] = {}
+    def choose(self) -> list[Offer]:
+        """The offers taken (greedy; empty when our own fleet does better)."""
+        chosen: list[Offer] = []
         best = self.score(chosen)
         while True:
-            used = {o.delegator for o in chosen.values()}
+            used = {o.delegator for o in chosen}
+            taken = {k for o in chosen for k in o.covers}
             candidates = [o for o in self.offers
-                          if o.child_uuid not in chosen and o.delegator not in used]
-            trials = [(self.score({**chosen, o.child_uuid: o}), o) for o in candidates]
+                          if o.delegator not in used and not taken & set(o.covers)]
+            trials = [(self.score([*chosen, o]), o) for o in candidates]
             better = [t for t in trials if t[0].key() < best.key()]
             if not better:
                 return chosen
             best, offer = min(better, key=lambda t: t[0].key())
-            chosen[offer.child_uuid] = offer
+            chosen.append(offer)
 
     def plan(self) -> Plan:
         """The plan: our own plan for what is kept, the offers for what is delegated."""
         chosen = self.choose()
-        baseline = self.score({})
+        baseline = self.score([])
         own_tree = self.own_tree(chosen)
         own = None if own_tree is None else plan_mission(
             own_tree, self.units, strategy=self.strategy, objective=self.objective,
@@ -168,10 +215,17 @@ class FederatedPlanner:
             return own
         return self._assemble(own, chosen, baseline)
 
-    def _assemble(self, own: Plan | None, chosen: Mapping[str, Offer], baseline: _Score) -> Plan:
+    def _delegated(self, source: TstNode, offer: Offer) -> TstNode:
+        """The subtree the delegator gets: the child, or our ``conc`` around the bundle."""
+        unit = f"/{offer.delegator}"
+        kids = [c for c in source.children if c.node_uuid in offer.covers]
+        if not offer.bundle:
+            return kids[0].with_common_values({"execunit": unit})
+        return make_node("conc", kids, execunit=unit, node_uuid=offer.bundle)
+
+    def _assemble(self, own: Plan | None, chosen: Sequence[Offer], baseline: _Score) -> Plan:
         source = with_defaults(self.root)
-        delegated = [c.with_common_values({"execunit": f"/{chosen[c.node_uuid].delegator}"})
-                     for c in source.children if c.node_uuid is not None and c.node_uuid in chosen]
+        delegated = [self._delegated(source, o) for o in chosen]
         if own is None:
             kids: list[TstNode] = []
         elif own.tst.name == "conc" and own.tst.node_uuid == self.root.node_uuid:
@@ -181,21 +235,20 @@ class FederatedPlanner:
                     if own.tst.node_uuid == self.root.node_uuid else own.tst]
         tst = source.with_children([]).with_common_values(
             {"execunit": f"/{self.engine_unit}"}).with_children([*kids, *delegated])
-        offers = list(chosen.values())
         theirs = [Assignment(str(a.get("node-uuid")), str(a.get("name", "")), f"/{o.delegator}",
                              float(a.get("start", 0.0)), float(a.get("end", 0.0)),
                              float(a.get("travel-time", 0.0)), float(a.get("work-time", 0.0)),
                              float(a.get("distance", 0.0)))
-                  for o in offers for a in o.assignments]
-        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in offers)])
+                  for o in chosen for a in o.assignments]
+        makespan = max([own.makespan if own else 0.0, *(o.makespan for o in chosen)])
         precedence = None if own is None or own.precedence_makespan is None else max(
-            [own.precedence_makespan, *(o.makespan for o in offers)])
+            [own.precedence_makespan, *(o.makespan for o in chosen)])
         return Plan(
             strategy=self.strategy, objective=self.objective.value,
             feasible=own is None or own.feasible, makespan=makespan,
-            total_time=(own.total_time if own else 0.0) + sum(o.total_time for o in offers),
+            total_time=(own.total_time if own else 0.0) + sum(o.total_time for o in chosen),
             total_distance=((own.total_distance if own else 0.0)
-                            + sum(o.total_distance for o in offers)),
+                            + sum(o.total_distance for o in chosen)),
             solve_time=own.solve_time if own else 0.0, bound=None, gap=None,
             assignments=sorted([*(own.assignments if own else []), *theirs],
                                key=lambda a: (a.start, a.execunit)),
@@ -205,18 +258,21 @@ class FederatedPlanner:
             source=source, precedence_makespan=precedence,
         )
 
-    def _notes(self, chosen: Mapping[str, Offer], baseline: _Score) -> list[str]:
+    def _notes(self, chosen: Sequence[Offer], baseline: _Score) -> list[str]:
         """Which subtree went where and why, and the offers not taken."""
         paths = {c.node_uuid: where(f"root/children[{i}]", c)
                  for i, c in enumerate(self.root.children)}
         what = "makespan" if self.objective is Objective.MAKESPAN else "total time"
         own_alone = (f"{baseline.primary:.0f} s" if not baseline.unassigned
                      else f"{baseline.unassigned} task(s) nobody here can take")
-        notes = [f"offer taken: {paths[k]} goes to {o.delegator} (its {what} "
+        overall = self.score(chosen).primary
+
+        def subtree(o: Offer) -> str:
+            return ", ".join(paths[k] for k in o.covers)
+
+        notes = [f"offer taken: {subtree(o)} goes to {o.delegator} (its {what} "
                  f"{o.makespan if what == 'makespan' else o.total_time:.0f} s; "
-                 f"{self.score(chosen).primary:.0f} s in all, own fleet alone: {own_alone})"
-                 for k, o in chosen.items()]
-        notes += [f"offer not taken: {o.delegator} for {paths[o.child_uuid]} (makespan "
-                  f"{o.makespan:.0f} s)" for o in self.offers
-                  if chosen.get(o.child_uuid) is not o]
+                 f"{overall:.0f} s in all, own fleet alone: {own_alone})" for o in chosen]
+        notes += [f"offer not taken: {o.delegator} for {subtree(o)} (makespan "
+                  f"{o.makespan:.0f} s)" for o in self.offers if o not in chosen]
         return notes

@@ -10,7 +10,9 @@ An offer request is a plan-only ``delegate`` (``preview: true``) of one subtree,
 delegator's per-client command topic (``<its base>/delegation/command/<our name>``), so that its
 answer comes back on ``<its base>/delegation/response/<our name>`` to us alone. A command whose
 caller is itself a delegator is planned with the own fleet only: offers are not asked for the
-subtree someone else is asking us about (no rounds within rounds, no loops between partners).
+subtree someone else is asking us about, nor for a subtree another delegator's engine hands us
+(its caller is a unit on the ``tst execution`` level): no rounds within rounds, no loops between
+partners.
 """
 
 from __future__ import annotations
@@ -20,16 +22,16 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from delegation.errors import MessageError
-from delegation.fleet import FleetRegistry
+from delegation.fleet import Delegator, FleetRegistry
 from delegation.messages import Delegate, DelegationResponse, new_com_uuid
 from delegation.messages.codec import validate_model
 from delegation.messages.errors import json_value
 from delegation.runtime.core import Effects, Outgoing
 from delegation.service.config import ServiceConfig
-from delegation.service.federated import Offer, offerable_children, takers
+from delegation.service.federated import Offer, bundles, offerable_children, takers
 from delegation.service.jobs import Job
 from delegation.topics import parse_unit_topic
-from delegation.tst.node import TstNode, to_dict
+from delegation.tst.node import TstNode, make_node, to_dict
 
 log = logging.getLogger(__name__)
 
@@ -39,13 +41,15 @@ PLANNING_SHARE = 0.5
 
 @dataclass(frozen=True, slots=True)
 class OfferRequest:
-    """One subtree asked of one delegator (by the request's com-uuid)."""
+    """One subtree asked of one delegator (by the request's com-uuid): one child of the root,
+    or a bundle of them under a new ``conc`` (``covers``: the children's uuids)."""
 
     com_uuid: str
     delegator: str
     base: str
     path: str
-    child: TstNode
+    subtree: TstNode
+    covers: tuple[str, ...]
 
 
 @dataclass(slots=True)
@@ -87,17 +91,17 @@ class OfferDesk:
         if not c.federate or c.bid_window <= 0 or job.kind != "plan" or job.redelegate:
             return None
         delegators = [d for d in self.fleet.delegators(now) if d.name != c.name]
-        if caller and caller in {d.name for d in delegators}:
-            return None  # a delegator asks us for an offer: our own fleet answers it
-        requests = [OfferRequest(new_com_uuid(), d.name, d.base_topic, path, child)
-                    for path, child in offerable_children(job.tree.root)
-                    for d in takers(child, delegators)]
+        if caller and (caller in {d.name for d in delegators}
+                       or "tst execution" in self.fleet.levels(caller)):
+            return None  # another delegator (or its engine) gives us a part: our fleet does it
+        requests = self._requests(job, delegators, now)
         if not requests:
             return None
         effects = Effects()
         limit = max(0.05, min(job.options.time_limit, c.bid_window * PLANNING_SHARE))
         for r in requests:
-            ask = Delegate(com_uuid=r.com_uuid, sender=c.name, tst=to_dict(r.child), preview=True,
+            ask = Delegate(com_uuid=r.com_uuid, sender=c.name, tst=to_dict(r.subtree),
+                           preview=True,
                            strategy=job.options.strategy, objective=job.options.objective,
                            time_limit=limit)
             effects.publish.append(Outgoing.of(f"{r.base}/delegation/command/{c.name}", ask))
@@ -107,6 +111,25 @@ class OfferDesk:
         log.info("mission %s: asked %d offer(s) of %s (at most %.1f s)", job.tree.node_uuid,
                  len(requests), ", ".join(sorted({r.delegator for r in requests})), c.bid_window)
         return effects
+
+    def _requests(self, job: Job, delegators: list[Delegator], now: float
+                  ) -> list[OfferRequest]:
+        """Every offerable child to every delegator that could take it, and to each delegator
+        the bundle of the children at its site (`bundles`), docs/protocol.md §15.2."""
+        children = offerable_children(job.tree.root)
+        requests = [OfferRequest(new_com_uuid(), d.name, d.base_topic, path, child,
+                                 (child.node_uuid or "",))
+                    for path, child in children for d in takers(child, delegators)]
+        positions = {u.name: u.position for u in self.fleet.snapshot(now)}
+        by_name = {d.name: d for d in delegators}
+        own = [u.position for u in job.units]
+        for name, kids in sorted(bundles(children, delegators, own, positions).items()):
+            d = by_name[name]
+            conc = make_node("conc", [k for _, k in kids], node_uuid=new_com_uuid())
+            requests.append(OfferRequest(new_com_uuid(), name, d.base_topic,
+                                         ", ".join(p for p, _ in kids), conc,
+                                         tuple(k.node_uuid or "" for _, k in kids)))
+        return requests
 
     def receive(self, topic: str, payload: bytes, now: float) -> list[Job]:
         """A delegator's answer: an offer or a refusal; the jobs whose round is now complete."""
@@ -122,7 +145,7 @@ class OfferDesk:
         if found is None or request is None or not topic.startswith(request.base + "/"):
             return []  # late (the round is over), or not from whom we asked
         del found.waiting[answer.response_to], self._by_com[answer.response_to]
-        offer = (Offer.of(request.delegator, request.child, answer.plan)
+        offer = (Offer.of(request.delegator, request.subtree, answer.plan, request.covers)
                  if answer.response == "ok" and answer.plan is not None
                  else answer.fail_reason or answer.response)
         if isinstance(offer, Offer):
