@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import uuid as uuid_module
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -113,27 +113,60 @@ def anchor(child: TstNode) -> GeoPoint | None:
     return None
 
 
-def bundles(children: Sequence[tuple[str, TstNode]], delegators: Sequence[Delegator],
-            own: Sequence[GeoPoint], positions: Mapping[str, GeoPoint]
-            ) -> dict[str, list[tuple[str, TstNode]]]:
-    """Per delegator, the offerable children nearer to one of the units it manages (by
-    ``positions``: every unit's is on the broker) than to any of ours (``own``) and to any
-    other delegator's that could take them: a site's tasks, for the partner at that site.
-    Only bundles of two or more children (single children are offered anyway)."""
-    near: dict[str, list[tuple[str, TstNode]]] = {}
-    for path, child in children:
-        where_ = anchor(child)
-        if where_ is None:
+def _nearest(where_: GeoPoint, points: Sequence[GeoPoint]) -> float:
+    return min((distance_m(where_, p) for p in points), default=math.inf)
+
+
+def nearer_takers(child: TstNode, delegators: Sequence[Delegator], own: Sequence[UnitState],
+                  positions: Mapping[str, GeoPoint]) -> list[tuple[float, Delegator]]:
+    """(distance, delegator) for the delegators that could take ``child`` and have a unit
+    nearer to where it begins than any of our units that could (every unit's position is on
+    the broker), nearest first; a delegator whose units' positions are unknown is counted as
+    near (infinitely far, after the others), a child without a place goes to every taker."""
+    names = {n.name for _, n in walk(child) if not n.is_control}
+    where_ = anchor(child)
+    found = []
+    ours = _nearest(where_, [u.position for u in own if names <= u.tasks]) if where_ else 0.0
+    for d in takers(child, delegators):
+        known = [positions[u] for u in d.units_managed if u in positions]
+        if where_ is None or not known:
+            found.append((math.inf, d))
             continue
-        best, best_d = "", min((distance_m(where_, p) for p in own), default=math.inf)
-        for d in takers(child, delegators):
-            dist = min((distance_m(where_, positions[u]) for u in d.units_managed
-                        if u in positions), default=math.inf)
-            if dist < best_d:
-                best, best_d = d.name, dist
-        if best:
-            near.setdefault(best, []).append((path, child))
-    return {d: kids for d, kids in near.items() if len(kids) >= 2}
+        dist = _nearest(where_, known)
+        if dist < ours:
+            found.append((dist, d))
+    return sorted(found, key=lambda t: (t[0], t[1].name))
+
+
+@dataclass(frozen=True, slots=True)
+class Ask:
+    """A subtree to ask one delegator an offer for (``covers``: the root's children it holds)."""
+
+    delegator: Delegator
+    path: str
+    subtree: TstNode
+    covers: tuple[str, ...]
+
+
+def offer_asks(root: TstNode, delegators: Sequence[Delegator], own: Sequence[UnitState],
+               positions: Mapping[str, GeoPoint], new_uuid: Callable[[], str]) -> list[Ask]:
+    """What to ask whom (docs/protocol.md §15.2): each offerable child to the delegators with a
+    unit nearer to it than ours (`nearer_takers`), and to each delegator the bundle of the
+    children it is the nearest for, under a new ``conc`` (when two or more)."""
+    asks: list[Ask] = []
+    site: dict[str, list[tuple[str, TstNode]]] = {}
+    by_name = {d.name: d for d in delegators}
+    for path, child in offerable_children(root):
+        near = nearer_takers(child, delegators, own, positions)
+        asks.extend(Ask(d, path, child, (child.node_uuid or "",)) for _, d in near)
+        if near and math.isfinite(near[0][0]):
+            site.setdefault(near[0][1].name, []).append((path, child))
+    for name, kids in sorted(site.items()):
+        if len(kids) >= 2:
+            conc = make_node("conc", [k for _, k in kids], node_uuid=new_uuid())
+            asks.append(Ask(by_name[name], ", ".join(p for p, _ in kids), conc,
+                            tuple(k.node_uuid or "" for _, k in kids)))
+    return asks
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,10 +28,10 @@ from delegation.messages.codec import validate_model
 from delegation.messages.errors import json_value
 from delegation.runtime.core import Effects, Outgoing
 from delegation.service.config import ServiceConfig
-from delegation.service.federated import Offer, bundles, offerable_children, takers
+from delegation.service.federated import Offer, offer_asks
 from delegation.service.jobs import Job
 from delegation.topics import parse_unit_topic
-from delegation.tst.node import TstNode, make_node, to_dict
+from delegation.tst.node import TstNode, to_dict
 
 log = logging.getLogger(__name__)
 
@@ -114,22 +114,11 @@ class OfferDesk:
 
     def _requests(self, job: Job, delegators: list[Delegator], now: float
                   ) -> list[OfferRequest]:
-        """Every offerable child to every delegator that could take it, and to each delegator
-        the bundle of the children at its site (`bundles`), docs/protocol.md §15.2."""
-        children = offerable_children(job.tree.root)
-        requests = [OfferRequest(new_com_uuid(), d.name, d.base_topic, path, child,
-                                 (child.node_uuid or "",))
-                    for path, child in children for d in takers(child, delegators)]
+        """What to ask whom (`offer_asks`), each with a fresh com-uuid."""
         positions = {u.name: u.position for u in self.fleet.snapshot(now)}
-        by_name = {d.name: d for d in delegators}
-        own = [u.position for u in job.units]
-        for name, kids in sorted(bundles(children, delegators, own, positions).items()):
-            d = by_name[name]
-            conc = make_node("conc", [k for _, k in kids], node_uuid=new_com_uuid())
-            requests.append(OfferRequest(new_com_uuid(), name, d.base_topic,
-                                         ", ".join(p for p, _ in kids), conc,
-                                         tuple(k.node_uuid or "" for _, k in kids)))
-        return requests
+        asks = offer_asks(job.tree.root, delegators, job.units, positions, new_com_uuid)
+        return [OfferRequest(new_com_uuid(), a.delegator.name, a.delegator.base_topic, a.path,
+                             a.subtree, a.covers) for a in asks]
 
     def receive(self, topic: str, payload: bytes, now: float) -> list[Job]:
         """A delegator's answer: an offer or a refusal; the jobs whose round is now complete."""
