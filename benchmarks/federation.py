@@ -182,9 +182,10 @@ def offer_round(args: argparse.Namespace) -> int:
         client.connect()
         stack.callback(client.disconnect)
         others = set(names[1:])
-        # The partners' delegation_info comes once a second: wait until A knows all three.
-        if not top.wait_until(lambda c: {d.name for d in c.fleet.delegators(time.monotonic())}
-                              >= others, 30.0):
+        # The partners' delegation_info comes once a second (the first before they have heard
+        # their units): wait until A knows what all three can do.
+        if not top.wait_until(lambda c: {d.name for d in c.fleet.delegators(time.monotonic())
+                                         if d.tasks} >= others, 30.0):
             print("the top service did not hear the three delegators", file=sys.stderr)
             return 1
 

@@ -50,11 +50,12 @@ def ask(watch: Any, base: str, command: dict[str, Any], timeout: float = 20.0
 
 
 def wait_delegator(watch: Any, base: str, name: str, timeout: float = 15.0) -> None:
-    """Until the service at ``base`` lists ``name`` as a delegator (its info arrives at 1 Hz)."""
+    """Until the service at ``base`` lists ``name`` as a delegator with the tasks its fleet can
+    do (its info arrives at 1 Hz; the first before it has heard its units)."""
     deadline = time.monotonic() + timeout
     while True:
         agents = ask(watch, base, {"command": "list-agents"})["agents"]
-        if any(a["name"] == name and a.get("delegator") for a in agents):
+        if any(a["name"] == name and a.get("delegates-tasks") for a in agents):
             return
         old = {id(m) for m in watch.messages}
         watch.wait_for(lambda m, old=old: id(m) not in old

@@ -194,7 +194,9 @@ class FederatedPlanner:
         self.offers = [o for o in offers if o.covers and set(o.covers) <= children]
         self.strategy, self.objective = strategy, Objective(objective)
         self.time_limit, self.engine_unit, self.limits = time_limit, engine_unit, limits
-        self._scores: dict[frozenset[tuple[str, tuple[str, ...]]], _Score] = {}
+        #: Our own plan of what is left, by the children given away (None: nothing left).
+        self._own: dict[frozenset[str], Plan | None] = {}
+        self.evaluations = 0
 
     def own_tree(self, chosen: Sequence[Offer]) -> TstNode | None:
         """The root without the delegated children (None when nothing is left for us)."""
@@ -202,33 +204,56 @@ class FederatedPlanner:
         kept = [c for c in self.root.children if c.node_uuid not in gone]
         return self.root.with_children(kept) if kept else None
 
+    def _own_plan(self, chosen: Sequence[Offer]) -> Plan | None:
+        """Our fast plan of what ``chosen`` leaves us (the same for whoever takes the rest)."""
+        gone = frozenset(k for o in chosen for k in o.covers)
+        if gone not in self._own:
+            own_tree = self.own_tree(chosen)
+            self.evaluations += own_tree is not None
+            self._own[gone] = None if own_tree is None else plan_mission(
+                own_tree, self.units, strategy="auction", objective=self.objective,
+                time_limit=min(self.time_limit, COMPARE_TIME_LIMIT),
+                engine_unit=self.engine_unit, limits=self.limits)
+        return self._own[gone]
+
     def score(self, chosen: Sequence[Offer]) -> _Score:
         """(tasks nobody takes, objective, the other measure) of giving ``chosen`` away."""
-        memo = frozenset((o.delegator, o.covers) for o in chosen)
-        if memo in self._scores:
-            return self._scores[memo]
-        own_tree = self.own_tree(chosen)
-        own = None if own_tree is None else plan_mission(
-            own_tree, self.units, strategy="auction", objective=self.objective,
-            time_limit=min(self.time_limit, COMPARE_TIME_LIMIT), engine_unit=self.engine_unit,
-            limits=self.limits)
+        own = self._own_plan(chosen)
         makespan = max([own.makespan if own else 0.0, *(o.makespan for o in chosen)])
         total = (own.total_time if own else 0.0) + sum(o.total_time for o in chosen)
         primary, secondary = (makespan, total) if self.objective is Objective.MAKESPAN \
             else (total, makespan)
-        score = self._scores[memo] = _Score(len(own.unassigned) if own else 0, primary, secondary)
-        return score
+        return _Score(len(own.unassigned) if own else 0, primary, secondary)
+
+    def _bound(self, chosen: Sequence[Offer]) -> float:
+        """A lower bound on the objective of giving ``chosen`` away, whatever our part costs:
+        a trial that cannot beat the best so far is not planned."""
+        if self.objective is Objective.MAKESPAN:
+            return max((o.makespan for o in chosen), default=0.0)
+        return sum(o.total_time for o in chosen)
 
     def choose(self) -> list[Offer]:
-        """The offers taken (greedy; empty when our own fleet does better)."""
+        """The offers taken (empty when our own fleet does better): every partner's bundle at
+        once when that beats our fleet alone (the two-site case, in one evaluation), then
+        greedily the one offer that improves the objective most, while one does."""
         chosen: list[Offer] = []
         best = self.score(chosen)
+        bundles: dict[str, Offer] = {}
+        for o in self.offers:
+            if o.bundle:
+                bundles.setdefault(o.delegator, o)
+        if bundles:
+            together = list(bundles.values())
+            score = self.score(together)
+            if score.key() < best.key():
+                chosen, best = together, score
         while True:
             used = {o.delegator for o in chosen}
             taken = {k for o in chosen for k in o.covers}
             candidates = [o for o in self.offers
                           if o.delegator not in used and not taken & set(o.covers)]
-            trials = [(self.score([*chosen, o]), o) for o in candidates]
+            trials = [(self.score([*chosen, o]), o) for o in candidates
+                      if best.unassigned or self._bound([*chosen, o]) < best.primary]
             better = [t for t in trials if t[0].key() < best.key()]
             if not better:
                 return chosen
