@@ -121,9 +121,10 @@ def two_site_tree() -> dict[str, Any]:
                          _move("near-b", LINKOPING[0] + 0.002, LINKOPING[1])]}
 
 
-def partner() -> ServiceCore:
+def partner(partners: frozenset[str] = frozenset({"delegator0", "op-a"})) -> ServiceCore:
     """delegator-b: its own service with b-air0 and its engine, hearing delegator0 as one."""
-    b = ServiceCore(ServiceConfig(prefix=PREFIX, name="delegator-b", engine="op-b"))
+    b = ServiceCore(ServiceConfig(prefix=PREFIX, name="delegator-b", engine="op-b",
+                                  partners=partners))
     feed_unit(b, "b-air0", *LINKOPING, ["move-to"], 100.0)
     hb = HeartBeat(agent_type="ground", agent_uuid="engine-b", levels=["tst execution"],
                    name="op-b", rate=1.0, stamp=100.0)
@@ -272,3 +273,28 @@ def test_a_subtree_another_delegators_engine_hands_us_is_not_offered_again() -> 
     asked = b.on_message(f"{B_BASE}/tst/command", json.dumps(operator).encode(), 101.0)
     assert asked.jobs == [] and [a["tst"]["common_params"]["node-uuid"]
                                  for _, a in _asks(asked)] == ["near-a", "near-b"]
+
+
+def test_a_delegator_plans_only_for_the_partners_it_trusts() -> None:
+    b = partner()
+    stranger = partner(frozenset())
+    hb = HeartBeat(agent_type="ground", agent_uuid="op-x", levels=["tst execution"],
+                   name="op-x", rate=1.0, stamp=100.0)
+    stranger.on_message(f"{PREFIX}/unit/ground/simulation/op-x/heartbeat", encode(hb), 100.0)
+    ask = {"com-uuid": "ask", "sender": "delegator0", "command": "delegate", "preview": True,
+           "tst": two_site_tree()}
+    topic = f"{B_BASE}/delegation/command/delegator0"
+    refused = on(stranger.on_message(topic, json.dumps(ask).encode(), 101.0),
+                 "delegation/response/delegator0")
+    assert refused[0]["response"] == "failed"
+    assert "delegator0 is another delegator (or its engine) that delegator-b does not trust: " \
+           "start it with --partner delegator0" in refused[0]["fail-reason"]
+    start = {"com-uuid": "st", "command": "start-tst", "sender": "op-x", "tst": two_site_tree()}
+    answer = on(stranger.on_message(f"{B_BASE}/tst/command", json.dumps(start).encode(), 101.0),
+                "tst/response")
+    assert answer[0]["response"] == "failed" and "op-x" in answer[0]["fail-reason"]
+    # Trusted (a partner), and anyone who is no delegator (an operator's C2 tool): planned.
+    assert len(b.on_message(topic, json.dumps(ask).encode(), 101.0).jobs) == 1
+    plain = {**start, "com-uuid": "st2", "sender": "c2-tool"}
+    went = stranger.on_message(f"{B_BASE}/tst/command", json.dumps(plain).encode(), 101.0)
+    assert on(went, "tst/response") == [] and (went.jobs or _asks(went))

@@ -72,7 +72,8 @@ def watch_prefix(base: str) -> str:
 def two_sites(mqtt_settings: BrokerSettings, prefix: str,
               collector: Callable[..., Any]) -> Iterator[tuple[Any, ServiceConfig]]:
     a_cfg, a0 = site("delegator-a", "op-a", "a0", 0.0, prefix)
-    b_cfg, b0 = site("delegator-b", "op-b", "b0", SITE_B, prefix)
+    b_cfg, b0 = site("delegator-b", "op-b", "b0", SITE_B, prefix,
+                     partners=frozenset({"delegator-a", "op-a"}))
     watch = collector(f"{prefix}/unit/+/+/delegator-a/#", f"{prefix}/unit/+/+/delegator-b/#",
                       f"{prefix}/unit/+/+/+/delegation_info")
     with ExitStack() as stack:

@@ -84,6 +84,9 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bid-window", type=float, default=1.0, metavar="SECONDS",
                    help="how long to wait for other delegators' offers before planning "
                    "(default 1; 0 plans with the own fleet only)")
+    p.add_argument("--partner", action="append", default=[], metavar="NAME",
+                   help="another delegator (or its TST engine) whose offer requests and "
+                   "subtrees this service accepts (repeatable)")
     p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
                    help="a unit busy in another mission: planned from when and where it is free "
                    "(wait), left out (exclude), or ignored (share)")
@@ -112,6 +115,7 @@ def _serve(args: argparse.Namespace) -> int:
         fleet=frozenset(args.fleet),
         bid_window=args.bid_window,
         federate=args.bid_window > 0,
+        partners=frozenset(args.partner),
     )
     if args.http:
         from delegation.cli.ui import page_options

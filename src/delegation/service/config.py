@@ -69,6 +69,10 @@ class ServiceConfig:
     bid_window: float = 1.0
     #: Ask other delegators for offers at all (off: plan with the own fleet only).
     federate: bool = True
+    #: Other delegators (and their engines) whose offer requests and subtrees this service
+    #: accepts (``serve --partner``); an ``operators`` name is trusted too. A command from any
+    #: other delegator or TST engine that plans is refused (DESIGN 3.14, docs/protocol.md §15.4).
+    partners: frozenset[str] = frozenset()
 
     @property
     def limits(self) -> Limits:

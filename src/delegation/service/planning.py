@@ -106,6 +106,7 @@ class Planning(MissionPart):
     ) -> Effects:
         """Validate the tree (once, here: a bad one is answered at once) and hand it to the
         planner as a job."""
+        self._trusted(key, now)
         tree = validate_tree(raw_tree, self.config.limits).with_uuids()
         if kind == "plan":
             conflicts = self.book.conflicts(tree.root)
@@ -133,6 +134,19 @@ class Planning(MissionPart):
             if held is not None:
                 return held
         return Effects(jobs=[job])
+
+    def _trusted(self, key: CommandKey, now: float) -> None:
+        """``InputError`` when another delegator (or a TST engine: one of theirs handing us a
+        subtree) asks us to plan and is neither a partner nor an operator of ours."""
+        caller = self.desk.caller(key)
+        fleet = self.view.fleet
+        if not caller or caller in self.config.partners or caller in self.config.operators:
+            return
+        levels = fleet.levels(caller)
+        if "delegation" in levels or "tst execution" in levels:
+            raise InputError(InputProblem(
+                "command", "sender", f"{caller} is another delegator (or its engine) that "
+                f"{self.config.name} does not trust: start it with --partner {caller}"))
 
     def planned(self, job: Job, plan: Plan, now: float, seconds: float) -> Effects:
         """A plan was made for a command: plan again around a clash, refuse it when infeasible,
