@@ -148,3 +148,30 @@ def test_a_delegator_that_never_answers_delays_planning_by_the_window_at_most(
     assert sum("mute did not answer within 0.5 s" in n for n in notes) == 2, notes
     assert {x["execunit"] for x in answer["plan"]["assignments"]} == {"/a0"}
     assert 0.5 <= took < 0.5 + 2.0, took  # the window, plus planning on a loaded machine
+
+
+def test_cancelling_the_top_mission_aborts_the_delegated_subtree(
+        two_sites: tuple[Any, ServiceConfig]) -> None:
+    watch, a = two_sites
+    root, far = str(uuid.uuid4()), f"far-{uuid.uuid4().hex[:8]}"
+    near_a, far_b = move_to(100, 0), move_to(SITE_B + 4000, 0)  # b0 needs 500 s (5 s here)
+    near_a["common_params"]["node-uuid"], far_b["common_params"]["node-uuid"] = \
+        f"a-{far}", far
+    tree = {"name": "conc", "common_params": {"node-uuid": root}, "children": [near_a, far_b]}
+    answer = ask(watch, a.base_topic, {"command": "delegate", "tst": tree, "start": True},
+                 timeout=30.0)
+    assert answer["response"] == "started", answer
+    assert {x["execunit"] for x in answer["plan"]["assignments"]
+            if x["node-uuid"] == far} == {"/delegator-b"}
+    feedback = f"{a.base_topic}/tst/feedback"
+    watch.wait_json(feedback, lambda d: d.get("node-uuid") == far and d["status"] == "running",
+                    timeout=30.0, what="the delegated subtree running")
+    cancelled = ask(watch, a.base_topic, {"command": "cancel-mission", "root-uuid": root},
+                    timeout=40.0)
+    assert cancelled["response"] == "ok", cancelled
+    watch.wait_json(feedback, lambda d: d.get("node-uuid") == far and d["status"] == "aborted",
+                    timeout=20.0, what="the delegated subtree aborted")
+    # delegator-b's own mission (the subtree, its root is ours) ended aborted there.
+    b_events = f"{watch_prefix(a.base_topic)}/unit/+/+/delegator-b/delegation/feedback"
+    watch.wait_json(b_events, lambda d: d.get("root-uuid") == far and d["status"] == "aborted",
+                    timeout=20.0, what="delegator-b's mission aborted")
