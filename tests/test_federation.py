@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import pytest
+
 from delegation.fleet import FleetRegistry
 from delegation.messages import DelegationInfo, HeartBeat, decode, encode
 from delegation.runtime.core import Effects
@@ -298,3 +300,35 @@ def test_a_delegator_plans_only_for_the_partners_it_trusts() -> None:
     plain = {**start, "com-uuid": "st2", "sender": "c2-tool"}
     went = stranger.on_message(f"{B_BASE}/tst/command", json.dumps(plain).encode(), 101.0)
     assert on(went, "tst/response") == [] and (went.jobs or _asks(went))
+
+
+# --------------------------------------------------------------------------- the demo
+
+
+def test_the_federated_demo_splits_the_fleet_by_where_the_units_are() -> None:
+    from delegation.cli.demo import split_partners
+    from delegation.fleet import make_unit
+    from delegation.geo import LocalFrame
+
+    frame = LocalFrame(*GRANSO)
+    units = [make_unit(f"u{x}", "air", frame.geopoint(x * 1000.0, (x % 2) * 50.0, 30),
+                       ["move-to"]) for x in (3, 0, 2, 1)]
+    ours, theirs = split_partners(units)
+    assert [u.name for u in ours] == ["u0", "u1"] and [u.name for u in theirs] == ["u2", "u3"]
+    assert split_partners(units[:1]) == (units[:1], [])
+
+
+@pytest.mark.mqtt
+@pytest.mark.slow
+def test_demo_federated_runs_to_success_with_the_partner_doing_its_half(
+        tmp_path: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    from delegation.cli import main
+
+    for var in ("WARAPS_BROKER", "WARAPS_PORT"):
+        monkeypatch.delenv(var, raising=False)  # the demo starts its own broker
+    out = tmp_path / "out"
+    assert main(["demo", "--federated", "--speedup", "30", "--out", str(out)]) == 0
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["feasible"]
+    assert "/delegator-b" in {a["execunit"] for a in plan["assignments"]}
+    assert any(n.startswith("offer taken") for n in plan["notes"])
