@@ -307,9 +307,9 @@ class EngineCore:
     def _from_executor(self, unit: str, base: str, rest: str, payload: bytes,
                        now: float) -> Effects:
         """A delegator's ``tst/response`` or ``tst/feedback`` about a subtree we handed it."""
-        if unit == self.name or unit not in self.delegated.executors or \
-                self.bases.get(unit) != base:
-            return Effects()
+        if not self.delegated.outstanding or unit == self.name or \
+                unit not in self.delegated.executors or self.bases.get(unit) != base:
+            return Effects()  # (every service's relayed feedback arrives here too: not read)
         try:
             msg = decode(f"{base}/{rest}", payload)
         except MessageError as exc:

@@ -85,6 +85,11 @@ class Delegated:
     _sent: dict[str, _Sent] = field(default_factory=dict)  # subtree root uuid -> sent
     _inner: dict[str, str] = field(default_factory=dict)  # node inside -> subtree root uuid
 
+    @property
+    def outstanding(self) -> bool:
+        """True while a subtree is out (only then is a delegator's message worth reading)."""
+        return bool(self._sent)
+
     def heard(self, unit: str, payload: bytes) -> None:
         """A heartbeat: is ``unit`` a TST executor (a delegator) we may hand subtrees to?"""
         levels = levels_of(payload)
