@@ -332,3 +332,21 @@ def test_demo_federated_runs_to_success_with_the_partner_doing_its_half(
     assert plan["feasible"]
     assert "/delegator-b" in {a["execunit"] for a in plan["assignments"]}
     assert any(n.startswith("offer taken") for n in plan["notes"])
+
+
+def test_the_page_shows_which_delegator_manages_each_unit() -> None:
+    from delegation.web.view import LiveView
+    from test_web_view import live_unit
+
+    view = LiveView()
+    b_base = f"{PREFIX}/unit/ground/simulation/delegator-b"
+    view.delegation_info(b_base, "delegator-b", {"units-managed": ["dji0", "/b1"]})
+    live_unit(view)  # heard after the info: shown as delegator-b's at once
+    [dji0] = view.units_since(0)
+    assert dji0["name"] == "dji0" and dji0["managed-by"] == "delegator-b"
+    seq = view.seq
+    view.delegation_info(b_base, "delegator-b", {"units-managed": ["b1"]})  # no longer
+    [changed] = view.units_since(seq)
+    assert "managed-by" not in changed
+    view.delegation_info(b_base, "delegator-b", {"units-managed": "not a list"})
+    assert view.units["dji0"].managed_by == ""
