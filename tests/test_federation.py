@@ -350,3 +350,22 @@ def test_the_page_shows_which_delegator_manages_each_unit() -> None:
     assert "managed-by" not in changed
     view.delegation_info(b_base, "delegator-b", {"units-managed": "not a list"})
     assert view.units["dji0"].managed_by == ""
+
+
+def test_a_lost_delegator_s_single_task_is_re_delegated_like_a_lost_unit_s() -> None:
+    from test_service_core import engine_answers
+
+    a, b = two_fleets(), partner()
+    held = _delegate(a, two_site_tree(), 101.0, start=True)
+    planned = run_jobs(a, Effects(jobs=_answer_asks(b, a, _asks(held), 101.2)), 101.3)
+    started = engine_answers(a, planned, "started", 101.4)
+    assert on(started, "delegation/response")[0]["response"] == "started"
+    for t in (105.0, 110.0, 115.0):  # dji0 and the engine go on, delegator-b falls silent
+        feed_unit(a, "dji0", *GRANSO, ["move-to", "search-area"], t)
+        feed_engine(a, t)
+    moved = run_jobs(a, a.on_tick(116.0), 116.1)
+    [event] = on(moved, "delegation/feedback")
+    assert event["status"] == "re-delegated" and "/delegator-b lost" in event["fail-reason"]
+    assert [(t["replaces"], t["unit"]) for t in event["tasks"]] == [("near-b", "/dji0")]
+    [again] = [c for c in on(moved, "op0/tst/command") if c["command"] == "start-tst"]
+    assert "/delegator-b" not in json.dumps(again["tst"])
