@@ -369,3 +369,26 @@ def test_a_lost_delegator_s_single_task_is_re_delegated_like_a_lost_unit_s() -> 
     assert [(t["replaces"], t["unit"]) for t in event["tasks"]] == [("near-b", "/dji0")]
     [again] = [c for c in on(moved, "op0/tst/command") if c["command"] == "start-tst"]
     assert "/delegator-b" not in json.dumps(again["tst"])
+
+
+def test_a_lost_delegator_s_bundle_is_re_delegated_task_by_task() -> None:
+    from test_service_core import engine_answers
+
+    a, b = two_fleets(), partner()
+    feed_unit(b, "b-air1", LINKOPING[0], LINKOPING[1] + 0.01, ["move-to"], 100.0)
+    tree = two_site_tree()
+    tree["children"].append(_move("near-b2", LINKOPING[0] - 0.003, LINKOPING[1]))
+    held = _delegate(a, tree, 101.0, start=True)
+    planned = run_jobs(a, Effects(jobs=_answer_asks(b, a, _asks(held), 101.2)), 101.3)
+    [sent] = on(planned, "op0/tst/command")
+    [bundle] = [c for c in sent["tst"]["children"] if c["name"] == "conc"]
+    # The tasks inside are named for the delegator too (it chooses; our engine unnames them).
+    assert {c["common_params"]["execunit"] for c in bundle["children"]} == {"/delegator-b"}
+    engine_answers(a, planned, "started", 101.4)
+    for t in (105.0, 110.0, 115.0):
+        feed_unit(a, "dji0", *GRANSO, ["move-to", "search-area"], t)
+        feed_engine(a, t)
+    moved = run_jobs(a, a.on_tick(116.0), 116.1)
+    [event] = on(moved, "delegation/feedback")
+    assert sorted((t["replaces"], t["unit"]) for t in event["tasks"]) == [
+        ("near-b", "/dji0"), ("near-b2", "/dji0")]

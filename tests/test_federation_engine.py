@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from delegation.engine.delegated import DELEGATED_TASK, fold_delegated
@@ -91,3 +92,25 @@ def test_a_signal_to_the_subtree_becomes_signal_tst_tree_and_a_refusal_fails_it(
     failed = c2.on_message(f"{B}/tst/response", encode(no), 2.0)
     [fb] = [f for f in on(failed, FEEDBACK) if f["node-uuid"] == "sub"]
     assert fb["status"] == "failed" and "not mine" in fb["fail-reason"]
+
+
+def test_tasks_inside_named_for_the_delegator_go_with_the_subtree_unnamed() -> None:
+    inner = subtree()
+    for child in inner["children"]:
+        child["common_params"]["execunit"] = "/delegator-b"
+    folded = fold_delegated(parse_tree(ctl("conc", "R", task("a"), inner)), {"delegator-b"})
+    assert [n.name for _, n in walk(folded)] == ["conc", "move-to", DELEGATED_TASK]
+    sent = folded.children[1].params["tst"]
+    assert all("execunit" not in c["common_params"] for c in [sent, *sent["children"]])
+
+
+def test_a_delegator_not_heard_lately_is_handed_nothing_the_engine_runs_the_node() -> None:
+    c = engine("dji0", "dji1")
+    hear_delegator(c, now=0.0)
+    stale = ctl("conc", "sub", task("x"), task("y", unit="/dji1"))  # re-planned onto our units
+    stale["common_params"]["execunit"] = "/delegator-b"
+    started = send(c, start_tst(ctl("conc", "R", task("a", unit="/dji1"), stale)), 10.0)
+    assert on(started, f"{B}/tst/command") == []
+    units = {json.loads(o.payload)["execution-unit"] for o in started.publish
+             if o.topic.endswith("/exec/command")}
+    assert units == {"/dji0", "/dji1"}

@@ -132,7 +132,7 @@ class EngineCore:
             self._impostor(parsed.name, parsed.base, bound)
             return Effects()
         if parsed.rest == "heartbeat":
-            self.delegated.heard(parsed.name, payload)
+            self.delegated.heard(parsed.name, payload, now)
             actions = self.executor.unit_seen(parsed.name, now)
             if self._missed(parsed.name, now):
                 log.info("%s: /%s is back: asking for its tasks' status", self.name, parsed.name)
@@ -229,7 +229,7 @@ class EngineCore:
             return self._answer(key, command.com_uuid, "pong")
         if isinstance(command, StartTst):
             root_uuid, actions = self.executor.start_tree(
-                self.delegated.fold(parse_tree(command.tst)), now)
+                self.delegated.fold(parse_tree(command.tst), now), now)
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))

@@ -44,26 +44,40 @@ def levels_of(payload: bytes) -> list[str] | None:
 
 
 def fold_delegated(root: TstNode, executors: Collection[str]) -> TstNode:
-    """The tree with every node below the root that names one of ``executors`` (units on the
-    ``tst execution`` level) as its ``execunit`` folded into a `DELEGATED_TASK` on that unit."""
+    """The tree with every topmost node below the root that names one of ``executors`` (units
+    on the ``tst execution`` level) as its ``execunit`` folded into a `DELEGATED_TASK` on that
+    unit (the nodes inside, named for it too, go with it)."""
     if not executors:
+        return root
+    folded: set[int] = set()
+    outer: list[str] = []  # paths of the nodes folded so far (walk is pre-order)
+    for path, node in walk(root):
+        if node is root or any(path.startswith(p + "/") for p in outer):
+            continue
+        if isinstance(node.execunit, str) and classify_execunit(node.execunit)[1] in executors:
+            folded.add(id(node))
+            outer.append(path)
+    if not folded:
         return root
 
     def fold(original: TstNode, children: tuple[TstNode, ...]) -> TstNode:
-        node = original.with_children(children)
-        if original is root or not isinstance(node.execunit, str):
-            return node
-        _, unit = classify_execunit(node.execunit)
-        if unit not in executors or not unit:
-            return node
-        inner = {k: v for k, v in node.common_params.items() if k != "execunit"}
-        subtree = to_dict(TstNode(node.name, node.children, inner, node.params, node.extra,
-                                  node.common_key, node.key_order))
-        return TstNode(DELEGATED_TASK, (), dict(node.common_params), {"tst": subtree})
+        if id(original) not in folded:
+            return original.with_children(children)
+        unit = original.execunit
+        subtree = to_dict(map_tree(original, lambda n, kids: _unnamed(n.with_children(kids),
+                                                                      unit)))
+        return TstNode(DELEGATED_TASK, (), dict(original.common_params), {"tst": subtree})
 
-    return map_tree(root, fold) if any(
-        n is not root and isinstance(n.execunit, str)
-        and classify_execunit(n.execunit)[1] in executors for _, n in walk(root)) else root
+    return map_tree(root, fold)
+
+
+def _unnamed(node: TstNode, execunit: str) -> TstNode:
+    """The node without ``execunit`` when it names the delegator (it chooses its own units)."""
+    if node.execunit != execunit:
+        return node
+    common = {k: v for k, v in node.common_params.items() if k != "execunit"}
+    return TstNode(node.name, node.children, common, node.params, node.extra, node.common_key,
+                   node.key_order)
 
 
 @dataclass(slots=True)
@@ -82,6 +96,10 @@ class Delegated:
 
     engine: str
     executors: set[str] = field(default_factory=set)
+    #: A delegator not heard for this long is handed nothing: the node runs here, as the
+    #: service's re-delegation planned it (its units are lost after >= 5 s).
+    fresh_for: float = 4.0
+    _heard: dict[str, float] = field(default_factory=dict)
     _sent: dict[str, _Sent] = field(default_factory=dict)  # subtree root uuid -> sent
     _inner: dict[str, str] = field(default_factory=dict)  # node inside -> subtree root uuid
 
@@ -90,19 +108,22 @@ class Delegated:
         """True while a subtree is out (only then is a delegator's message worth reading)."""
         return bool(self._sent)
 
-    def heard(self, unit: str, payload: bytes) -> None:
+    def heard(self, unit: str, payload: bytes, now: float) -> None:
         """A heartbeat: is ``unit`` a TST executor (a delegator) we may hand subtrees to?"""
         levels = levels_of(payload)
         if levels is None or unit == self.engine:
             return
         if "tst execution" in levels:
             self.executors.add(unit)
+            self._heard[unit] = now
         else:
             self.executors.discard(unit)
 
-    def fold(self, root: TstNode) -> TstNode:
-        """`fold_delegated` with the executors heard so far."""
-        return fold_delegated(root, self.executors - {self.engine})
+    def fold(self, root: TstNode, now: float) -> TstNode:
+        """`fold_delegated` with the executors heard within ``fresh_for``."""
+        fresh = {u for u in self.executors
+                 if u != self.engine and now - self._heard.get(u, -1e18) < self.fresh_for}
+        return fold_delegated(root, fresh)
 
     def handles(self, action: Any) -> bool:
         """True for a start or signal of a folded task (it goes to the unit's ``tst/command``)."""

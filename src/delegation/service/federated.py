@@ -22,7 +22,15 @@ from delegation.allocation import Assignment, Objective, Plan, plan_mission
 from delegation.costs import task_geometry
 from delegation.fleet import Delegator, UnitState
 from delegation.geo import GeoPoint, distance_m
-from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, make_node, walk, where
+from delegation.tst.node import (
+    ExecUnitKind,
+    TstNode,
+    classify_execunit,
+    make_node,
+    map_tree,
+    walk,
+    where,
+)
 from delegation.tst.validate import DEFAULT_LIMITS, Limits, with_defaults
 
 log = logging.getLogger(__name__)
@@ -274,9 +282,18 @@ class FederatedPlanner:
         return self._assemble(own, chosen, baseline)
 
     def _delegated(self, source: TstNode, offer: Offer) -> TstNode:
-        """The subtree the delegator gets: the child, or our ``conc`` around the bundle."""
+        """The subtree the delegator gets: the child, or our ``conc`` around the bundle, named
+        for it, and so is every task inside that the caller left free (the delegator chooses its
+        unit; a lost delegator's tasks are then found and re-delegated like a lost unit's)."""
         unit = f"/{offer.delegator}"
-        kids = [c for c in source.children if c.node_uuid in offer.covers]
+
+        def mark(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+            node = node.with_children(children)
+            if node.is_control or classify_execunit(node.execunit)[0] is not ExecUnitKind.FREE:
+                return node
+            return node.with_common_values({"execunit": unit})
+
+        kids = [map_tree(c, mark) for c in source.children if c.node_uuid in offer.covers]
         if not offer.bundle:
             return kids[0].with_common_values({"execunit": unit})
         return make_node("conc", kids, execunit=unit, node_uuid=offer.bundle)
