@@ -175,3 +175,37 @@ def test_cancelling_the_top_mission_aborts_the_delegated_subtree(
     b_events = f"{watch_prefix(a.base_topic)}/unit/+/+/delegator-b/delegation/feedback"
     watch.wait_json(b_events, lambda d: d.get("root-uuid") == far and d["status"] == "aborted",
                     timeout=20.0, what="delegator-b's mission aborted")
+
+
+def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds(
+        mqtt_settings: BrokerSettings, prefix: str, collector: Callable[..., Any]) -> None:
+    a_cfg, a0 = site("delegator-a", "op-a", "a0", 0.0, prefix)
+    b_cfg, b0 = site("delegator-b", "op-b", "b0", SITE_B, prefix,
+                     partners=frozenset({"delegator-a", "op-a"}))
+    watch = collector(f"{prefix}/unit/+/+/delegator-a/#", f"{prefix}/unit/+/+/delegator-b/#",
+                      f"{prefix}/unit/+/+/+/delegation_info")
+    root, far = str(uuid.uuid4()), f"far-{uuid.uuid4().hex[:8]}"
+    near_a, far_b = move_to(100, 0), move_to(SITE_B + 4000, 0)  # b0: 500 s (5 s here)
+    near_a["common_params"]["node-uuid"], far_b["common_params"]["node-uuid"] = \
+        f"a-{far}", far
+    tree = {"name": "conc", "common_params": {"node-uuid": root}, "children": [near_a, far_b]}
+    with ExitStack() as stack:
+        b_system = start_site(stack, mqtt_settings, b_cfg, b0)
+        start_site(stack, mqtt_settings, a_cfg, a0)
+        wait_delegator(watch, a_cfg.base_topic, "delegator-b")
+        answer = ask(watch, a_cfg.base_topic, {"command": "delegate", "tst": tree,
+                                               "start": True}, timeout=30.0)
+        assert answer["response"] == "started", answer
+        feedback = f"{a_cfg.base_topic}/tst/feedback"
+        watch.wait_json(feedback, lambda d: d.get("node-uuid") == far
+                        and d["status"] == "running", timeout=30.0, what="far running at b")
+        assert b_system.service is not None
+        b_system.service.stop()  # delegator-b dies (its engine and b0 fly on, unheard of)
+        events = f"{a_cfg.base_topic}/delegation/feedback"
+        moved = watch.wait_json(events, lambda d: d.get("root-uuid") == root
+                                and d["status"] == "re-delegated", timeout=30.0,
+                                what="the re-delegation")
+        assert "/delegator-b lost" in moved["fail-reason"]
+        assert [(t["replaces"], t["unit"]) for t in moved["tasks"]] == [(far, "/a0")]
+        watch.wait_json(events, lambda d: d.get("root-uuid") == root
+                        and d["status"] == "succeeded", timeout=60.0, what="the mission's end")
