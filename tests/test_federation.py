@@ -392,3 +392,25 @@ def test_a_lost_delegator_s_bundle_is_re_delegated_task_by_task() -> None:
     [event] = on(moved, "delegation/feedback")
     assert sorted((t["replaces"], t["unit"]) for t in event["tasks"]) == [
         ("near-b", "/dji0"), ("near-b2", "/dji0")]
+
+
+def test_a_partners_plan_is_checked_not_trusted() -> None:
+    from delegation.service.federated import Offer
+    from delegation.tst.node import parse_tree
+
+    child = parse_tree(_move("near-b", *LINKOPING))
+    good = {"feasible": True, "makespan": 10.0, "total-time": 10.0, "total-distance": 50.0,
+            "assignments": [{"node-uuid": "near-b", "name": "move-to", "start": 0.0,
+                             "end": 10.0, "travel-time": 10.0, "work-time": 0.0,
+                             "distance": 50.0}]}
+    offer = Offer.of("delegator-b", child, good, ("near-b",))
+    assert isinstance(offer, Offer) and offer.makespan == 10.0
+    bad_time = {**good, "assignments": [{**good["assignments"][0], "start": "soon"}]}
+    assert Offer.of("delegator-b", child, bad_time, ("near-b",)) == \
+        "its plan has an assignment without finite times"
+    assert Offer.of("delegator-b", child, {**good, "makespan": True}, ("near-b",)) == \
+        "its plan has no makespan/total-time/total-distance"
+    assert Offer.of("delegator-b", child, {**good, "assignments": []}, ("near-b",)) == \
+        "its plan does not assign every task of the subtree"
+    assert Offer.of("delegator-b", child, {**good, "feasible": False}, ("near-b",)) == \
+        "its plan is infeasible"

@@ -63,21 +63,41 @@ class Offer:
         unreadable, a task of the subtree missing from its assignments)."""
         if plan.get("feasible") is not True:
             return "its plan is infeasible"
-        try:
-            numbers = [float(plan[k]) for k in ("makespan", "total-time", "total-distance")]
-        except (KeyError, TypeError, ValueError):
+        values = [plan.get(k) for k in ("makespan", "total-time", "total-distance")]
+        numbers = [float(v) for v in values
+                   if isinstance(v, int | float) and not isinstance(v, bool)]
+        if len(numbers) != len(values):
             return "its plan has no makespan/total-time/total-distance"
         if not all(math.isfinite(x) and x >= 0.0 for x in numbers):
             return "its plan's times are not finite"
         raw = plan.get("assignments")
-        assignments = tuple(a for a in raw if isinstance(a, Mapping)) if isinstance(raw, list) \
-            else ()
         tasks = {n.node_uuid for _, n in walk(subtree) if not n.is_control}
-        if not tasks <= {a.get("node-uuid") for a in assignments}:
+        assignments = tuple(_assignment(a) for a in raw if isinstance(a, Mapping)
+                            and a.get("node-uuid") in tasks) if isinstance(raw, list) else ()
+        if None in assignments:
+            return "its plan has an assignment without finite times"
+        if not tasks <= {a.get("node-uuid") for a in assignments if a is not None}:
             return "its plan does not assign every task of the subtree"
         makespan, total_time, total_distance = numbers
         bundle = (subtree.node_uuid or "") if covers != (subtree.node_uuid,) else ""
-        return cls(delegator, covers, makespan, total_time, total_distance, assignments, bundle)
+        return cls(delegator, covers, makespan, total_time, total_distance,
+                   tuple(a for a in assignments if a is not None), bundle)
+
+
+#: The numbers an offer's assignment must carry (a partner's plan is checked, not trusted).
+_TIMES = ("start", "end", "travel-time", "work-time", "distance")
+
+
+def _assignment(raw: Mapping[str, Any]) -> dict[str, Any] | None:
+    """An offer's assignment with finite, non-negative numbers, or None."""
+    out: dict[str, Any] = {"node-uuid": raw.get("node-uuid"), "name": str(raw.get("name", ""))}
+    for key in _TIMES:
+        value = raw.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value) or value < 0.0:
+            return None
+        out[key] = float(value)
+    return out
 
 
 def offerable_children(root: TstNode) -> list[tuple[str, TstNode]]:
