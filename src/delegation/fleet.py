@@ -186,7 +186,7 @@ def _battery_fraction(value: Any) -> float | None:
 
 @dataclass(frozen=True, slots=True)
 class Delegator:
-    """Another delegation service seen on the broker (DESIGN 3.14): heartbeat level
+    """Another delegation service seen on the broker (docs/protocol.md §15.1): heartbeat level
     ``delegation`` and a ``delegation_info`` saying what its fleet can do and whom it manages."""
 
     name: str

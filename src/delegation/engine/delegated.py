@@ -1,5 +1,5 @@
-"""Subtrees the engine hands to another TST executor (a delegator, DESIGN 3.14; docs/protocol.md
-§15.3), pure.
+"""Subtrees the engine hands to another TST executor (a delegator; docs/protocol.md §15.3),
+pure.
 
 A node of a tree to execute whose ``execunit`` names a unit on the ``tst execution`` level (by
 its heartbeat ``levels``; not this engine) is not executed here: it is folded into one task node

@@ -121,9 +121,9 @@ class DelegationInfo(LevelInfo):
     """Info for the delegation level (ours, docs/protocol.md §2, §15): what the service offers.
 
     ``tasks-available`` (the tasks its live fleet can do, the union) and ``units-managed`` (the
-    units it plans for) make it a *delegator* to other services (DESIGN 3.14): they ask it for
-    offers on subtrees whose tasks it lists, and leave the units it manages to it. A sender that
-    lists no tasks is a delegator nobody offers anything to.
+    units it plans for) make it a *delegator* to other services (docs/protocol.md §15): they ask
+    it for offers on subtrees whose tasks it lists, and leave the units it manages to it. A
+    sender that lists no tasks is a delegator nobody offers anything to.
     """
 
     strategies: list[str] = Field(default_factory=list)

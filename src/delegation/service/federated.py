@@ -1,5 +1,5 @@
-"""Planning with other delegators' offers (DESIGN 3.14, docs/protocol.md §15.2): which subtrees
-may be offered, what an offer says, and the plan that lets offers compete with our own units.
+"""Planning with other delegators' offers (docs/protocol.md §15.2): which subtrees may be
+offered, what an offer says, and the plan that lets offers compete with our own units.
 
 Runs on the planner worker (like `delegation.service.jobs.run_job`): pure computation, no
 messages. Only the children of a root ``conc`` are offered: they start together, so a delegated

@@ -118,7 +118,7 @@ class FleetView:
 
     def own(self, now: float) -> Callable[[str], bool]:
         """Whether a unit is this service's: named in ``fleet`` when that is set, else any unit
-        no other live delegator says it manages (those are reached by offers, DESIGN 3.14)."""
+        no other live delegator says it manages (reached by offers, docs/protocol.md §15.1)."""
         if self.config.fleet:
             return self.config.fleet.__contains__
         managed = self.fleet.managed_by(now)

@@ -93,7 +93,7 @@ def status_messages(config: ServiceConfig, identity: Identity, book: MissionBook
                     fleet: tuple[list[str], list[str]] = ([], [])) -> list[Outgoing]:
     """Heartbeat, ``tst_execution_info`` (the trees executing) and ``delegation_info`` with the
     own fleet's summary (``fleet``: tasks available, units managed), which makes this service a
-    delegator other services can ask for offers (DESIGN 3.14)."""
+    delegator other services can ask for offers (docs/protocol.md §15)."""
     c = config
     active = [m.root_uuid for m in book if not m.ended and m.status is not MissionStatus.PLANNED]
     tst_info = TstExecutionInfo(name=c.name, rate=c.rate, stamp=stamp, trees_executing=active)
