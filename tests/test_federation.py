@@ -15,6 +15,7 @@ from delegation.fleet import FleetRegistry
 from delegation.messages import DelegationInfo, HeartBeat, decode, encode
 from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore
+from delegation.tst.node import parse_tree, walk
 from test_service_core import PREFIX, delegation, feed_engine, feed_unit, on, run_jobs
 
 OTHER = f"{PREFIX}/unit/ground/simulation/delegator-b"
@@ -414,3 +415,52 @@ def test_a_partners_plan_is_checked_not_trusted() -> None:
         "its plan does not assign every task of the subtree"
     assert Offer.of("delegator-b", child, {**good, "feasible": False}, ("near-b",)) == \
         "its plan is infeasible"
+
+
+def test_with_two_partners_one_lost_the_others_part_stays_with_it() -> None:
+    from test_service_core import engine_answers
+
+    norrkoping = (58.5877, 16.1924)
+    a, b = two_fleets(), partner()
+    c = ServiceCore(ServiceConfig(prefix=PREFIX, name="delegator-c", engine="op-c",
+                                  partners=frozenset({"delegator0", "op-a"})))
+    feed_unit(c, "c-air0", *norrkoping, ["move-to"], 100.0)
+    hb = HeartBeat(agent_type="ground", agent_uuid="engine-c", levels=["tst execution"],
+                   name="op-c", rate=1.0, stamp=100.0)
+    c.on_message(f"{PREFIX}/unit/ground/simulation/op-c/heartbeat", encode(hb), 100.0)
+    feed_delegator(c, 100.0, name="delegator0", tasks=["move-to", "search-area"],
+                   managed=["dji0"])
+
+    def c_is_alive(t: float) -> None:
+        feed_unit(a, "c-air0", *norrkoping, ["move-to"], t)
+        feed_delegator(a, t, name="delegator-c", managed=["c-air0"])
+
+    c_is_alive(100.0)
+    tree = two_site_tree()
+    tree["children"].append(_move("near-c", norrkoping[0] + 0.002, norrkoping[1]))
+    jobs = []
+    for topic, ask in _asks(_delegate(a, tree, 101.0, start=True)):
+        partner_core = b if "/delegator-b/" in topic else c
+        answered = run_jobs(partner_core, partner_core.on_message(
+            topic, json.dumps(ask).encode(), 101.1), 101.1)
+        for o in answered.publish:
+            if o.topic.endswith("/delegation/response/delegator0"):
+                jobs += a.on_message(o.topic, o.payload, 101.2).jobs
+    planned = run_jobs(a, Effects(jobs=jobs), 101.3)
+    [sent] = on(planned, "op0/tst/command")
+    assert {ch["common_params"]["node-uuid"]: ch["common_params"]["execunit"]
+            for ch in sent["tst"]["children"]} == {
+        "near-a": "/dji0", "near-b": "/delegator-b", "near-c": "/delegator-c"}
+    engine_answers(a, planned, "started", 101.4)
+    for t in (105.0, 110.0, 115.0):  # delegator-b falls silent, the others go on
+        feed_unit(a, "dji0", *GRANSO, ["move-to", "search-area"], t)
+        feed_engine(a, t)
+        c_is_alive(t)
+    moved = run_jobs(a, a.on_tick(116.0), 116.1)
+    [event] = on(moved, "delegation/feedback")
+    assert event["status"] == "re-delegated"
+    assert [(t["replaces"], t["unit"]) for t in event["tasks"]] == [("near-b", "/dji0")]
+    [again] = [m for m in on(moved, "op0/tst/command") if m["command"] == "start-tst"]
+    leaves = [n.execunit for _, n in walk(parse_tree(again["tst"])) if not n.is_control]
+    assert sorted(leaves) == ["/delegator-c", "/dji0", "/dji0"]  # near-c stays with c
+    assert "/delegator-c" in [ch["common_params"]["execunit"] for ch in again["tst"]["children"]]

@@ -48,6 +48,7 @@ import logging
 import uuid
 from collections import deque
 from collections.abc import Iterable
+from dataclasses import replace
 from typing import Any
 
 from delegation.errors import InputError, InputProblem
@@ -292,7 +293,16 @@ class ServiceCore:
             if event.name == self.config.engine:
                 effects.extend(self.repair.engine_gone(event, now))
             else:
-                effects.extend(self.repair.unit_lost(event, now))
+                effects.extend(self._with_delegators(self.repair.unit_lost(event, now), now))
+        return effects
+
+    def _with_delegators(self, effects: Effects, now: float) -> Effects:
+        """Re-delegation jobs learn which units are delegators (their subtrees stay with them,
+        docs/protocol.md §15.4)."""
+        names = frozenset(d.name for d in self.fleet.delegators(now, alive_only=False))
+        if names:
+            effects.jobs = [replace(j, delegators=names) if isinstance(j, Job) else j
+                            for j in effects.jobs]
         return effects
 
     def _command(self, face: Face, payload: bytes, now: float, client: str | None = None

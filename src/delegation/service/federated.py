@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import uuid as uuid_module
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -197,6 +197,26 @@ def offer_asks(root: TstNode, delegators: Sequence[Delegator], own: Sequence[Uni
     return asks
 
 
+def kept_delegations(root: TstNode, own: Collection[str], engine: str) -> list[Offer]:
+    """The children of a root ``conc`` named wholly for one unit that is neither ours nor the
+    engine (every node's ``execunit`` is that ``/delegator``): a re-delegation keeps them with
+    their delegator, since our planner cannot plan for a unit it does not have."""
+    if root.name != "conc":
+        return []
+    kept = []
+    for child in root.children:
+        names = set()
+        for _, node in walk(child):
+            kind, name = classify_execunit(node.execunit) if isinstance(
+                node.execunit, str) else (ExecUnitKind.FREE, "")
+            names.add(name if kind is ExecUnitKind.FIXED else "")
+        if len(names) == 1 and child.node_uuid:
+            (name,) = names
+            if name and name not in own and name != engine:
+                kept.append(Offer(name, (child.node_uuid,), 0.0, 0.0, 0.0))
+    return kept
+
+
 @dataclass(frozen=True, slots=True)
 class _Score:
     unassigned: int
@@ -215,11 +235,13 @@ class FederatedPlanner:
 
     def __init__(self, root: TstNode, units: Sequence[UnitState], offers: Sequence[Offer], *,
                  strategy: str, objective: str, time_limit: float, engine_unit: str,
-                 limits: Limits = DEFAULT_LIMITS) -> None:
+                 limits: Limits = DEFAULT_LIMITS, kept: Sequence[Offer] = ()) -> None:
         self.root = root
         self.units = tuple(units)
         children = {c.node_uuid for c in root.children}
         self.offers = [o for o in offers if o.covers and set(o.covers) <= children]
+        #: Subtrees that stay with their delegator whatever the rest costs (`kept_delegations`).
+        self.kept = [o for o in kept if o.covers and set(o.covers) <= children]
         self.strategy, self.objective = strategy, Objective(objective)
         self.time_limit, self.engine_unit, self.limits = time_limit, engine_unit, limits
         #: Our own plan of what is left, by the children given away (None: nothing left).
@@ -264,14 +286,14 @@ class FederatedPlanner:
         """The offers taken (empty when our own fleet does better): every partner's bundle at
         once when that beats our fleet alone (the two-site case, in one evaluation), then
         greedily the one offer that improves the objective most, while one does."""
-        chosen: list[Offer] = []
+        chosen: list[Offer] = list(self.kept)
         best = self.score(chosen)
         bundles: dict[str, Offer] = {}
         for o in self.offers:
             if o.bundle:
                 bundles.setdefault(o.delegator, o)
         if bundles:
-            together = list(bundles.values())
+            together = [*chosen, *bundles.values()]
             score = self.score(together)
             if score.key() < best.key():
                 chosen, best = together, score
@@ -291,7 +313,7 @@ class FederatedPlanner:
     def plan(self) -> Plan:
         """The plan: our own plan for what is kept, the offers for what is delegated."""
         chosen = self.choose()
-        baseline = self.score([])
+        baseline = self.score(self.kept)
         own_tree = self.own_tree(chosen)
         own = None if own_tree is None else plan_mission(
             own_tree, self.units, strategy=self.strategy, objective=self.objective,
@@ -365,9 +387,12 @@ class FederatedPlanner:
         def subtree(o: Offer) -> str:
             return ", ".join(paths[k] for k in o.covers)
 
-        notes = [f"offer taken: {subtree(o)} goes to {o.delegator} (its {what} "
-                 f"{o.makespan if what == 'makespan' else o.total_time:.0f} s; "
-                 f"{overall:.0f} s in all, own fleet alone: {own_alone})" for o in chosen]
+        notes = [f"kept: {subtree(o)} stays with {o.delegator} (its part is sent to it again; "
+                 "its times are not known here)" for o in self.kept]
+        notes += [f"offer taken: {subtree(o)} goes to {o.delegator} (its {what} "
+                  f"{o.makespan if what == 'makespan' else o.total_time:.0f} s; "
+                  f"{overall:.0f} s in all, own fleet alone: {own_alone})"
+                  for o in chosen if o not in self.kept]
         notes += [f"offer not taken: {o.delegator} for {subtree(o)} (makespan "
                   f"{o.makespan:.0f} s)" for o in self.offers if o not in chosen]
         return notes
