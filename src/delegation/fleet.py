@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING, Any
@@ -184,6 +184,28 @@ def _battery_fraction(value: Any) -> float | None:
     return v
 
 
+@dataclass(frozen=True, slots=True)
+class Delegator:
+    """Another delegation service seen on the broker (docs/protocol.md §15.1): heartbeat level
+    ``delegation`` and a ``delegation_info`` saying what its fleet can do and whom it manages."""
+
+    name: str
+    base_topic: str
+    alive: bool
+    tasks: frozenset[str]
+    units_managed: frozenset[str]
+
+    @property
+    def execunit(self) -> str:
+        """The delegator as a TST ``execunit`` (``/delegator-b``)."""
+        return f"/{self.name}"
+
+    def can_take(self, task_names: Iterable[str]) -> bool:
+        """True when its fleet lists every one of the tasks (and it lists any at all)."""
+        names = set(task_names)
+        return bool(names) and names <= self.tasks
+
+
 class FleetEventKind(Enum):
     """Things the registry noticed while observing (for logs and re-delegation)."""
 
@@ -223,6 +245,9 @@ class _Record:
     tasks_available: frozenset[str] = frozenset()
     tasks_executing: tuple[tuple[str, str], ...] = ()
     has_direct_execution: bool = False
+    #: From ``delegation_info`` (None until one arrived): what its fleet can do, whom it manages.
+    delegates_tasks: frozenset[str] | None = None
+    units_managed: frozenset[str] = frozenset()
     reboots: int = 0
     lost: bool = False
     #: Base topics that claimed this name after it was bound (logged once each; bounded).
@@ -266,7 +291,12 @@ class FleetRegistry:
         ``last_seen``. Topics outside a unit are ignored.
         """
         # Imported here so that ``UnitState`` users do not load every message model.
-        from delegation.messages import DirectExecutionInfo, HeartBeat, SensorReading
+        from delegation.messages import (
+            DelegationInfo,
+            DirectExecutionInfo,
+            HeartBeat,
+            SensorReading,
+        )
 
         parts = split_unit_topic(topic)
         if parts is None:
@@ -293,6 +323,9 @@ class FleetRegistry:
             rec.has_direct_execution = True
             rec.tasks_available = frozenset(t.name for t in message.tasks_available)
             rec.tasks_executing = tuple((t.task_name, t.task_uuid) for t in message.tasks_executing)
+        elif isinstance(message, DelegationInfo):
+            rec.delegates_tasks = frozenset(message.tasks_available)
+            rec.units_managed = frozenset(u.strip("/") for u in message.units_managed)
         elif rest.startswith("sensor/"):
             sensor = rest.split("/", 1)[1]
             value = message.value if isinstance(message, SensorReading) else message
@@ -398,6 +431,11 @@ class FleetRegistry:
         rec = self._units.get(name.strip("/"))
         return rec.base_topic if rec is not None else None
 
+    def levels(self, name: str) -> tuple[str, ...]:
+        """The levels of the unit's last heartbeat (none when never heard)."""
+        rec = self._units.get(name.strip("/"))
+        return rec.levels if rec is not None else ()
+
     def names(self) -> list[str]:
         """Every unit heard of, sorted."""
         return sorted(self._units)
@@ -463,16 +501,44 @@ class FleetRegistry:
             if rec.position is not None and self._is_executor(rec)
         ]
 
+    def _is_delegator(self, rec: _Record) -> bool:
+        return "delegation" in rec.levels and rec.delegates_tasks is not None
+
+    def delegators(self, now: float, *, alive_only: bool = True) -> list[Delegator]:
+        """Other delegation services heard (heartbeat level ``delegation`` and a
+        ``delegation_info``), sorted by name."""
+        found = []
+        for name, rec in sorted(self._units.items()):
+            alive = self._alive(rec, now)
+            if not self._is_delegator(rec) or (alive_only and not alive):
+                continue
+            found.append(Delegator(name, rec.base_topic, alive, rec.delegates_tasks or frozenset(),
+                                   rec.units_managed))
+        return found
+
+    def managed_by(self, now: float) -> dict[str, str]:
+        """Unit -> the live delegator that says it manages it (the first by name when two say
+        so): such units are reached only through offers to their delegator."""
+        owners: dict[str, str] = {}
+        for d in self.delegators(now):
+            for unit in sorted(d.units_managed):
+                if unit != d.name:
+                    owners.setdefault(unit, d.name)
+        return owners
+
     def agents(self, now: float, *, alive_only: bool = False) -> list[dict[str, Any]]:
         """Every unit heard of as JSON-ready rows (hyphenated keys) for ``list-agents`` and the
         ``agents`` command: name, type, base-topic, levels, alive, busy, state, position (or
-        None), tasks-available, tasks-executing, battery, last-seen, last-heartbeat, reboots."""
+        None), tasks-available, tasks-executing, battery, last-seen, last-heartbeat, reboots;
+        a delegator also ``delegator``, ``delegates-tasks``, ``units-managed``, a unit another
+        delegator manages ``managed-by``."""
         rows = []
+        owners = self.managed_by(now)
         for name, rec in sorted(self._units.items()):
             alive = self._alive(rec, now)
             if alive_only and not alive:
                 continue
-            rows.append(
+            rows.append(self._federation_keys(rec, owners) |
                 {
                     "name": name,
                     "type": rec.agent_type,
@@ -493,3 +559,15 @@ class FleetRegistry:
                 }
             )
         return rows
+
+    def _federation_keys(self, rec: _Record, owners: Mapping[str, str]) -> dict[str, Any]:
+        """``delegator`` (with its ``delegates-tasks`` and ``units-managed``) for a delegator,
+        ``managed-by`` for a unit another delegator manages; nothing for the others."""
+        keys: dict[str, Any] = {}
+        if self._is_delegator(rec):
+            keys.update({"delegator": True,
+                         "delegates-tasks": sorted(rec.delegates_tasks or ()),
+                         "units-managed": sorted(rec.units_managed)})
+        if rec.name in owners:
+            keys["managed-by"] = owners[rec.name]
+        return keys

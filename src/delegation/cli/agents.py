@@ -49,6 +49,7 @@ def _agents(args: argparse.Namespace) -> int:
     for rest in (
         "heartbeat",
         "direct_execution_info",
+        "delegation_info",
         "sensor_info",
         "sensor/position",
         "sensor/battery_state",
@@ -73,13 +74,19 @@ def _agents(args: argparse.Namespace) -> int:
         seen = r.get("last-seen")
         levels = r.get("levels", [])
         state = str(r.get("state", "")) if "direct execution" in levels else ", ".join(levels)
+        if r.get("delegator"):  # another delegation service: its fleet's summary
+            managed = r.get("units-managed", [])
+            state = f"delegator of {len(managed)}: {', '.join(managed) or '-'}"
+        elif r.get("managed-by"):
+            state = f"{state} (managed by {r['managed-by']})"
+        offers = r.get("delegates-tasks") if r.get("delegator") else r.get("tasks-available")
         table.add_row(
             r["name"],
             str(r.get("type") or "?"),
             state,
             f"{pos['latitude']:.5f},{pos['longitude']:.5f}" if pos else "-",
             f"{now - seen:.0f}s ago" if isinstance(seen, int | float) else "-",
-            ", ".join(r.get("tasks-available", [])) or "-",
+            ", ".join(offers or []) or "-",
         )
     Console().print(table)
     if not rows:

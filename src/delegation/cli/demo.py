@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import threading
 import time
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -85,6 +87,12 @@ def register(subparsers: Any) -> None:
         type=float,
         default=50.0,
         help="give up after this many wall seconds of execution",
+    )
+    demo.add_argument(
+        "--federated", action="store_true",
+        help="split the fleet in two partners (each half of the area, by where the units are): "
+        "the second half runs under its own delegation service delegator-b with its own engine; "
+        "the mission goes to delegator0, which asks delegator-b for offers (docs/protocol.md §15)",
     )
     demo.add_argument(
         "--hold", action="store_true",
@@ -187,14 +195,19 @@ def _start(
         time_limit=args.time_limit,
         profiles=None if args.no_profiles else scenario.profiles(),
     )
+    ours, theirs = split_partners(units) if args.federated else (units, [])
+    if theirs:
+        config = replace(config, fleet=frozenset(u.name for u in ours))
     system = LocalSystem(
-        units, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
+        ours, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
     )
     stack.enter_context(system)
     settings = system.settings
     assert settings is not None
     if system.broker is not None:
         console.print(f"embedded broker on {settings.describe()}")
+    if theirs:
+        _start_partner(stack, system, theirs, speedup, rates, console)
     page_url = None
     if args.http:
         from delegation.cli.ui import start_page
@@ -209,6 +222,51 @@ def _start(
     ).start()
     stack.callback(client.stop)
     return client, page_url
+
+
+#: The demo's partner service with ``--federated``, and its engine.
+PARTNER, PARTNER_ENGINE = "delegator-b", "op-b"
+
+
+def split_partners(units: list[UnitState]) -> tuple[list[UnitState], list[UnitState]]:
+    """Two halves of the fleet by where the units are (along the axis they spread most on):
+    ours, and the partner's. A fleet of one is not split."""
+    if len(units) < 2:
+        return units, []
+    lats = [u.position.latitude for u in units]
+    lons = [u.position.longitude for u in units]
+    # Degrees of longitude are shorter by cos(latitude); good enough to pick the axis.
+    scale = math.cos(math.radians(sum(lats) / len(lats)))
+    by_lon = (max(lons) - min(lons)) * scale > max(lats) - min(lats)
+    ordered = sorted(units, key=lambda u: (u.position.longitude if by_lon
+                                           else u.position.latitude, u.name))
+    half = len(ordered) // 2
+    return ordered[:half], ordered[half:]
+
+
+def _start_partner(stack: ExitStack, system: Any, units: list[UnitState], speedup: float,
+                   rates: dict[str, float], console: Console) -> None:
+    """delegator-b with its engine and its half of the fleet, on the same broker; waits until
+    delegator0 knows what it can do."""
+    from delegation.local import LocalSystem
+
+    ours = system.config
+    config = replace(ours, name=PARTNER, engine=PARTNER_ENGINE,
+                     fleet=frozenset(u.name for u in units),
+                     partners=frozenset({ours.name, ours.engine}))
+    partner = LocalSystem(units, settings=system.settings, config=config, speedup=speedup,
+                          rates={u.name: rates[u.name] for u in units})
+    stack.enter_context(partner)
+    mine = sorted(ours.fleet)
+    console.print(f"federated: {ours.name} manages {', '.join(mine)}; {PARTNER} (engine "
+                  f"{PARTNER_ENGINE}) manages {', '.join(u.name for u in units)}")
+    service = system.service
+    known = service.wait_until(
+        lambda core: any(d.name == PARTNER and d.tasks
+                         for d in core.fleet.delegators(time.monotonic())), 15.0)
+    if not known:
+        raise InputError(InputProblem("--federated", "", f"{ours.name} did not hear {PARTNER}'s "
+                                      "delegation_info within 15 s"))
 
 
 def _fly(

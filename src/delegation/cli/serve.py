@@ -87,6 +87,15 @@ def _service_args(p: argparse.ArgumentParser) -> None:
                    help="plan on a thread of the service's process (thread, the default), or "
                    "in a child process beside it, on another core (process): a crashed or "
                    "hung plan is then ended without the service")
+    p.add_argument("--fleet", action="append", default=[], metavar="UNIT",
+                   help="a unit this service manages (repeatable; default: every unit no other "
+                   "delegator says it manages); said in its delegation_info")
+    p.add_argument("--bid-window", type=float, default=1.0, metavar="SECONDS",
+                   help="how long to wait for other delegators' offers before planning "
+                   "(default 1; 0 plans with the own fleet only)")
+    p.add_argument("--partner", action="append", default=[], metavar="NAME",
+                   help="another delegator (or its TST engine) whose offer requests and "
+                   "subtrees this service accepts (repeatable)")
     p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
                    help="a unit busy in another mission: planned from when and where it is free "
                    "(wait), left out (exclude), or ignored (share)")
@@ -123,6 +132,10 @@ def _serve(args: argparse.Namespace) -> int:
         commitments=args.commitments,
         operators=frozenset(args.operator),
         max_speed=args.max_speed,
+        fleet=frozenset(args.fleet),
+        bid_window=args.bid_window,
+        federate=args.bid_window > 0,
+        partners=frozenset(args.partner),
     )
     if config.time_limit > config.max_time_limit:
         raise UsageError(f"--time-limit: {config.time_limit:g} s is above the service's maximum "

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterable
 
+from delegation.engine.delegated import Delegated
 from delegation.engine.executor import (
     Action,
     EngineOptions,
@@ -76,6 +77,8 @@ class EngineCore:
     ) -> None:
         self.identity = identity
         self.executor = TreeExecutor(options, new_uuid=new_uuid)
+        #: Subtrees handed to other TST executors (delegators), docs/protocol.md §15.3.
+        self.delegated = Delegated(identity.name)
         self.commands = CommandLog()
         self.bases: dict[str, str] = {}
         """Unit name -> base topic, from the unit's heartbeat (where its exec/command goes).
@@ -109,6 +112,8 @@ class EngineCore:
             unit_filter(prefix, "heartbeat"),
             unit_filter(prefix, "exec/response"),
             unit_filter(prefix, "exec/feedback"),
+            unit_filter(prefix, "tst/response"),
+            unit_filter(prefix, "tst/feedback"),
         ]
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
@@ -117,6 +122,8 @@ class EngineCore:
         parsed = parse_unit_topic(topic)
         if parsed is None:
             return Effects()
+        if parsed.rest in ("tst/response", "tst/feedback"):
+            return self._from_executor(parsed.name, parsed.base, parsed.rest, payload, now)
         if parsed.rest not in ("heartbeat", "exec/response", "exec/feedback"):
             return Effects()
         bound = (
@@ -128,6 +135,7 @@ class EngineCore:
             self._impostor(parsed.name, parsed.base, bound)
             return Effects()
         if parsed.rest == "heartbeat":
+            self.delegated.heard(parsed.name, payload, now)
             actions = self.executor.unit_seen(parsed.name, now)
             if self._rebooted(parsed.name, topic, payload):
                 actions += self.executor.unit_rebooted(parsed.name, now)
@@ -246,7 +254,7 @@ class EngineCore:
         if isinstance(command, StartTst):
             tree = parse_tree(command.tst)
             self._refuse_own_tasks(tree)
-            root_uuid, actions = self.executor.start_tree(tree, now)
+            root_uuid, actions = self.executor.start_tree(self.delegated.fold(tree, now), now)
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))
@@ -329,8 +337,38 @@ class EngineCore:
             if base is None:  # the executor starts tasks only on units it has seen
                 log.error("%s: no base topic for /%s", self.name, action.unit)
                 continue
-            effects.send(f"{base}/exec/command", self._to_unit(action))
+            if self.delegated.handles(action):  # a subtree to a delegator: its tst/command
+                assert not isinstance(action, SendQuery)
+                effects.send(f"{base}/tst/command", self.delegated.command(action, self.name))
+            elif not (isinstance(action, SendQuery) and action.unit in self.delegated.executors):
+                effects.send(f"{base}/exec/command", self._to_unit(action))
         return effects
+
+    def _from_executor(self, unit: str, base: str, rest: str, payload: bytes,
+                       now: float) -> Effects:
+        """A delegator's ``tst/response`` or ``tst/feedback`` about a subtree we handed it."""
+        if not self.delegated.outstanding or unit == self.name or \
+                unit not in self.delegated.executors or self.bases.get(unit) != base:
+            return Effects()  # (every service's relayed feedback arrives here too: not read)
+        try:
+            msg = decode(f"{base}/{rest}", payload)
+        except MessageError as exc:
+            log.debug("%s: unreadable message from /%s: %s", self.name, unit, exc)
+            return Effects()
+        if isinstance(msg, TstResponse):
+            com, response, reason = self.delegated.response(msg)
+            return self._carry_out(self.executor.on_response(com, response, now,
+                                                             fail_reason=reason))
+        if not isinstance(msg, TstFeedback):
+            return Effects()
+        got = self.delegated.feedback(unit, msg)
+        if isinstance(got, TstFeedback):  # a node inside the subtree: relayed unchanged
+            return Effects().send(self.identity.topic("tst/feedback"), got)
+        if got is None:
+            return Effects()
+        if msg.status in ("succeeded", "failed", "aborted"):
+            self.delegated.forget(msg.node_uuid)
+        return self._carry_out(self.executor.on_feedback(*got, now))
 
     def _to_unit(
         self, action: SendStartTask | SendSignal | SendQuery

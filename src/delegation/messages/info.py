@@ -118,9 +118,25 @@ class TstExecutionInfo(LevelInfo):
 
 
 class DelegationInfo(LevelInfo):
-    """Info for the delegation level (ours, docs/protocol.md §2): what the service offers."""
+    """Info for the delegation level (ours, docs/protocol.md §2, §15): what the service offers.
+
+    ``tasks-available`` (the tasks its live fleet can do, the union) and ``units-managed`` (the
+    units it plans for) make it a *delegator* to other services (docs/protocol.md §15): they ask
+    it for offers on subtrees whose tasks it lists, and leave the units it manages to it. A
+    sender that lists no tasks is a delegator nobody offers anything to.
+    """
 
     strategies: list[str] = Field(default_factory=list)
     objectives: list[str] = Field(default_factory=list)
     missions_active: int = 0
+    tasks_available: list[str] = Field(default_factory=list)
+    units_managed: list[str] = Field(default_factory=list)
     type: Literal["DelegationInfo"] = "DelegationInfo"
+
+    @field_validator("tasks_available", mode="before")
+    @classmethod
+    def _task_names(cls, value: Any) -> Any:
+        """Accept the ``direct_execution_info`` spelling too (``[{name: ...}]``)."""
+        if isinstance(value, list):
+            return [v.get("name") if isinstance(v, dict) else v for v in value]
+        return value

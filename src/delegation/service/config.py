@@ -61,6 +61,18 @@ class ServiceConfig:
     max_payload: int = MAX_PAYLOAD
     #: The highest explicit speed (m/s) a task may ask for.
     max_speed: float = 100.0
+    #: The units this service manages (``serve --fleet``; said in its ``delegation_info``).
+    #: Empty: every unit it sees that no other delegator says it manages (docs/protocol.md §15.1).
+    fleet: frozenset[str] = frozenset()
+    #: Seconds the service waits for other delegators' offers before it plans (docs/protocol.md
+    #: §15); a delegator that has not answered by then is left out, said in the plan's notes.
+    bid_window: float = 1.0
+    #: Ask other delegators for offers at all (off: plan with the own fleet only).
+    federate: bool = True
+    #: Other delegators (and their engines) whose offer requests and subtrees this service
+    #: accepts (``serve --partner``); an ``operators`` name is trusted too. A command from any
+    #: other delegator or TST engine that plans is refused (docs/protocol.md §15.4).
+    partners: frozenset[str] = frozenset()
 
     @property
     def limits(self) -> Limits:

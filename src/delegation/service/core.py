@@ -48,6 +48,7 @@ import logging
 import uuid
 from collections import deque
 from collections.abc import Iterable
+from dataclasses import replace
 from typing import Any
 
 from delegation.errors import InputError, InputProblem
@@ -83,6 +84,7 @@ from delegation.service.fleet_view import FleetView
 from delegation.service.jobs import BidsDone, Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.lifecycle import LEVELS, Epoch, Lifecycle, status_messages
 from delegation.service.missions import MissionBook
+from delegation.service.offers import OfferDesk
 from delegation.service.planning import Planning, Timing
 from delegation.service.repair import Repair
 from delegation.topics import parse_unit_topic
@@ -121,7 +123,8 @@ class ServiceCore:
         self.lifecycle = Lifecycle(book, self.desk, Cancels(c.engine, c.cancel_timeout),
                                    self._epoch)
         shared = (c, book, self.desk, self.view, self.engine, self.lifecycle)
-        self.planning = Planning(*shared)
+        self.offers = OfferDesk(c, self.fleet)
+        self.planning = Planning(*shared, offers=self.offers)
         self.repair = Repair(*shared, planning=self.planning)
         self.engine_use = EngineUse(*shared, repair=self.repair)
 
@@ -211,9 +214,11 @@ class ServiceCore:
             f"{self.topics.delegation_command}/+",
             f"{p}/unit/+/+/+/heartbeat",
             f"{p}/unit/+/+/+/direct_execution_info",
+            f"{p}/unit/+/+/+/delegation_info",
             f"{p}/unit/+/+/+/sensor_info",
             f"{p}/unit/+/+/+/sensor/#",
             *self.engine.subscriptions(),
+            *self.offers.subscriptions(),
         ]
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
@@ -240,6 +245,8 @@ class ServiceCore:
             return Effects()
         if parsed.name == self.config.engine and parsed.rest in ("tst/response", "tst/feedback"):
             return self.engine_use.receive(topic, payload, now)
+        if self.offers.is_answer(topic):
+            return Effects(jobs=self.offers.receive(topic, payload, now))
         self.view.observe(topic, payload, now)
         return self._fleet_events(now)
 
@@ -252,6 +259,7 @@ class ServiceCore:
         for got in self.engine.expire(now):
             effects.extend(self.engine_use.answer(got, now))
         effects.extend(self.lifecycle.cancel_deadlines(now))
+        effects.jobs.extend(self.offers.expire(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
         return effects.extend(self._fleet_events(now))
@@ -271,7 +279,8 @@ class ServiceCore:
     def status(self, now: float, stamp: float) -> list[Outgoing]:
         """Heartbeat, ``tst_execution_info`` and ``delegation_info`` (periodic, QoS 0)."""
         self._epoch.offset = stamp - now
-        return status_messages(self.config, self.identity, self.book, stamp)
+        return status_messages(self.config, self.identity, self.book, stamp,
+                               self.view.summary(now))
 
     def _fleet_events(self, now: float) -> Effects:
         """What the registry noticed: a lost or rebooted unit re-delegates, a lost or restarted
@@ -284,7 +293,16 @@ class ServiceCore:
             if event.name == self.config.engine:
                 effects.extend(self.repair.engine_gone(event, now))
             else:
-                effects.extend(self.repair.unit_lost(event, now))
+                effects.extend(self._with_delegators(self.repair.unit_lost(event, now), now))
+        return effects
+
+    def _with_delegators(self, effects: Effects, now: float) -> Effects:
+        """Re-delegation jobs learn which units are delegators (their subtrees stay with them,
+        docs/protocol.md §15.4)."""
+        names = frozenset(d.name for d in self.fleet.delegators(now, alive_only=False))
+        if names:
+            effects.jobs = [replace(j, delegators=names) if isinstance(j, Job) else j
+                            for j in effects.jobs]
         return effects
 
     def _command(self, face: Face, payload: bytes, now: float, client: str | None = None

@@ -112,8 +112,22 @@ class FleetView:
 
     def units(self, now: float) -> tuple[UnitState, ...]:
         """The units to plan for (the registry leaves out engines and delegators), with the
-        speeds learnt from their flights."""
-        return self.learner.apply(self.fleet.snapshot(now))
+        speeds learnt from their flights: this service's own fleet (`own`)."""
+        own = self.own(now)
+        return self.learner.apply([u for u in self.fleet.snapshot(now) if own(u.name)])
+
+    def own(self, now: float) -> Callable[[str], bool]:
+        """Whether a unit is this service's: named in ``fleet`` when that is set, else any unit
+        no other live delegator says it manages (reached by offers, docs/protocol.md §15.1)."""
+        if self.config.fleet:
+            return self.config.fleet.__contains__
+        managed = self.fleet.managed_by(now)
+        return lambda name: name not in managed
+
+    def summary(self, now: float) -> tuple[list[str], list[str]]:
+        """(tasks available, units managed) of the own live fleet, for ``delegation_info``."""
+        live = [u for u in self.units(now) if u.alive]
+        return (sorted({t for u in live for t in u.tasks}), sorted(u.name for u in live))
 
     def speed_sources(self, units: Iterable[UnitState]) -> dict[str, str]:
         """Per unit: ``learnt``, ``profile`` or ``default`` (`delegation.learning`)."""
@@ -121,11 +135,19 @@ class FleetView:
                 for u in units}
 
     def agents(self, now: float) -> list[dict[str, Any]]:
-        """The live units for ``list-agents`` (those that can be delegated to)."""
+        """The live units for ``list-agents``: those that can be delegated to (own units with
+        their planning speeds, and other delegators, ``delegator: true``), and the units other
+        delegators manage (``managed-by``: reached only through offers to it)."""
         units = {u.name: u for u in self.units(now)}
         sources = self.speed_sources(units.values())
-        return [{**row, "speeds": units[row["name"]].speeds, "speeds-source": sources[row["name"]]}
-                for row in self.fleet.agents(now, alive_only=True) if row["name"] in units]
+        rows = []
+        for row in self.fleet.agents(now, alive_only=True):
+            if row["name"] in units:
+                rows.append({**row, "speeds": units[row["name"]].speeds,
+                             "speeds-source": sources[row["name"]]})
+            elif row.get("delegator") or row.get("managed-by"):
+                rows.append(row)
+        return rows
 
     def ready(self, units: Iterable[str], engine: bool, now: float) -> bool:
         """True once the named units (and the engine, with ``engine``) are live as seen here."""

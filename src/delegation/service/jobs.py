@@ -18,6 +18,7 @@ from delegation.fleet import UnitState
 from delegation.learning import speed_notes
 from delegation.runtime.commands import CommandKey
 from delegation.service.faces import Face
+from delegation.service.federated import FederatedPlanner, Offer, kept_delegations
 from delegation.tst.node import TstNode, walk, where
 from delegation.tst.validate import DEFAULT_LIMITS, Limits, ValidatedTree
 
@@ -87,6 +88,11 @@ class Job:
     warnings: tuple[str, ...] = ()
     #: The physical ranges the tree was validated with.
     limits: Limits = DEFAULT_LIMITS
+    #: Other delegators' offers on subtrees (`delegation.service.offers`): they compete with
+    #: ``units`` (`delegation.service.federated`).
+    offers: tuple[Offer, ...] = ()
+    #: Delegators known when a re-delegation was made: their subtrees stay with them.
+    delegators: frozenset[str] = frozenset()
 
     @property
     def com_uuid(self) -> str:
@@ -123,15 +129,24 @@ def run_job(job: Job) -> JobResult:
     try:
         if job.kind == "bids":
             return BidsDone(compute_bids(job.tree.root, job.units))
-        plan = plan_mission(
-            job.tree,
-            job.units,
-            strategy=job.options.strategy,
-            objective=job.options.objective,
-            time_limit=job.options.time_limit,
-            engine_unit=job.engine,
-            limits=job.limits,
-        )
+        kept = [o for o in kept_delegations(job.tree.root, {u.name for u in job.units},
+                                            job.engine)
+                if o.delegator in job.delegators] if job.redelegate else []
+        if job.offers or kept:
+            plan = FederatedPlanner(
+                job.tree.root, job.units, job.offers, strategy=job.options.strategy,
+                objective=job.options.objective, time_limit=job.options.time_limit,
+                engine_unit=job.engine, limits=job.limits, kept=kept).plan()
+        else:
+            plan = plan_mission(
+                job.tree,
+                job.units,
+                strategy=job.options.strategy,
+                objective=job.options.objective,
+                time_limit=job.options.time_limit,
+                engine_unit=job.engine,
+                limits=job.limits,
+            )
         used = {a.execunit.strip("/") for a in plan.assignments}
         plan.notes.extend([*job.warnings, *speed_notes(job.units, job.speed_sources, used),
                            *job.notes])

@@ -89,13 +89,17 @@ class Lifecycle:
 
 
 def status_messages(config: ServiceConfig, identity: Identity, book: MissionBook,
-                    stamp: float) -> list[Outgoing]:
-    """Heartbeat, ``tst_execution_info`` (the trees executing) and ``delegation_info``."""
+                    stamp: float,
+                    fleet: tuple[list[str], list[str]] = ([], [])) -> list[Outgoing]:
+    """Heartbeat, ``tst_execution_info`` (the trees executing) and ``delegation_info`` with the
+    own fleet's summary (``fleet``: tasks available, units managed), which makes this service a
+    delegator other services can ask for offers (docs/protocol.md §15)."""
     c = config
     active = [m.root_uuid for m in book if not m.ended and m.status is not MissionStatus.PLANNED]
     tst_info = TstExecutionInfo(name=c.name, rate=c.rate, stamp=stamp, trees_executing=active)
     info = DelegationInfo(name=c.name, rate=c.rate, stamp=stamp, strategies=list(STRATEGIES),
-                          objectives=list(OBJECTIVES), missions_active=len(active))
+                          objectives=list(OBJECTIVES), missions_active=len(active),
+                          tasks_available=fleet[0], units_managed=fleet[1])
     return [
         heartbeat(identity, LEVELS, stamp),
         Outgoing.of(identity.topic("tst_execution_info"), tst_info, QOS_PERIODIC),

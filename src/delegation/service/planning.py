@@ -33,6 +33,7 @@ from delegation.service.jobs import (
 )
 from delegation.service.lifecycle import Lifecycle
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
+from delegation.service.offers import OfferDesk
 from delegation.service.operator_view import OperatorView
 from delegation.tst.node import to_dict
 from delegation.tst.validate import validate_tree
@@ -70,6 +71,8 @@ class MissionPart:
 class Planning(MissionPart):
     """Commands' trees to planning jobs, and finished plans to answers and missions."""
 
+    #: Other delegators' offers, asked for before a plan (None: plan with the own fleet only).
+    offers: OfferDesk | None = None
     timings: deque[Timing] = field(default_factory=lambda: deque(maxlen=10_000))
     _job_ids: int = field(default=0, init=False)
     #: Start plans made again around a unit that got busy meanwhile, by command.
@@ -103,6 +106,7 @@ class Planning(MissionPart):
     ) -> Effects:
         """Validate the tree (once, here: a bad one is answered at once) and hand it to the
         planner as a job."""
+        self._trusted(key, now)
         tree = validate_tree(raw_tree, self.config.limits).with_uuids()
         if kind == "plan":
             conflicts = self.book.conflicts(tree.root)
@@ -125,7 +129,24 @@ class Planning(MissionPart):
                   start=start, source=source, received=self.desk.received(key, now),
                   speed_sources=view.speed_sources(units), warnings=warnings, notes=notes,
                   limits=self.config.limits)
+        if kind == "plan" and self.offers is not None:  # ask other delegators first
+            held = self.offers.open(job, self.desk.caller(key), now)
+            if held is not None:
+                return held
         return Effects(jobs=[job])
+
+    def _trusted(self, key: CommandKey, now: float) -> None:
+        """``InputError`` when another delegator (or a TST engine: one of theirs handing us a
+        subtree) asks us to plan and is neither a partner nor an operator of ours."""
+        caller = self.desk.caller(key)
+        fleet = self.view.fleet
+        if not caller or caller in self.config.partners or caller in self.config.operators:
+            return
+        levels = fleet.levels(caller)
+        if "delegation" in levels or "tst execution" in levels:
+            raise InputError(InputProblem(
+                "command", "sender", f"{caller} is another delegator (or its engine) that "
+                f"{self.config.name} does not trust: start it with --partner {caller}"))
 
     def planned(self, job: Job, plan: Plan, now: float, seconds: float) -> Effects:
         """A plan was made for a command: plan again around a clash, refuse it when infeasible,

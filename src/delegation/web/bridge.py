@@ -51,8 +51,8 @@ def _decode(payload: bytes) -> Any:
 
 
 #: Unit topics the view reads (everything else a unit sends is not subscribed to).
-_UNIT_TOPICS = ("heartbeat", "direct_execution_info", "sensor/position", "sensor/heading",
-                "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
+_UNIT_TOPICS = ("heartbeat", "direct_execution_info", "delegation_info", "sensor/position",
+                "sensor/heading", "sensor/speed", *(f"sensor/{b}" for b in _BATTERY))
 
 
 class ApiError(DelegationError):
@@ -226,6 +226,8 @@ class Bridge:
                 view.heartbeat(base, name, kind, data, now)
             elif rest == "direct_execution_info":
                 view.execution_info(base, name, kind, data, now)
+            elif rest == "delegation_info":
+                view.delegation_info(base, name, data)
 
     def _feedback(self, msg: Message, *, node: bool) -> None:
         data = _decode(msg.payload)

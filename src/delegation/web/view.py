@@ -122,6 +122,8 @@ class UnitRecord:
     executing: list[dict[str, str]] = field(default_factory=list)
     track: list[list[float]] = field(default_factory=list)
     seq: int = 0
+    #: The delegator whose ``delegation_info`` lists this unit in ``units-managed`` ("": none).
+    managed_by: str = ""
 
     @property
     def shown(self) -> bool:
@@ -142,6 +144,8 @@ class UnitRecord:
             "tasks-available": list(self.tasks_available),
             "executing": [dict(e) for e in self.executing],
         }
+        if self.managed_by:
+            out["managed-by"] = self.managed_by
         if track:
             out["track"] = [list(p) for p in self.track]
         else:
@@ -248,6 +252,10 @@ def tree_uuids(tree: Mapping[str, Any]) -> list[str]:
     return out
 
 
+#: Units remembered as some delegator's before they are heard (a bound on hostile lists).
+OWNERS_MAX = 10_000
+
+
 class LiveView:
     """The live operator state. Not thread-safe: the caller serialises calls."""
 
@@ -260,6 +268,8 @@ class LiveView:
         self.scale = scale
         self.seq = 0
         self.units: dict[str, UnitRecord] = {}
+        #: Unit -> the delegator that says it manages it (for units not heard yet; bounded).
+        self._owners: dict[str, str] = {}
         self.missions: OrderedDict[str, MissionRecord] = OrderedDict()
         self.log: deque[dict[str, Any]] = deque(maxlen=LOG_MAX)
         self.items: deque[tuple[int, str, dict[str, Any]]] = deque(maxlen=STREAM_MAX)
@@ -275,7 +285,8 @@ class LiveView:
     def _unit(self, base: str, name: str, agent_type: str, heartbeat: bool) -> UnitRecord | None:
         rec = self.units.get(name)
         if rec is None:
-            rec = self.units[name] = UnitRecord(name=name, base=base, agent_type=agent_type)
+            rec = self.units[name] = UnitRecord(name=name, base=base, agent_type=agent_type,
+                                                managed_by=self._owners.get(name, ""))
         elif base != rec.base:
             if rec.bound or not heartbeat:
                 return None  # bound to another base (an impostor), or not bound by this
@@ -283,6 +294,22 @@ class LiveView:
             rec.latitude = rec.longitude = None
             rec.track.clear()
         return rec
+
+    def delegation_info(self, base: str, name: str, data: Mapping[str, Any]) -> None:
+        """A delegator's ``delegation_info``: the units it manages are shown as its
+        (docs/protocol.md §15.1); a unit it no longer lists is no longer shown as its."""
+        managed = data.get("units-managed")
+        names = ({u.strip("/") for u in managed if isinstance(u, str)}
+                 if isinstance(managed, list) else set())
+        for rec in self.units.values():
+            owner = name if rec.name in names else ("" if rec.managed_by == name
+                                                    else rec.managed_by)
+            if owner != rec.managed_by and rec.name != name:
+                rec.managed_by = owner
+                self._touch(rec)
+        self._owners = {u: o for u, o in self._owners.items() if o != name}
+        room = max(0, OWNERS_MAX - len(self._owners))
+        self._owners.update(dict.fromkeys(sorted(names - {name})[:room], name))
 
     def _touch(self, rec: UnitRecord) -> None:
         self.seq += 1

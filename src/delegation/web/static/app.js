@@ -246,7 +246,8 @@ class UnitsTable {
     const p = pct(u.battery);
     const doing = (u.executing || []).map((t) => t.name).join(", ");
     return [
-      h("td", { class: "name" }, u.name),
+      h("td", { class: "name", title: u["managed-by"] ? `managed by the delegator ${u["managed-by"]}` : "" },
+        u.name, u["managed-by"] ? h("span", { class: "managed-by" }, ` · ${u["managed-by"]}`) : null),
       h("td", {}, u.type || "?"),
       h("td", {}, badge(u.status)),
       h("td", { class: "battery", title: p === null ? "unknown" : `${p} %` },
@@ -271,7 +272,7 @@ class UnitsTable {
         this.rows.set(name, tr);
         added = true;
       }
-      const key = `${u.status}|${pct(u.battery)}|${u.type}|${(u.executing || []).map((t) => t.name).join(",")}`;
+      const key = `${u.status}|${pct(u.battery)}|${u.type}|${u["managed-by"] || ""}|${(u.executing || []).map((t) => t.name).join(",")}`;
       if (tr.dataset.status !== u.status) tr.dataset.status = u.status; // no style work when same
       if (tr._key !== key) {
         tr._key = key;
