@@ -113,4 +113,4 @@ def test_a_delegator_not_heard_lately_is_handed_nothing_the_engine_runs_the_node
     assert on(started, f"{B}/tst/command") == []
     units = {json.loads(o.payload)["execution-unit"] for o in started.publish
              if o.topic.endswith("/exec/command")}
-    assert units == {"/dji0", "/dji1"}
+    assert units == {"dji0", "dji1"}  # as the seed spells it (protocol.md §3)
