@@ -295,6 +295,7 @@ class Ros2Client:
             self._readers[ros] = node.create_subscription(
                 String, ros, lambda msg, r=ros: self._on_message(r, msg),
                 _qos(not _periodic(ros)))
+            log.debug("%s reads %s", self.client_id, ros)
         except Exception as exc:  # an invalid name from a foreign topic: skip it
             log.warning("%s: cannot read %s: %s", self.client_id, ros, exc)
 
