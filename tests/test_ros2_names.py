@@ -163,3 +163,22 @@ def test_oversized_and_deep_text_is_not_parsed() -> None:
     assert json_text(big) == big
     deep = "[" * 100_000 + "]" * 100_000
     assert json_text(deep) == deep
+
+
+# --------------------------------------------------------------------------- the bridge's echoes
+
+
+def test_the_bridge_drops_each_message_it_sent_once_when_it_comes_back() -> None:
+    from delegation.runtime.ros_bridge import ECHO_SECONDS, _Echoes
+
+    echoes = _Echoes()
+    echoes.sent("/u/waraps/heartbeat", "{}", 0.0)
+    echoes.sent("/u/waraps/heartbeat", "{}", 0.1)
+    assert not echoes.is_echo("/u/waraps/heartbeat", '{"other":1}', 0.2)
+    assert not echoes.is_echo("/v/waraps/heartbeat", "{}", 0.2)
+    assert echoes.is_echo("/u/waraps/heartbeat", "{}", 0.2)
+    assert echoes.is_echo("/u/waraps/heartbeat", "{}", 0.2)
+    assert not echoes.is_echo("/u/waraps/heartbeat", "{}", 0.2)  # each once
+    echoes.sent("/u/waraps/exec/command", "{}", 1.0)
+    assert not echoes.is_echo("/u/waraps/exec/command", "{}", 1.0 + ECHO_SECONDS + 0.1)
+    assert len(echoes) == 0  # expired: memory stays bounded

@@ -109,12 +109,18 @@ def client_settings(args: argparse.Namespace) -> BrokerSettings:
     )
     if transport(args) == "mqtt":
         return settings
+    require_ros2()
+    return settings.model_copy(update={"transport": "ros2"})
+
+
+def require_ros2() -> None:
+    """A `UsageError` (one line: how to install it; exit 2) where the ``[ros2]`` extra is
+    missing."""
     from delegation.runtime.transport import ROS2_INSTALL, ros2_missing
 
     missing = ros2_missing()
     if missing is not None:
         raise UsageError(f"{ROS2_INSTALL} [{missing}]")
-    return settings.model_copy(update={"transport": "ros2"})
 
 
 def transport(args: argparse.Namespace) -> str:
