@@ -37,8 +37,8 @@ from typing import Any
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException
-from rclpy.experimental import EventsExecutor
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -138,7 +138,7 @@ class Ros2Client:
         self.callback_errors = 0
         self.names = UnitNames()
         self._node: Node | None = None
-        self._executor: EventsExecutor | None = None
+        self._executor: Executor | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
         self._readers: dict[str, Any] = {}
