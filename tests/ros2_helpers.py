@@ -28,7 +28,7 @@ class RosProcesses:
         # parallel test workers apart.
         self.domain = random.SystemRandom().randint(1, 200)
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("WARAPS_")}
-        self.env.update(PYTHONPATH=SRC, ROS_DOMAIN_ID=str(self.domain),
+        self.env.update(PYTHONPATH=SRC, ROS_DOMAIN_ID=str(self.domain), PYTHONUNBUFFERED="1",
                         FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILE))
         self.procs: dict[str, subprocess.Popen[str]] = {}
 

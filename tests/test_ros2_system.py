@@ -10,6 +10,7 @@ Every process gets the project's loopback-only Fast DDS profile (deploy/ros2/) a
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -81,3 +82,45 @@ def test_a_plain_rclpy_robot_does_the_tasks_of_a_mission(ros: RosProcesses) -> N
     assert robot.poll() is None
     assert ros.log("robot").count("finished ") == 2, ros.log("robot")
     assert_loopback_only(ros)
+
+
+HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
+GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840)}
+
+
+def test_a_ros2_unit_killed_mid_task_is_re_delegated(ros: RosProcesses) -> None:
+    """As on MQTT (tests/test_faults.py): u1 killed -9 while the mission runs; its task moves to
+    u2, the mission succeeds."""
+    _service_and_engine(ros)
+    for name, (lat, lon) in HOME.items():
+        path = ros.workdir / f"{name}.json"
+        path.write_text(json.dumps({
+            "name": name, "description": "one unit of a ROS 2 fault test",
+            "agents": [{"name": name, "type": "air", "rate": 2.0,
+                        "position": {"latitude": lat, "longitude": lon, "altitude": 20.0},
+                        "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
+                        "tasks": ["move-to"]}],
+            "mission": {"name": "move-to", "common_params": {"execunit": "*"},
+                        "params": {"waypoint": {"latitude": lat, "longitude": lon}}}}))
+        # 300 m at 4 m/s is 75 s simulated, 15 s wall: longer than finding u1 lost (5 s).
+        ros.delegation(name, "sim", str(path), "--speedup", "5")
+    for unit in ("op0", *HOME):
+        ros.wait_log("serve", f"unit {unit} appeared")
+    mission = ros.workdir / "mission.json"
+    mission.write_text(json.dumps({"name": "conc", "children": [
+        {"name": "move-to", "common_params": {"execunit": f"/{unit}"},
+         "params": {"speed": "standard",
+                    "waypoint": {"latitude": lat, "longitude": lon, "altitude": 20.0}}}
+        for unit, (lat, lon) in GOAL.items()]}))
+    submit = ros.delegation("submit", "submit", str(mission), "--wait", "30", "--timeout", "90")
+    ros.wait_log("engine", "executing tree")
+    ros.procs["u1"].kill()
+    ros.procs["u1"].wait(10)
+    assert submit.wait(120) == 0, {k: ros.log(k)[-3000:] for k in ros.procs}
+    out = ros.log("submit")
+    assert "mission succeeded" in out, out
+    serve = ros.log("serve")
+    assert "unit u1 lost" in serve, serve[-3000:]
+    assert re.search(r"re-delegated: root/children\[1\] \(move-to [^)]*\) -> /u2", serve), \
+        serve[-3000:]
+    assert "re-delegated: /u1 lost" in out, out

@@ -137,13 +137,14 @@ class Bridge(StartStop):
         everything = unit_filter(self.prefix, "#")
         self.mqtt.subscribe(everything, QOS_COMMAND)
         self.ros.subscribe(everything, QOS_COMMAND)
+        # Both sides joined before anything is forwarded: what arrives meanwhile waits queued.
+        self.mqtt.connect(timeout)
+        self.ros.connect(timeout)
         for side in ("mqtt", "ros"):
             thread = threading.Thread(target=self._forward, args=(side,), daemon=True,
                                       name=f"bridge-to-{side}")
             thread.start()
             self._threads.append(thread)
-        self.ros.connect(timeout)
-        self.mqtt.connect(timeout)
         log.info("bridging ROS 2 and MQTT under %s/ (ROS 2 units as role %s)", self.prefix,
                  self.role)
         return self
