@@ -69,28 +69,36 @@ class UnitNames:
     default_role: str = DEFAULT_ROLE
     _known: dict[str, _Known] = field(default_factory=dict)
 
-    def published(self, topic: str) -> None:
-        """We publish ``topic``: its unit's name, type and role are known for sure."""
+    def published(self, topic: str) -> bool:
+        """We publish ``topic``: its unit's name, type and role are known for sure. True when
+        that changed what is known."""
         parsed = parse_unit_topic(topic)
-        if parsed is not None:
-            token = ros_token(parsed.name)
-            self._known[token] = _Known(parsed.name, parsed.agent_type, parsed.role, True)
+        if parsed is None:
+            return False
+        return self._set(ros_token(parsed.name),
+                         _Known(parsed.name, parsed.agent_type, parsed.role, True))
 
-    def heard(self, token: str, heartbeat: object) -> None:
+    def _set(self, token: str, known: _Known) -> bool:
+        if self._known.get(token) == known:
+            return False
+        self._known[token] = known
+        return True
+
+    def heard(self, token: str, heartbeat: object) -> bool:
         """A heartbeat arrived under ``token``: learn its name and agent type (not for units we
-        publish ourselves, whose topics are authoritative)."""
+        publish ourselves, whose topics are authoritative). True when that changed anything."""
         if not isinstance(heartbeat, dict):
-            return
+            return False
         known = self._known.get(token)
         if known is not None and known.own:
-            return
+            return False
         name, agent_type = heartbeat.get("name"), heartbeat.get("agent-type")
         if not isinstance(name, str) or ros_token(name.strip("/")) != token:
             name = known.name if known is not None else token
         if not isinstance(agent_type, str) or not agent_type or "/" in agent_type \
                 or "+" in agent_type or "#" in agent_type:
             agent_type = known.agent_type if known is not None else UNKNOWN_TYPE
-        self._known[token] = _Known(name.strip("/"), agent_type, self.default_role, False)
+        return self._set(token, _Known(name.strip("/"), agent_type, self.default_role, False))
 
     def name(self, token: str) -> str:
         known = self._known.get(token)

@@ -143,6 +143,9 @@ class Ros2Client:
         self._running = threading.Event()
         self._readers: dict[str, Any] = {}
         self._writers: dict[str, Any] = {}
+        #: ROS topic -> the MQTT topic it is delivered as (None: no filter wants it); cleared
+        #: whenever the filters or what is known of the units change.
+        self._routes: dict[str, str | None] = {}
 
     # ---- lifecycle
 
@@ -237,6 +240,7 @@ class Ros2Client:
         with self._lock:
             self._subscriptions.pop(pattern, None)
             self._filters.pop(pattern, None)
+            self._routes.clear()
             node = self._node
             for ros in [r for r in self._readers if not self._wanted(r)]:
                 reader = self._readers.pop(ros)
@@ -260,7 +264,8 @@ class Ros2Client:
             node = self._node
             if node is None:
                 raise Ros2Error(f"not connected: cannot publish to {topic}")
-            self.names.published(topic)
+            if self.names.published(topic):
+                self._routes.clear()
             writer = self._writers.get(ros)
             new = writer is None
             if writer is None:
@@ -287,6 +292,7 @@ class Ros2Client:
     def _add_filter(self, pattern: str) -> None:
         flt = RosFilter.of(pattern)
         self._filters[pattern] = flt
+        self._routes.clear()
         concrete = flt.concrete
         if concrete is not None:
             self._read(concrete)
@@ -359,19 +365,22 @@ class Ros2Client:
             return
         token = ros.strip("/").split("/")[0]
         with self._lock:
-            self.names.heard(token, value)
+            if self.names.heard(token, value):
+                self._routes.clear()
 
     def _mqtt_topic(self, ros: str) -> str | None:
         """The MQTT topic for the first filter that means ``ros``: a concrete one first."""
         with self._lock:
-            filters = sorted(self._filters.values(), key=lambda f: f.concrete is None)
-            for flt in filters:
-                if flt.concrete == ros and flt.prefix is None:
-                    return flt.mqtt
-                topic = flt.mqtt_topic(ros, self.names)
-                if topic is not None:
-                    return topic
-        return None
+            if ros in self._routes:
+                return self._routes[ros]
+            route: str | None = None
+            for flt in sorted(self._filters.values(), key=lambda f: f.concrete is None):
+                route = flt.mqtt if flt.concrete == ros and flt.prefix is None \
+                    else flt.mqtt_topic(ros, self.names)
+                if route is not None:
+                    break
+            self._routes[ros] = route
+            return route
 
     def _callback_failed(self, what: str, exc: Exception) -> None:
         self.callback_errors += 1
