@@ -2,8 +2,9 @@
 heartbeats and sensors of 100 units at 10 Hz, without loss or growing memory).
 
 Set-up: a private mosquitto; ``delegation bridge`` as a child process (its own ROS 2 participant)
-on the loopback-only Fast DDS profile in a random domain; in this process a publisher on one side
-and a counting subscriber on the other (our own clients: `Ros2Client`, `MqttClient`).
+on the loopback-only Fast DDS profile in a random domain; in this process a publisher on one side,
+and a counting subscriber on the other side in a child process of its own (our own clients:
+`Ros2Client`, `MqttClient`), so that the three share no interpreter.
 
 ``--direction ros2mqtt`` (default; ROS 2 robots seen on MQTT): units publish ``heartbeat`` and
 ``sensor/position`` on ROS 2, counted on MQTT. ``mqtt2ros``: the other way. First a warm-up
@@ -20,6 +21,7 @@ import argparse
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
 import threading
@@ -42,6 +44,12 @@ def _rss_kb(pid: int, field: str = "VmRSS") -> int:
     return 0
 
 
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _payload(unit: str, suffix: str, seq: int) -> str:
     if suffix == "heartbeat":
         return json.dumps({"agent-type": "air", "agent-uuid": f"uuid-{unit}", "levels": ["sensor"],
@@ -51,13 +59,50 @@ def _payload(unit: str, suffix: str, seq: int) -> str:
                        "rostype": "GeoPoint", "seq": seq})
 
 
+def receive(side: str, port: int) -> int:
+    """The counting subscriber (a child process): prints, every 0.5 s, how many topics have
+    sent their warm-up message and how many numbered messages arrived, until terminated."""
+    settings = BrokerSettings(transport="ros2") if side == "ros2" else \
+        BrokerSettings(host="127.0.0.1", port=port)
+    got: dict[str, set[int]] = {}
+    lock = threading.Lock()
+
+    def count(msg: Message) -> None:
+        try:
+            seq = json.loads(msg.payload).get("seq")
+        except ValueError:
+            return
+        key = "/".join(msg.topic.split("/")[4:])
+        with lock:
+            got.setdefault(key, set()).add(seq)
+
+    client = make_client(settings, "bench-receiver", sink=count)
+    client.subscribe("waraps/unit/+/+/+/#")
+    client.connect()
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):
+            with lock:
+                ready = sum(1 for v in got.values() if -1 in v)
+                received = sum(len(v - {-1}) for v in got.values())
+            print(json.dumps({"ready": ready, "received": received}), flush=True)
+    finally:
+        client.disconnect()
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--units", type=int, default=100)
     parser.add_argument("--rate", type=float, default=10.0, help="Hz per unit and topic pair")
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--direction", choices=("ros2mqtt", "mqtt2ros"), default="ros2mqtt")
+    parser.add_argument("--receive", choices=("ros2", "mqtt"), help=argparse.SUPPRESS)
+    parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.receive:
+        return receive(args.receive, args.port)
     os.environ.setdefault("FASTDDS_DEFAULT_PROFILES_FILE",
                           str(ROOT / "deploy" / "ros2" / "fastdds-loopback.xml"))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 200)))
@@ -68,21 +113,18 @@ def main(argv: list[str] | None = None) -> int:
     units = [f"b{i}" for i in range(args.units)]
     topics = [f"waraps/unit/air/real/{u}/{s}" for u in units for s in SUFFIXES]
 
-    got: dict[str, set[int]] = {}
-    lock = threading.Lock()
+    receiver = subprocess.Popen(
+        [sys.executable, __file__, "--receive", "ros2" if sink_side is ros else "mqtt",
+         "--port", str(mqtt.port)], env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
+    latest: dict[str, int] = {"ready": 0, "received": 0}
 
-    def count(msg: Message) -> None:
-        try:
-            seq = json.loads(msg.payload).get("seq")
-        except ValueError:
-            return
-        name = msg.topic.split("/")[4]
-        suffix = "/".join(msg.topic.split("/")[5:])
-        with lock:
-            got.setdefault(f"{name}/{suffix}", set()).add(seq)
+    def follow() -> None:
+        for line in receiver.stdout or []:
+            latest.update(json.loads(line))
 
-    receiver = make_client(sink_side, "bench-receiver", sink=count)
-    receiver.subscribe("waraps/unit/+/+/+/#")
+    follower = threading.Thread(target=follow, daemon=True)
+    follower.start()
     sender = make_client(source, "bench-sender")
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     bridge = subprocess.Popen(
@@ -93,7 +135,6 @@ def main(argv: list[str] | None = None) -> int:
     reader = threading.Thread(target=lambda: log_lines.extend(bridge.stdout or []), daemon=True)
     reader.start()
     try:
-        receiver.connect()
         sender.connect()
         # Warm-up: every topic at 1 Hz (seq -1) until each arrived once (discovery done).
         deadline = time.monotonic() + 120
@@ -102,16 +143,13 @@ def main(argv: list[str] | None = None) -> int:
                 unit, suffix = topic.split("/")[4], "/".join(topic.split("/")[5:])
                 sender.publish(topic, _payload(unit, suffix, -1))
             time.sleep(1.0)
-            with lock:
-                ready = sum(1 for k in got if -1 in got[k])
+            ready = latest["ready"]
             if ready == len(topics):
                 break
             if time.monotonic() > deadline:
                 print(f"warm-up: only {ready}/{len(topics)} topics arrived", file=sys.stderr)
                 return 1
-        with lock:
-            got.clear()
-        rss0 = _rss_kb(bridge.pid)
+        rss0, cpu0 = _rss_kb(bridge.pid), _cpu_s(bridge.pid)
         period = 1.0 / args.rate
         sent = 0
         t0 = time.monotonic()
@@ -127,11 +165,10 @@ def main(argv: list[str] | None = None) -> int:
             seq += 1
             time.sleep(max(0.0, t0 + seq * period - time.monotonic()))
         elapsed = time.monotonic() - t0
-        rss1 = _rss_kb(bridge.pid)
+        rss1, cpu1 = _rss_kb(bridge.pid), _cpu_s(bridge.pid)
         time.sleep(3.0)  # drain
         rss_peak = _rss_kb(bridge.pid, "VmHWM")
-        with lock:
-            received = sum(len(v) for v in got.values())
+        received = latest["received"]
         print(f"bridge {args.direction}: {args.units} units x {len(SUFFIXES)} topics at "
               f"{args.rate:g} Hz for {elapsed:.1f} s")
         print(f"  offered {sent / elapsed:,.0f} msg/s: sent {sent}, received {received}, "
@@ -139,12 +176,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  bridge RSS {rss0 / 1024:.1f} MiB at start, {rss1 / 1024:.1f} MiB at end, "
               f"peak {rss_peak / 1024:.1f} MiB; every 10 s: "
               + ", ".join(f"{kb / 1024:.1f}" for _, kb in samples))
+        print(f"  bridge CPU {cpu1 - cpu0:.1f} s in {elapsed:.1f} s "
+              f"({100 * (cpu1 - cpu0) / elapsed:.0f} % of a core; "
+              f"{1e6 * (cpu1 - cpu0) / max(1, sent):.0f} us per message offered)")
         print("  (the bridge's counts below: forwarded vs sent locates a loss before or after "
               "it)")
         return 0
     finally:
         sender.disconnect()
-        receiver.disconnect()
+        receiver.terminate()
+        receiver.wait(10)
         bridge.terminate()
         try:
             bridge.wait(10)
