@@ -98,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=10.0, help="Hz per unit and topic pair")
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--direction", choices=("ros2mqtt", "mqtt2ros"), default="ros2mqtt")
+    parser.add_argument("--spread", action="store_true",
+                        help="spread each round's messages over the period (20 at a time) "
+                        "instead of one burst")
     parser.add_argument("--receive", choices=("ros2", "mqtt"), help=argparse.SUPPRESS)
     parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -158,10 +161,13 @@ def main(argv: list[str] | None = None) -> int:
         while time.monotonic() - t0 < args.seconds:
             if not samples or time.monotonic() - t0 >= samples[-1][0] + 10:
                 samples.append((time.monotonic() - t0, _rss_kb(bridge.pid)))
-            for topic in topics:
+            for i, topic in enumerate(topics):
                 unit, suffix = topic.split("/")[4], "/".join(topic.split("/")[5:])
                 sender.publish(topic, _payload(unit, suffix, seq))
                 sent += 1
+                if args.spread and i % 20 == 19:  # units do not all publish at one instant
+                    slot = t0 + (seq + (i + 1) / len(topics)) * period
+                    time.sleep(max(0.0, slot - time.monotonic()))
             seq += 1
             time.sleep(max(0.0, t0 + seq * period - time.monotonic()))
         elapsed = time.monotonic() - t0
