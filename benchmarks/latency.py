@@ -19,16 +19,23 @@ Measured:
    they are busy with the earlier missions (the stand-in engine never ends one), so the
    in-service plans also fit each task after the units' current work (more bids simulated).
 
+``--transport ros2`` runs the same on ROS 2 (no broker: every client in this process on Fast DDS
+with the loopback-only profile of deploy/ros2/ unless FASTDDS_DEFAULT_PROFILES_FILE names another,
+in ROS_DOMAIN_ID or a random domain); ``--transport both`` runs MQTT, then ROS 2, in the same run
+and prints the ratio of the start-tst p50s (target: ROS 2 within 2 x MQTT, issue 24).
+
 Targets: start-tst p50 < 50 ms and p99 < 150 ms; ping p50 < 5 ms.
 
     .venv/bin/python benchmarks/latency.py [--missions 100] [--tasks 20] [--units 10]
-        [--shape mixed|flat|both] [--planner-only]
+        [--shape mixed|flat|both] [--planner-only] [--transport mqtt|ros2|both]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import random
 import statistics
 import sys
@@ -43,8 +50,9 @@ from delegation.geo import GeoPoint, LocalFrame
 from delegation.local import LocalSystem
 from delegation.messages import HeartBeat, TstResponse, encode
 from delegation.runtime.broker import PrivateMosquitto
-from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.transport import make_client
 from delegation.service import ServiceConfig
 from delegation.topics import unit_base_topic
 from delegation.tst import parse_tree
@@ -61,7 +69,7 @@ class StandInEngine:
         self.base = unit_base_topic("op0", "ground", "simulation", PREFIX)
         self.arrivals: dict[str, float] = {}  # root node-uuid -> perf_counter at arrival
         self.cond = threading.Condition()
-        self.client = MqttClient(settings, "bench-engine", sink=self._sink)
+        self.client = make_client(settings, "bench-engine", sink=self._sink)
         self.client.subscribe(f"{self.base}/tst/command")
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, daemon=True)
@@ -189,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="mixed: conc of a 10-task seq and 10 tasks; flat: conc of 20 tasks")
     parser.add_argument("--planner-only", action="store_true",
                         help="only plan_mission in this process (no broker, no service)")
+    parser.add_argument("--transport", choices=("mqtt", "ros2", "both"), default="mqtt")
     args = parser.parse_args(argv)
     rng = random.Random(args.seed)
     shapes = ("mixed", "flat") if args.shape == "both" else (args.shape,)
@@ -202,10 +211,47 @@ def main(argv: list[str] | None = None) -> int:
         print(line(f"[{shape}] plan_mission alone, CPU", cpu))
     if args.planner_only:
         return 0
-    rng = random.Random(args.seed)
+    p50s: dict[str, float] = {}
+    for transport in ("mqtt", "ros2") if args.transport == "both" else (args.transport,):
+        code = measure(args, shapes, transport, p50s)
+        if code:
+            return code
+    if len(p50s) == 2:
+        ratio = p50s["ros2"] / p50s["mqtt"]
+        print(f"start-tst p50, ROS 2 / MQTT: {p50s['ros2']:.2f} / {p50s['mqtt']:.2f} ms = "
+              f"{ratio:.2f} x; target within 2 x:", "met" if ratio <= 2 else "NOT met")
+    return 0
 
-    broker = PrivateMosquitto().start()
-    settings = broker.settings()
+
+def _ros2_environment() -> None:
+    """The loopback-only DDS profile and a domain of this run's own, unless already chosen."""
+    profile = os.path.join(os.path.dirname(__file__), "..", "deploy", "ros2",
+                           "fastdds-loopback.xml")
+    os.environ.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", os.path.abspath(profile))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 200)))
+
+
+def measure(args: argparse.Namespace, shapes: tuple[str, ...], transport: str,
+            p50s: dict[str, float]) -> int:
+    """The service's latencies on one transport (prints them; the first shape's start-tst p50
+    into ``p50s[transport]``)."""
+    rng = random.Random(args.seed)
+    with contextlib.ExitStack() as stack:
+        if transport == "ros2":
+            _ros2_environment()
+            settings = BrokerSettings(transport="ros2")
+            where = f"ROS 2 (domain {os.environ['ROS_DOMAIN_ID']}, Fast DDS, loopback)"
+        else:
+            broker = PrivateMosquitto().start()
+            stack.callback(broker.stop)
+            settings = broker.settings()
+            where = "private mosquitto"
+        return _measure(args, shapes, settings, where, rng, p50s, transport)
+    return 1
+
+
+def _measure(args: argparse.Namespace, shapes: tuple[str, ...], settings: BrokerSettings,
+             where: str, rng: random.Random, p50s: dict[str, float], transport: str) -> int:
     units = make_units(args.units, rng)
     engine = StandInEngine(settings)
     system = LocalSystem(units, settings=settings, engine=False,
@@ -221,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
             responses[data.get("response-to", "")] = t
             cond.notify_all()
 
-    bench = MqttClient(settings, "bench-client", sink=sink)
+    bench = make_client(settings, "bench-client", sink=sink)
     base = system.config.base_topic
     bench.subscribe(f"{base}/+/response")
     try:
@@ -280,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
             t0, t1 = roundtrip(f"{base}/delegation/command", {"command": "ping"})
             ping_ms.append((t1 - t0) * 1000)
 
-        print(f"latency: private mosquitto, {args.units} simulated units, {args.tasks}-task "
+        print(f"latency: {where}, {args.units} simulated units, {args.tasks}-task "
               f"missions, strategy {args.strategy}, {args.missions} missions per shape")
         for shape, (wire_ms, planning_ms, overhead_ms, failed) in results.items():
             if wire_ms:
@@ -291,6 +337,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"[{shape}] missions that never reached the engine: {failed}")
             met = bool(wire_ms) and pct(wire_ms, 50) < 50 and pct(wire_ms, 99) < 150
             print(f"[{shape}] target p50 < 50 ms, p99 < 150 ms:", "met" if met else "NOT met")
+            if wire_ms and transport not in p50s:
+                p50s[transport] = pct(wire_ms, 50)
         print(line("ping -> pong (delegation/command)", ping_ms))
         print("target ping p50 < 5 ms:", "met" if pct(ping_ms, 50) < 5 else "NOT met")
         return 0
@@ -298,7 +346,8 @@ def main(argv: list[str] | None = None) -> int:
         bench.disconnect()
         system.stop()
         engine.stop()
-        broker.stop()
+
+
 
 
 if __name__ == "__main__":

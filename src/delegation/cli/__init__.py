@@ -43,6 +43,7 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "units",
     "missions",
     "ui",
+    "bridge",
 )
 
 

@@ -31,7 +31,7 @@ def _agents(args: argparse.Namespace) -> int:
 
     from delegation.fleet import FleetRegistry
     from delegation.messages import decode
-    from delegation.runtime.mqtt import MqttClient
+    from delegation.runtime.transport import make_client
 
     settings = client_settings(args)
     registry = FleetRegistry()
@@ -45,7 +45,7 @@ def _agents(args: argparse.Namespace) -> int:
         with lock, suppress(DelegationError):
             registry.observe(msg.topic, message, time.time())
 
-    client = MqttClient(settings, sink=sink)
+    client = make_client(settings, sink=sink)
     for rest in (
         "heartbeat",
         "direct_execution_info",

@@ -7,7 +7,7 @@ import argparse
 import os
 from typing import TYPE_CHECKING
 
-from delegation.cli.options import env_flag, env_port, port_number
+from delegation.cli.options import UsageError, env_flag, env_port, port_number
 
 if TYPE_CHECKING:
     from delegation.runtime.settings import BrokerSettings
@@ -17,6 +17,11 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
     """``--broker/--port/--tls/--ca-file/--cert-file/--key-file/--username/--password-file``,
     defaulting to ``WARAPS_*``; a password never has to be given on the command line."""
     g = parser.add_argument_group("broker (defaults from WARAPS_* environment variables)")
+    g.add_argument(
+        "--transport", choices=("mqtt", "ros2"), default=None,
+        help="mqtt: a broker (the default); ros2: ROS 2 topics /<name>/<prefix>/<suffix> in the "
+        "domain ROS_DOMAIN_ID, needs the [ros2] extra (docs/ros2.md) [WARAPS_TRANSPORT]",
+    )
     g.add_argument(
         "--broker", default=None, metavar="HOST",
         help="MQTT broker host [WARAPS_BROKER, else 127.0.0.1]",
@@ -55,7 +60,10 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:
     """Flags over environment; None when neither names a broker host (``demo`` then starts its
-    own). Bad ``WARAPS_*`` values are a `UsageError` naming the variable."""
+    own). Bad ``WARAPS_*`` values are a `UsageError` naming the variable. On ROS 2 there is no
+    broker to start: the settings are returned."""
+    if transport(args) == "ros2":
+        return client_settings(args)
     host = args.broker or (os.environ.get("WARAPS_BROKER") or "").strip()
     if not host:
         return None
@@ -89,7 +97,7 @@ def client_settings(args: argparse.Namespace) -> BrokerSettings:
         value = getattr(args, flag, None)
         return str(value) if value else (env.get(variable) or None)
 
-    return BrokerSettings.from_values(
+    settings = BrokerSettings.from_values(
         host=host,
         port=port,
         tls=bool(tls),
@@ -99,3 +107,26 @@ def client_settings(args: argparse.Namespace) -> BrokerSettings:
         certfile=pick("cert_file", "WARAPS_CERT_FILE"),
         keyfile=pick("key_file", "WARAPS_KEY_FILE"),
     )
+    if transport(args) == "mqtt":
+        return settings
+    require_ros2()
+    return settings.model_copy(update={"transport": "ros2"})
+
+
+def require_ros2() -> None:
+    """A `UsageError` (one line: how to install it; exit 2) where the ``[ros2]`` extra is
+    missing."""
+    from delegation.runtime.transport import ROS2_INSTALL, ros2_missing
+
+    missing = ros2_missing()
+    if missing is not None:
+        raise UsageError(f"{ROS2_INSTALL} [{missing}]")
+
+
+def transport(args: argparse.Namespace) -> str:
+    """``--transport``, else ``WARAPS_TRANSPORT``, else ``mqtt``; a `UsageError` for others."""
+    value = getattr(args, "transport", None) or (os.environ.get("WARAPS_TRANSPORT") or "").strip()
+    value = value.lower() or "mqtt"
+    if value not in ("mqtt", "ros2"):
+        raise UsageError(f"WARAPS_TRANSPORT: {value!r} is not mqtt or ros2")
+    return value

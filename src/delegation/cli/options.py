@@ -29,7 +29,7 @@ EXIT_SIGINT = 130
 EXIT_SIGTERM = 0
 
 #: Commands that run until stopped: they log at INFO unless told otherwise.
-DAEMONS: frozenset[str] = frozenset({"serve", "engine", "sim", "ui"})
+DAEMONS: frozenset[str] = frozenset({"serve", "engine", "sim", "ui", "bridge"})
 
 LOG_LEVELS: tuple[str, ...] = ("debug", "info", "warning", "error")
 

@@ -22,8 +22,9 @@ from delegation.errors import DelegationError
 from delegation.geo import GeoPoint
 from delegation.messages import json_value, new_com_uuid, parse_sensor
 from delegation.runtime.lifecycle import StartStop
-from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.transport import make_client
 from delegation.topics import (
     DEFAULT_PREFIX,
     QOS_COMMAND,
@@ -95,7 +96,7 @@ class ServiceClient(StartStop):
             "mission": Wildcard(f"{self._svc}/delegation/feedback"),
             "position": Wildcard(f"{prefix}/unit/+/+/+/sensor/position"),
         }
-        self.client = MqttClient(settings, f"client-{uuid.uuid4().hex[:8]}", sink=self._sink)
+        self.client = make_client(settings, f"client-{uuid.uuid4().hex[:8]}", sink=self._sink)
         for name, wc in self._filters.items():
             if name != "position" or track_positions:
                 self.client.subscribe(wc.value, QOS_COMMAND)

@@ -11,6 +11,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from delegation.errors import DelegationError
 
 Protocol = Literal["auto", "5", "3.1.1"]
+#: How units talk: an MQTT broker, or ROS 2 topics (`delegation.runtime.ros2`, docs/ros2.md).
+Transport = Literal["mqtt", "ros2"]
 
 
 def _env_flag(value: str | None) -> bool:
@@ -52,6 +54,9 @@ class BrokerSettings(BaseModel):
     #: Client certificate and its key (PEM) for brokers that ask for one (``require_certificate``).
     certfile: str | None = None
     keyfile: str | None = None
+    #: ``ros2``: the same JSON on ROS 2 topics (the domain from ``ROS_DOMAIN_ID``, DDS settings
+    #: from ``FASTDDS_DEFAULT_PROFILES_FILE``); host, port, TLS and login are then unused.
+    transport: Transport = "mqtt"
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> BrokerSettings | None:
@@ -113,5 +118,7 @@ class BrokerSettings(BaseModel):
 
     def describe(self) -> str:
         """host:port for logs (never the password)."""
+        if self.transport == "ros2":
+            return f"ROS 2 domain {os.environ.get('ROS_DOMAIN_ID') or 0}"
         scheme = "mqtts" if self.tls else "mqtt"
         return f"{scheme}://{self.host}:{self.port}"

@@ -28,8 +28,9 @@ from typing import Any, Generic, TypeVar
 from pydantic import BaseModel
 
 from delegation.runtime.core import Core, Effects, JobCore, JobDone, Outgoing
-from delegation.runtime.mqtt import Message, MqttClient, MqttConnectError, MqttError
+from delegation.runtime.mqtt import Message, MqttConnectError, MqttError
 from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.transport import make_client
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC
 
 log = logging.getLogger(__name__)
@@ -78,7 +79,8 @@ class MqttUnit:
         self.tick_interval = tick_interval
         self.clock = clock
         self._inbox: queue.Queue[object] = queue.Queue()
-        self.client = MqttClient(
+        # The transport seam: MQTT or ROS 2, as ``settings.transport`` says.
+        self.client = make_client(
             settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put,
             on_connection=self._connection,
         )

@@ -22,8 +22,9 @@ import uuid
 from collections.abc import Callable
 
 from delegation.errors import DelegationError
-from delegation.runtime.mqtt import Message, MqttClient, MqttError
+from delegation.runtime.mqtt import Message, MqttError
 from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.transport import make_client
 from delegation.service.config import ServiceConfig
 from delegation.service.jobs import Job, JobResult, run_job
 from delegation.service.store import SqliteStore, Store
@@ -59,7 +60,7 @@ def other_instance(
             found.append(f"{message.topic} (agent-uuid {other})")
             got.set()
 
-    client = MqttClient(settings, f"{config.name}-probe-{uuid.uuid4().hex[:8]}", sink=sink)
+    client = make_client(settings, f"{config.name}-probe-{uuid.uuid4().hex[:8]}", sink=sink)
     client.subscribe(f"{config.prefix}/unit/+/+/{config.name}/heartbeat")
     try:
         client.connect(timeout=10.0)

@@ -26,7 +26,7 @@ from typing import Any
 from delegation.errors import DelegationError
 from delegation.messages.errors import json_value
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
-from delegation.runtime.mqtt import Message, MqttError
+from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
 from delegation.tst import without_node_uuids
@@ -83,7 +83,8 @@ class _Client(ServiceClient):
                  **kw: Any) -> None:
         self._take = take  # set before the client exists: its sink is this object's _sink
         super().__init__(settings, **kw)
-        self.client.buffered_reads = True  # many small messages: one recv serves many
+        if isinstance(self.client, MqttClient):  # ROS 2 has no socket of ours to read
+            self.client.buffered_reads = True  # many small messages: one recv serves many
 
     def _sink(self, msg: Message) -> None:
         if not self._take(msg):

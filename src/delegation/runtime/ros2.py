@@ -1,0 +1,388 @@
+"""The ROS 2 boundary: the only module that imports rclpy (DESIGN 3.12, docs/ros2.md).
+
+`Ros2Client` has `MqttClient`'s interface, so every unit and client runs on ROS 2 unchanged: the
+cores publish and subscribe MQTT topics, this client puts the same JSON in ``std_msgs/String``
+on ``/<name>/<prefix>/<suffix>`` (`delegation.ros_topics` translates both ways) and hands
+received messages to the sink as `Message` values with the MQTT topic the core expects.
+
+ROS has no broker: a subscription on a filter with wildcards is made per topic that discovery
+finds (the ROS graph, polled every `DISCOVERY_PERIOD`), and for a name wildcard with a concrete
+rest (``{p}/unit/+/+/+/exec/response``) as soon as any topic of the unit is seen, before the unit
+publishes there. A publisher's first command-class message (QoS 1) waits, bounded by
+`MATCH_WAIT`, until a subscriber is matched: DDS drops what a new writer sends before it has
+matched its readers, and the reader of a wildcard filter appears only once discovery saw the
+topic.
+
+The executor is rclpy's `EventsExecutor` (rclpy.experimental): the default
+`SingleThreadedExecutor` rebuilds its wait set of every reader at each wake-up, in Python; the
+service reads ~100 topics of 10 units, and with it ``benchmarks/latency.py --transport both``
+measured start-tst p50 at 2.6 x MQTT's, with `EventsExecutor` 0.83-0.88 x (docs/ros2.md).
+
+QoS: we publish reliable (matched by reliable and best-effort readers alike); we read heartbeats,
+info and sensors best-effort (ROS sensor publishers are often best-effort) and everything else
+reliable; all volatile (a plain ROS publisher is volatile), keep-last `DEPTH`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.experimental.events_executor import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+from delegation.messages.ros_text import json_text
+from delegation.ros_topics import RosFilter, UnitNames, ros_token, ros_topic
+from delegation.runtime.mqtt import Message, MessageSink, MqttConnectError, MqttError
+from delegation.runtime.settings import BrokerSettings
+from delegation.topics import INFO_LEVELS, MAX_PAYLOAD, QOS_COMMAND, QOS_PERIODIC, Wildcard
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Ros2Client", "Ros2Error"]
+
+#: Seconds between two looks at the ROS graph for topics that wildcard filters match.
+DISCOVERY_PERIOD = 0.1
+#: The longest a first command-class message on a new topic waits for a subscriber (seconds).
+MATCH_WAIT = 2.0
+#: Keep-last depth of every reader and writer.
+DEPTH = 100
+_STRING = "std_msgs/msg/String"
+
+
+class Ros2Error(MqttError):
+    """Anything that went wrong on ROS 2 (an `MqttError`: callers catch the transport's one
+    error type, whichever transport runs)."""
+
+
+def _qos(reliable: bool) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def _periodic(ros: str) -> bool:
+    """Heartbeats, info and sensors: read best-effort (matches any publisher)."""
+    levels = ros.strip("/").split("/")
+    return levels[-1] in INFO_LEVELS or (len(levels) >= 2 and levels[-2] == "sensor")
+
+
+class _SharedContext:
+    """One rclpy context per process (one DDS participant), shared by every client in it and
+    shut down with the last; rclpy's signal handlers are not installed (ours stop commands)."""
+
+    _lock = threading.Lock()
+    _context: Context | None = None
+    _users = 0
+
+    @classmethod
+    def acquire(cls) -> Context:
+        with cls._lock:
+            if cls._context is None:
+                context = Context()
+                rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+                cls._context = context
+            cls._users += 1
+            return cls._context
+
+    @classmethod
+    def release(cls) -> None:
+        with cls._lock:
+            cls._users -= 1
+            if cls._users <= 0 and cls._context is not None:
+                context, cls._context, cls._users = cls._context, None, 0
+                with contextlib.suppress(Exception):
+                    context.try_shutdown()
+
+
+class Ros2Client:
+    """One ROS 2 node with `MqttClient`'s interface (see the module's docstring).
+
+    Received messages are handed to ``sink`` (by default put into ``self.messages``) on this
+    client's executor thread; the sink must not block.
+    """
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        client_id: str | None = None,
+        sink: MessageSink | None = None,
+        on_connection: Callable[[bool, int], None] | None = None,
+    ) -> None:
+        self.settings = settings
+        self._on_connection = on_connection
+        self.client_id = client_id or f"delegation-{uuid.uuid4().hex[:12]}"
+        self.messages: queue.Queue[Message] = queue.Queue()
+        self._sink: MessageSink = sink or self.messages.put
+        self._subscriptions: dict[str, int] = {}
+        self._filters: dict[str, RosFilter] = {}
+        self._lock = threading.RLock()
+        self.connected = threading.Event()
+        self.connect_count = 0
+        self.callback_errors = 0
+        self.names = UnitNames()
+        self._node: Node | None = None
+        self._executor: Executor | None = None
+        self._thread: threading.Thread | None = None
+        self._running = threading.Event()
+        self._readers: dict[str, Any] = {}
+        self._writers: dict[str, Any] = {}
+        #: ROS topic -> the MQTT topic it is delivered as (None: no filter wants it); cleared
+        #: whenever the filters or what is known of the units change.
+        self._routes: dict[str, str | None] = {}
+
+    # ---- lifecycle
+
+    def connect(self, timeout: float = 10.0) -> None:
+        """Join the ROS 2 domain (a node and its executor thread); subscribe what is asked."""
+        if self._node is not None:
+            return
+        try:
+            context = _SharedContext.acquire()
+            node = Node(ros_token(self.client_id), context=context)
+        except Exception as exc:  # rclpy raises its own types (RCLError, RMW errors)
+            raise MqttConnectError(f"cannot join {self.settings.describe()}: {exc}") from exc
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+        with self._lock:
+            self._node, self._executor = node, executor
+            for pattern in list(self._subscriptions):
+                self._add_filter(pattern)
+        node.create_timer(DISCOVERY_PERIOD, self._discover)
+        self._running.set()
+        self._thread = threading.Thread(target=self._spin, name=f"ros2-{self.client_id}",
+                                        daemon=True)
+        self._thread.start()
+        self.connect_count += 1
+        self.connected.set()
+        log.info("%s joined %s", self.client_id, self.settings.describe())
+        if self._on_connection is not None:
+            self._on_connection(True, self.connect_count)
+
+    def _spin(self) -> None:
+        executor = self._executor
+        while self._running.is_set() and executor is not None:
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except ExternalShutdownException:
+                break
+            except Exception as exc:
+                self._callback_failed("the executor", exc)
+
+    @property
+    def loop_alive(self) -> bool:
+        thread = self._thread
+        return thread is not None and thread.is_alive()
+
+    def restart(self, timeout: float = 10.0) -> None:
+        """A new node and executor thread; subscriptions are renewed."""
+        self.disconnect()
+        self.connect(timeout)
+
+    def disconnect(self) -> None:
+        """Leave the domain: stop the executor thread, destroy the node (idempotent)."""
+        self._running.clear()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(5.0)
+        with self._lock:
+            node, executor = self._node, self._executor
+            self._node = self._executor = None
+            self._readers.clear()
+            self._writers.clear()
+        was_connected = self.connected.is_set()
+        self.connected.clear()
+        if executor is not None:
+            with contextlib.suppress(Exception):
+                executor.shutdown(timeout_sec=1.0)
+        if node is not None:
+            with contextlib.suppress(Exception):
+                node.destroy_node()
+            _SharedContext.release()
+        if was_connected and self._on_connection is not None:
+            with contextlib.suppress(Exception):
+                self._on_connection(False, self.connect_count)
+
+    def __enter__(self) -> Ros2Client:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+    # ---- subscribe / publish
+
+    def subscribe(self, pattern: str, qos: int = QOS_COMMAND) -> None:
+        """Subscribe now (the concrete topic, or what discovery finds) and after a restart."""
+        Wildcard(pattern)
+        with self._lock:
+            self._subscriptions[pattern] = qos
+            if self._node is not None:
+                self._add_filter(pattern)
+
+    def unsubscribe(self, pattern: str) -> None:
+        with self._lock:
+            self._subscriptions.pop(pattern, None)
+            self._filters.pop(pattern, None)
+            self._routes.clear()
+            node = self._node
+            for ros in [r for r in self._readers if not self._wanted(r)]:
+                reader = self._readers.pop(ros)
+                if node is not None:
+                    node.destroy_subscription(reader)
+
+    @property
+    def subscriptions(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._subscriptions)
+
+    def publish(
+        self, topic: str, payload: bytes | str, qos: int = QOS_PERIODIC, retain: bool = False
+    ) -> None:
+        """Publish the payload as a ``std_msgs/String`` (``retain`` has no ROS meaning: volatile
+        topics keep nothing for late readers)."""
+        text = payload.decode("utf-8", errors="replace") if isinstance(payload, bytes) \
+            else payload
+        ros = ros_topic(topic)
+        with self._lock:
+            node = self._node
+            if node is None:
+                raise Ros2Error(f"not connected: cannot publish to {topic}")
+            if self.names.published(topic):
+                self._routes.clear()
+            writer = self._writers.get(ros)
+            new = writer is None
+            if writer is None:
+                try:
+                    writer = node.create_publisher(String, ros, _qos(True))
+                except Exception as exc:
+                    raise Ros2Error(f"cannot publish to {ros}: {exc}") from exc
+                self._writers[ros] = writer
+        if new and qos >= QOS_COMMAND:
+            self._await_reader(writer, ros)
+        writer.publish(String(data=text))
+
+    def _await_reader(self, writer: Any, ros: str) -> None:
+        """Wait (at most `MATCH_WAIT`) until the new writer has matched a reader."""
+        deadline = time.monotonic() + MATCH_WAIT
+        while writer.get_subscription_count() == 0:
+            if time.monotonic() >= deadline:
+                log.debug("%s: no reader of %s within %.1fs", self.client_id, ros, MATCH_WAIT)
+                return
+            time.sleep(0.005)
+
+    # ---- readers (under the lock)
+
+    def _add_filter(self, pattern: str) -> None:
+        flt = RosFilter.of(pattern)
+        self._filters[pattern] = flt
+        self._routes.clear()
+        concrete = flt.concrete
+        if concrete is not None:
+            self._read(concrete)
+        elif self._node is not None:
+            self._discover_now()
+
+    def _read(self, ros: str) -> None:
+        node = self._node
+        if node is None or ros in self._readers:
+            return
+        try:
+            self._readers[ros] = node.create_subscription(
+                String, ros, lambda msg, r=ros: self._on_message(r, msg),
+                _qos(not _periodic(ros)))
+            log.debug("%s reads %s", self.client_id, ros)
+        except Exception as exc:  # an invalid name from a foreign topic: skip it
+            log.warning("%s: cannot read %s: %s", self.client_id, ros, exc)
+
+    def _wanted(self, ros: str) -> bool:
+        filters = list(self._filters.values())
+        if any(f.concrete == ros or f.mqtt_topic(ros, self.names) for f in filters):
+            return True
+        return any(f.for_unit(t) == ros for f in filters if (t := f.unit_token(ros)))
+
+    def _discover(self) -> None:
+        """The executor's timer: look at the ROS graph for topics our filters match."""
+        try:
+            with self._lock:
+                self._discover_now()
+        except Exception as exc:
+            self._callback_failed("discovery", exc)
+
+    def _discover_now(self) -> None:
+        node = self._node
+        if node is None:
+            return
+        wild = [f for f in self._filters.values() if f.concrete is None]
+        if not wild:
+            return
+        for ros, types in node.get_topic_names_and_types():
+            if _STRING not in types:
+                continue
+            for flt in wild:
+                token = flt.unit_token(ros)
+                per_unit = flt.for_unit(token) if token is not None else None
+                if per_unit is not None:
+                    self._read(per_unit)
+                if ros not in self._readers and flt.mqtt_topic(ros, self.names) is not None:
+                    self._read(ros)
+
+    # ---- the executor thread: convert and hand over only
+
+    def _on_message(self, ros: str, msg: Any) -> None:
+        try:
+            text = json_text(str(msg.data))
+            data = text.encode("utf-8")
+            if ros.endswith("/heartbeat") and len(data) <= MAX_PAYLOAD:
+                self._learn(ros, text)
+            topic = self._mqtt_topic(ros)
+            if topic is not None:
+                self._sink(Message(topic, data, qos=QOS_PERIODIC if _periodic(ros)
+                                   else QOS_COMMAND))
+        except Exception as exc:
+            self._callback_failed(f"a message on {ros[:200]}", exc)
+
+    def _learn(self, ros: str, text: str) -> None:
+        try:
+            value = json.loads(text)
+        except (ValueError, RecursionError):
+            return
+        token = ros.strip("/").split("/")[0]
+        with self._lock:
+            if self.names.heard(token, value):
+                self._routes.clear()
+
+    def _mqtt_topic(self, ros: str) -> str | None:
+        """The MQTT topic for the first filter that means ``ros``: a concrete one first."""
+        with self._lock:
+            if ros in self._routes:
+                return self._routes[ros]
+            route: str | None = None
+            for flt in sorted(self._filters.values(), key=lambda f: f.concrete is None):
+                route = flt.mqtt if flt.concrete == ros and flt.prefix is None \
+                    else flt.mqtt_topic(ros, self.names)
+                if route is not None:
+                    break
+            self._routes[ros] = route
+            return route
+
+    def _callback_failed(self, what: str, exc: Exception) -> None:
+        self.callback_errors += 1
+        log.error("%s: %s dropped: %s: %.200s", self.client_id, what, type(exc).__name__, exc,
+                  exc_info=self.callback_errors == 1)
