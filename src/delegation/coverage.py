@@ -1,8 +1,10 @@
 """Boustrophedon coverage paths of polygons in a local east/north frame (metres).
 
-The sweep runs along the long axis of the polygon's minimum rotated rectangle (shapely), so the
-number of turns is smallest. The short side ``H`` is split into ``n = ceil(H / w)`` strips of equal
-height ``H / n <= w`` and one lane runs through the middle of each strip. Every lane is clipped to
+The lanes' direction is chosen per polygon and width (``sweep_direction``): among the two axes of
+the polygon's minimum rotated rectangle (shapely) and its edges' directions, the one whose whole
+path (turns and transitions included) is shortest; a caller may also give it (``along``). Across
+the lanes the polygon's extent ``H`` is split into ``n = ceil(H / w)`` strips of equal height
+``H / n <= w`` and one lane runs through the middle of each strip. Every lane is clipped to
 the polygon with shapely (one vectorised ``intersection``), so each lane segment lies inside the
 area; a lane that a concave area splits (the arms of a U) becomes several segments.
 
@@ -10,10 +12,10 @@ The segments are grouped into cells (a boustrophedon cell decomposition: a segme
 cell of the previous lane's segment when each is the other's only overlap). Each cell is flown as
 a boustrophedon, consecutive lanes joined by straight connectors at alternating ends; the cells are
 flown one after another, each from the cell and end nearest to where the path is, joined by
-straight transitions. A convex polygon is a single cell: for a rectangle the path is exactly
-``A / w + (n - 1) * w`` for ``A`` the area (docs/plan.md §2.4), for other convex polygons within a
-few per cent of that estimate. For a concave polygon the path is usually longer than the estimate
-by its transitions.
+straight transitions. A convex polygon is a single cell: for a rectangle swept along its long side
+the path is exactly ``A / w + (n - 1) * w`` for ``A`` the area (docs/plan.md §2.4), for other
+convex polygons within a few per cent of that estimate. For a concave polygon the path is usually
+longer than the estimate by its transitions.
 
 What stays inside the area: every lane segment. Connectors and transitions are straight lines; in
 a convex polygon they stay inside it, but over a concave area they may cross outside it (from one
@@ -102,9 +104,7 @@ def sweep_axes(polygon_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         centred = poly - poly.mean(axis=0)
         _, _, vt = np.linalg.svd(centred)
         along = vt[0]
-    along = along / np.hypot(*along)
-    if along[0] < -1e-12 or (abs(along[0]) <= 1e-12 and along[1] < 0):
-        along = -along
+    along = _canonical(along)
     across = np.array([-along[1], along[0]])
     return along, across
 
@@ -124,17 +124,32 @@ class _SweepFrame:
     y_hi: float
 
 
-def _sweep_frame(poly: np.ndarray) -> _SweepFrame:
-    """The sweep frame of a cleaned polygon, remembered for the last polygons seen: the cost
-    tables sweep each area once per distinct sweep width of the fleet, and planning a mission
-    again (bids, re-delegation, maps) sweeps the same areas."""
-    return _sweep_frame_of(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly))
+def _sweep_frame(poly: np.ndarray, along: np.ndarray | None = None) -> _SweepFrame:
+    """The sweep frame of a cleaned polygon with lanes along ``along`` (default: the minimum
+    rectangle's long axis), remembered for the last polygons seen: the cost tables sweep each area
+    once per distinct sweep width of the fleet, and planning a mission again (bids, re-delegation,
+    maps) sweeps the same areas."""
+    key = None if along is None else (float(along[0]), float(along[1]))
+    return _sweep_frame_of(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), key)
 
 
-@functools.lru_cache(maxsize=256)
-def _sweep_frame_of(data: bytes, n: int) -> _SweepFrame:
+def _canonical(along: np.ndarray) -> np.ndarray:
+    """``along`` as a unit vector pointing east-ish (positive east, or north when exactly
+    north-south), so a direction and its opposite give the same lanes."""
+    along = along / np.hypot(*along)
+    if along[0] < -1e-12 or (abs(along[0]) <= 1e-12 and along[1] < 0):
+        along = -along
+    return np.asarray(along)
+
+
+@functools.lru_cache(maxsize=1024)
+def _sweep_frame_of(data: bytes, n: int, key: tuple[float, float] | None) -> _SweepFrame:
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
-    along, across = sweep_axes(poly)
+    if key is None:
+        along, across = sweep_axes(poly)
+    else:
+        along = _canonical(np.array(key, dtype=float))
+        across = np.array([-along[1], along[0]])
     origin = poly.mean(axis=0)
     rel = poly - origin
     qx = rel @ along
@@ -148,11 +163,15 @@ def _sweep_frame_of(data: bytes, n: int) -> _SweepFrame:
                        float(qy.min()), float(qy.max()))
 
 
-def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+def _segments(
+    poly: np.ndarray, width: float, along: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The lanes clipped to the polygon: (segments (m, 2, 2) in the world frame, each segment's lane
-    index (m,)), ordered by lane and, within a lane, along the sweep; every segment points along."""
+    index (m,)), ordered by lane and, within a lane, along the sweep; every segment points along.
+
+    ``along`` is the lanes' direction; None: the minimum rectangle's long axis."""
     w = _check_width(width)
-    frame = _sweep_frame(poly)
+    frame = _sweep_frame(poly, along)
     along, across, origin, area = frame.along, frame.across, frame.origin, frame.area
     y_lo, y_hi = frame.y_lo, frame.y_hi
     height = y_hi - y_lo
@@ -199,17 +218,31 @@ def _segments(poly: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     return segments, lane
 
 
-def sweep_lanes(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
+def _direction(poly: np.ndarray, width: float, along: np.ndarray | None) -> np.ndarray:
+    """``along`` if given, else the direction ``sweep_direction`` chooses."""
+    if along is not None:
+        return _canonical(np.asarray(along, dtype=float))
+    return _best_direction(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
+                           _check_width(width))
+
+
+def sweep_lanes(
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float,
+    along: np.ndarray | None = None,
+) -> np.ndarray:
     """The lanes of the sweep clipped to the polygon: an (m, 2, 2) array of [start, end] points,
-    all pointing ``along``, ordered across the polygon from one side to the other and, where the
-    polygon splits a lane into several segments (concave areas), along the lane.
+    all pointing ``along`` (default: ``sweep_direction``), ordered across the polygon from one
+    side to the other and, where the polygon splits a lane into several segments (concave areas),
+    along the lane.
 
     For a convex polygon ``m`` is the lane count ``n``, one segment per lane."""
-    return _segments(_clean_polygon(polygon_xy), width)[0]
+    poly = _clean_polygon(polygon_xy)
+    return _segments(poly, width, _direction(poly, width, along))[0]
 
 
 def sweep_cells(
-    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float,
+    along: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """The lane segments grouped into cells, each an (k, 2, 2) array flown as one boustrophedon.
 
@@ -217,8 +250,14 @@ def sweep_cells(
     overlapping segment in that lane (a boustrophedon cell decomposition: cells split and merge
     where the area does), or when both lanes are a single segment (so a convex polygon is one
     cell, flown exactly as before). Cells are listed in the order their first lanes come.
+    ``along``: the lanes' direction (default: ``sweep_direction``).
     """
-    segments, lane = _segments(_clean_polygon(polygon_xy), width)
+    poly = _clean_polygon(polygon_xy)
+    return _cells(*_segments(poly, width, _direction(poly, width, along)))
+
+
+def _cells(segments: np.ndarray, lane: np.ndarray) -> list[np.ndarray]:
+    """``sweep_cells`` of lane segments and their lane indices (``_segments``)."""
     if len(segments) == 0:
         return []
     if bool(np.all(lane[1:] != lane[:-1])):  # one segment per lane (sorted by lane): one cell
@@ -311,13 +350,92 @@ def _fly_cells(
 
 
 def coverage_path(
-    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float, variant: int = 0
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float, variant: int = 0,
+    along: np.ndarray | None = None,
 ) -> np.ndarray:
     """The boustrophedon path (K, 2) covering the polygon with sweep width ``width`` (m).
 
-    ``variant`` (0..3) is ``serpentine``'s, applied to the first cell.
+    ``variant`` (0..3) is ``serpentine``'s, applied to the first cell; ``along`` the lanes'
+    direction (default: ``sweep_direction``, the shortest path's).
     """
-    return _fly_cells(sweep_cells(polygon_xy, width), variant)
+    return _fly_cells(sweep_cells(polygon_xy, width, along), variant)
+
+
+# --------------------------------------------------------------------------- sweep direction
+
+#: Most directions tried per polygon (the edges with the most length in their direction win).
+MAX_DIRECTIONS = 12
+#: Directions closer than this (radians, modulo pi) are one candidate.
+_SAME_DIRECTION = 1e-3
+#: With more candidates than ``_SCREEN_KEEP`` and more lanes than ``_SCREEN_LANES``, the
+#: candidates are first compared at a coarser width (``_SCREEN_LANES`` lanes across the polygon),
+#: and only the best few are swept at the real width: the ranking of directions changes little
+#: with the width, and a polygon with many edges would otherwise cost one full sweep per edge.
+_SCREEN_LANES = 200
+_SCREEN_KEEP = 3
+
+
+def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> np.ndarray:
+    """Lane directions worth trying (k, 2) unit vectors: the minimum rectangle's two axes and
+    every edge's direction (lanes parallel to an edge leave no slanted ends along it: Bahnemann
+    et al. 2021), one per direction modulo pi, the long axis first; at most ``MAX_DIRECTIONS``,
+    keeping the directions with the most edge length."""
+    poly = _clean_polygon(polygon_xy)
+    along, across = sweep_axes(poly)
+    edges = np.roll(poly, -1, axis=0) - poly
+    lengths = np.hypot(*edges.T)
+    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), math.pi)[lengths > 0.0]
+    lengths = lengths[lengths > 0.0]
+    chosen: list[float] = []
+    weight: list[float] = []
+    for a, ln in sorted(zip(angles.tolist(), lengths.tolist(), strict=True), key=lambda x: -x[1]):
+        for i, b in enumerate(chosen):
+            d = abs(a - b) % math.pi
+            if min(d, math.pi - d) < _SAME_DIRECTION:
+                weight[i] += ln
+                break
+        else:
+            chosen.append(a)
+            weight.append(ln)
+    order = np.argsort(-np.asarray(weight), kind="stable")[: MAX_DIRECTIONS]
+    out = [along, across]
+    for a in np.asarray(chosen)[order].tolist() if chosen else []:
+        v = _canonical(np.array([math.cos(a), math.sin(a)]))
+        if all(abs(float(v @ u)) < math.cos(_SAME_DIRECTION) for u in out):
+            out.append(v)
+    return np.stack(out)
+
+
+def _flown_length(poly: np.ndarray, width: float, along: np.ndarray) -> tuple[float, int]:
+    """(path length, lane segments) of the sweep along ``along``: the criterion for choosing."""
+    segments, lane = _segments(poly, width, along)
+    return path_length(_fly_cells(_cells(segments, lane), 0)), len(segments)
+
+
+def sweep_direction(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
+    """The lane direction (a unit vector) whose coverage path is the shortest among
+    ``candidate_directions``, turns and transitions between cells included (fewer lane segments
+    break ties). Remembered per polygon and width."""
+    poly = _clean_polygon(polygon_xy)
+    return _direction(poly, width, None)
+
+
+@functools.lru_cache(maxsize=1024)
+def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    candidates = candidate_directions(poly)
+    frame = _sweep_frame(poly)
+    short_side = frame.y_hi - frame.y_lo
+    if short_side / width > _SCREEN_LANES and len(candidates) > _SCREEN_KEEP:
+        coarse = short_side / _SCREEN_LANES
+        rough = [_flown_length(poly, coarse, v)[0] for v in candidates]
+        keep = np.argsort(rough, kind="stable")[:_SCREEN_KEEP]
+        candidates = candidates[np.union1d(keep, [0])]  # (the long axis always stays)
+    scores = [_flown_length(poly, width, v) for v in candidates]
+    best = min(range(len(candidates)), key=lambda i: (round(scores[i][0], 6), scores[i][1], i))
+    chosen = np.array(candidates[best])
+    chosen.setflags(write=False)
+    return chosen
 
 
 def path_length(path_xy: np.ndarray) -> float:
@@ -328,22 +446,30 @@ def path_length(path_xy: np.ndarray) -> float:
     return float(np.hypot(*np.diff(path, axis=0).T).sum())
 
 
-def coverage_length(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> float:
-    """The length (m) of ``coverage_path(polygon_xy, width)``."""
-    return path_length(coverage_path(polygon_xy, width))
+def coverage_length(
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float,
+    along: np.ndarray | None = None,
+) -> float:
+    """The length (m) of ``coverage_path(polygon_xy, width, along=along)``."""
+    return path_length(coverage_path(polygon_xy, width, along=along))
 
 
-def coverage_estimate(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> float:
+def coverage_estimate(
+    polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float,
+    along: np.ndarray | None = None,
+) -> float:
     """The closed-form estimate ``A / w + (n - 1) * w`` (docs/plan.md §2.4), for checks and quick
     bounds.
 
     ``A`` is the polygon's own area (not its convex hull's) and ``n`` the lane count of
-    ``sweep_lanes``. It matches ``coverage_length`` within a few per cent for convex polygons; for
-    a concave one the path also has transitions between its cells and is usually longer.
+    ``sweep_lanes`` (along ``along``, default ``sweep_direction``). It matches ``coverage_length``
+    within a few per cent for convex polygons; for a concave one the path also has transitions
+    between its cells and is usually longer.
     """
     poly = _clean_polygon(polygon_xy)
     w = _check_width(width)
-    _, across = sweep_axes(poly)
+    along = _direction(poly, w, along)
+    across = np.array([-along[1], along[0]])
     qy = (poly - poly.mean(axis=0)) @ across
     n = _lane_count(float(qy.max()) - float(qy.min()), w)
     return float(Polygon(poly).area) / w + (n - 1) * w
