@@ -71,6 +71,7 @@ __all__ = [
     "cost_tables",
     "coverage_length",
     "coverage_path",
+    "search_polygons_xy",
     "sweep_width",
     "task_geometry",
     "task_path",
@@ -238,6 +239,15 @@ def _polygons_from(g: TaskGeometry, xy: np.ndarray) -> list[np.ndarray]:
         return [circle_polygon(xy[0], g.circle[1])]
     bounds = np.cumsum([0] + [len(area) for area in g.areas]).tolist()
     return [xy[a:b] for a, b in itertools.pairwise(bounds)]
+
+
+def search_polygons_xy(node: TstNode, frame: LocalFrame) -> list[np.ndarray]:
+    """The polygons (east/north m in ``frame``) a search task sweeps: its ``area``, each of its
+    ``areas``, or the polygon standing in for its circle; empty for other tasks."""
+    g = task_geometry(node)
+    if g.kind != "areas":
+        return []
+    return _polygons_xy(g, frame)
 
 
 def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:

@@ -74,6 +74,11 @@ class Plan:
     fallback: str | None = None
     #: A lower bound on the makespan of any plan for this problem (``bounds``; not in JSON).
     lower_bound: float | None = None
+    #: The searches shared among units (DESIGN 3.11): ``share_plan.SharedSearch`` each.
+    shared: list[Any] = field(default_factory=list)
+    #: The tree the plan was made on when searches were shared: ``source`` with each shared
+    #: search replaced by the ``conc`` of its parts (None: ``source`` itself). Not in JSON.
+    planned: TstNode | None = None
 
     @property
     def instantiation_loss(self) -> float | None:
