@@ -87,6 +87,19 @@ class Plan:
             return None
         return max(0.0, self.makespan - self.precedence_makespan)
 
+    def part_of(self) -> dict[str, str]:
+        """A shared search's part uuid -> the caller's search uuid (DESIGN 3.11)."""
+        return {part.node_uuid: search.node_uuid
+                for search in self.shared for part in search.parts}
+
+    def caller_counts(self) -> tuple[int, int]:
+        """(assigned, unassigned) counted in the caller's tasks: a shared search is one task,
+        unassigned when any of its parts is."""
+        part_of = self.part_of()
+        missing = {part_of.get(u.node_uuid, u.node_uuid) for u in self.unassigned}
+        done = {part_of.get(a.node_uuid, a.node_uuid) for a in self.assignments} - missing
+        return len(done), len(missing)
+
     @property
     def strategy_label(self) -> str:
         """``optimal (= auction)`` when the strategy fell back to another's plan."""
