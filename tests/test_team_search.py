@@ -229,3 +229,48 @@ def test_a_search_around_position_is_shared_as_search_areas_parts() -> None:
     area = sum(p.area_m2 for p in plan.shared[0].parts)
     assert area == pytest.approx(plan.shared[0].area_m2)
     assert area == pytest.approx(math.pi * 600.0**2, rel=0.01)  # (the 64-gon for the circle)
+
+
+# --------------------------------------------------------------------------- switching it off
+
+
+def _scenario_file(tmp_path, poly: np.ndarray):  # type: ignore[no-untyped-def]
+    import yaml
+
+    agents = [{"name": u.name, "type": u.agent_type,
+               "position": u.position.model_dump(), "tasks": sorted(u.tasks)} for u in fleet()]
+    mission = search(poly).to_dict()
+    path = tmp_path / "team.yaml"
+    path.write_text(yaml.safe_dump({"name": "team", "agents": agents, "mission": mission}))
+    return path
+
+
+def test_the_cli_shares_unless_no_split(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from delegation.cli import main
+
+    path = _scenario_file(tmp_path, COMB)
+    runs = {}
+    for flags in ([], ["--no-split"]):
+        assert main(["plan", str(path), "--format", "json", *flags]) == 0
+        runs[bool(flags)] = json.loads(capsys.readouterr().out)
+    assert len(runs[False]["assignments"]) >= 3
+    assert len(runs[True]["assignments"]) == 1
+    assert runs[False]["makespan"] < 0.5 * runs[True]["makespan"]
+
+
+def test_delegate_reads_split_strictly_and_the_options_carry_it() -> None:
+    from pydantic import ValidationError
+
+    from delegation.messages import Delegate
+    from delegation.service.jobs import PlanOptions, plan_options
+
+    base = {"com-uuid": "c", "command": "delegate", "tst": {"name": "seq"}}
+    assert Delegate.model_validate(base).split is True
+    assert Delegate.model_validate({**base, "split": False}).split is False
+    with pytest.raises(ValidationError):
+        Delegate.model_validate({**base, "split": "no"})
+    options = plan_options(None, None, None, defaults=PlanOptions("auction", "makespan", 1.0),
+                           max_time_limit=5.0, split=False)
+    assert options.split is False

@@ -79,6 +79,9 @@ def register(subparsers: Any) -> None:
                         help="what to minimise (default: makespan, ties broken by total time)")
     parser.add_argument("--time-limit", type=float, default=5.0, metavar="S",
                         help="solver time limit in seconds for optimal (default: 5)")
+    parser.add_argument("--no-split", dest="split", action="store_false",
+                        help="never share a search among units (auction and optimal share a "
+                        "search whose unit is free when that ends sooner)")
     parser.add_argument("--engine-unit", default="op0", metavar="NAME",
                         help="the TST engine that runs control nodes (default: op0)")
     parser.add_argument("--format", default="table", choices=("table", "json"),
@@ -105,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         objective=args.objective,
         time_limit=args.time_limit,
         engine_unit=args.engine_unit,
+        split=args.split,
     )
     plan.notes.extend([*input_warnings(tree, units), *notes])
     if args.format == "json":

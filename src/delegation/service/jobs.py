@@ -31,6 +31,8 @@ class PlanOptions:
     strategy: str
     objective: str
     time_limit: float
+    #: Searches may be shared among units (DESIGN 3.11; ``delegate``'s ``split``).
+    split: bool = True
 
 
 def plan_options(
@@ -40,6 +42,7 @@ def plan_options(
     *,
     defaults: PlanOptions,
     max_time_limit: float,
+    split: bool = True,
 ) -> PlanOptions:
     """The options a command asked for (``defaults`` where it did not); ``InputError`` naming a
     bad one, so the command is answered at once instead of after a trip to the planner."""
@@ -57,7 +60,7 @@ def plan_options(
         raise InputError(InputProblem("command", "time-limit",
                                  f"{time_limit:g} s is above this service's maximum of "
                                  f"{max_time_limit:g} s"))
-    return PlanOptions(strategy, objective, time_limit or defaults.time_limit)
+    return PlanOptions(strategy, objective, time_limit or defaults.time_limit, split)
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,6 +133,7 @@ def run_job(job: Job) -> JobResult:
             objective=job.options.objective,
             time_limit=job.options.time_limit,
             engine_unit=job.engine,
+            split=job.options.split,
             limits=job.limits,
         )
         used = {a.execunit.strip("/") for a in plan.assignments}

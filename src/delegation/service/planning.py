@@ -81,13 +81,14 @@ class Planning(MissionPart):
         return self._job_ids
 
     def options(
-        self, strategy: str | None, objective: str | None, time_limit: float | None
+        self, strategy: str | None, objective: str | None, time_limit: float | None,
+        split: bool = True,
     ) -> PlanOptions:
         """The options asked for, this service's defaults elsewhere; ``InputError`` if bad."""
         c = self.config
         return plan_options(strategy, objective, time_limit,
                             defaults=PlanOptions(c.strategy, c.objective, c.time_limit),
-                            max_time_limit=c.max_time_limit)
+                            max_time_limit=c.max_time_limit, split=split)
 
     def job(
         self,
