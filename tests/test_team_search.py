@@ -274,3 +274,82 @@ def test_delegate_reads_split_strictly_and_the_options_carry_it() -> None:
     options = plan_options(None, None, None, defaults=PlanOptions("auction", "makespan", 1.0),
                            max_time_limit=5.0, split=False)
     assert options.split is False
+
+
+# --------------------------------------------------------------------------- what the operator sees
+
+
+def _conc_tree():  # type: ignore[no-untyped-def]
+    def move(x: float, y: float, execunit: str = "*"):  # type: ignore[no-untyped-def]
+        return make_node("move-to", execunit=execunit,
+                         params={"waypoint": geo(x, y), "speed": "standard"})
+
+    return make_node("conc", children=[search(COMB), move(3000, 0), move(-3000, 0, "/dji1")])
+
+
+def test_the_plan_json_lists_the_parts_the_bound_and_the_gap() -> None:
+    units = fleet()
+    plan = plan_mission(_conc_tree(), units, strategy="auction")
+    data = plan.to_json()
+    (shared,) = data["shared-searches"]
+    assert shared["name"] == "search-area" and shared["node-uuid"] == plan.shared[0].node_uuid
+    assert shared["area"] == pytest.approx(sum(p["area"] for p in shared["parts"]))
+    assert 0.0 < shared["bound"] <= shared["end"] and 0.0 <= shared["gap"] < 1.0
+    assert shared["gap"] == pytest.approx((shared["end"] - shared["bound"]) / shared["end"])
+    assigned = {a["node-uuid"]: a for a in data["assignments"]}
+    for part in shared["parts"]:
+        a = assigned[part["node-uuid"]]
+        assert (part["execunit"], part["start"], part["end"]) == (a["execunit"], a["start"],
+                                                                  a["end"])
+        assert part["sweep-length"] > part["area"] / 40.0  # (no drone lane is 40 m wide)
+    assert shared["end"] == max(p["end"] for p in shared["parts"])
+
+
+def test_the_operator_sees_the_search_follow_its_parts() -> None:
+    from delegation.service.missions import _part_map
+    from delegation.service.operator_view import OperatorView
+
+    units = fleet()
+    plan = plan_mission(_conc_tree(), units, strategy="auction")
+    search_uuid = plan.shared[0].node_uuid
+    parts = [p.node_uuid for p in plan.shared[0].parts]
+    sent = {n.node_uuid for _, n in walk(plan.tst)}
+    assert search_uuid not in sent  # (this tree regroups the parts' conc away)
+    assert plan.source is not None
+    for view in (OperatorView.of(plan.source, plan.tst, plan.part_map()),
+                 OperatorView.of(plan.source, plan.tst, _part_map(plan.to_json()))):
+        assert search_uuid in view and not view.relayed(parts[0]) and view.tracked(parts[0])
+        statuses = {parts[0]: "running"}
+        assert (search_uuid, "running") in view.changes(parts[0], statuses)
+        for p in parts:
+            statuses[p] = "succeeded"
+        assert (search_uuid, "succeeded") in view.changes(parts[-1], statuses)
+
+
+def test_where_the_conc_is_kept_its_feedback_is_the_searchs() -> None:
+    from delegation.service.operator_view import OperatorView
+
+    units = fleet()
+    first = make_node("move-to", execunit="*", params={"waypoint": geo(0, -1400),
+                                                       "speed": "standard"})
+    tree = make_node("seq", children=[first, search(COMB)])
+    plan = plan_mission(tree, units, strategy="auction")
+    search_uuid = plan.shared[0].node_uuid
+    kept = [n for _, n in walk(plan.tst) if n.node_uuid == search_uuid]
+    assert plan.source is not None
+    view = OperatorView.of(plan.source, plan.tst, plan.part_map())
+    if kept:  # the engine computes the conc: relayed as it is
+        assert kept[0].name == "conc" and view.relayed(search_uuid)
+    else:
+        assert not view.relayed(search_uuid)
+    assert not view.relayed(plan.shared[0].parts[0].node_uuid)
+
+
+def test_the_table_shows_each_shared_search(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from delegation.cli import main
+
+    path = _scenario_file(tmp_path, COMB)
+    assert main(["plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "shared:" in out and "bound" in out and "gap" in out
+    assert out.count("/dji") >= 6  # the assignments and the parts

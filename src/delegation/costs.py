@@ -293,8 +293,9 @@ class CostTables:
     ``start_xy``/``end_xy`` rows are NaN where the point depends on the unit (``go-home``: its home)
     or where the task is done in place (``travels`` False: the unit stays where it is); use
     ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
-    For search tasks ``end_xy`` is the end of the sweep at the narrowest sweep width among the units
-    that offer the task (the end lane depends on how many lanes a unit needs; the start does not).
+    For search tasks ``start_xy``/``end_xy`` are the ends of the sweep at the narrowest sweep width
+    among the units that offer the task (the end lane depends on how many lanes a unit needs, and
+    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width).
     Open-ended tasks have ``work_time`` 0.
     """
 

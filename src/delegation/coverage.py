@@ -365,6 +365,8 @@ def coverage_path(
 
 #: Most directions tried per polygon (the edges with the most length in their direction win).
 MAX_DIRECTIONS = 12
+#: Paths whose lengths differ by less than this fraction are equally short (rounding noise).
+_SAME_LENGTH = 1e-6
 #: Directions closer than this (radians, modulo pi) are one candidate.
 _SAME_DIRECTION = 1e-3
 #: With more candidates than ``_SCREEN_KEEP`` and more lanes than ``_SCREEN_LANES``, the
@@ -378,8 +380,11 @@ _SCREEN_KEEP = 3
 def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> np.ndarray:
     """Lane directions worth trying (k, 2) unit vectors: the minimum rectangle's two axes and
     every edge's direction (lanes parallel to an edge leave no slanted ends along it: Bahnemann
-    et al. 2021), one per direction modulo pi, the long axis first; at most ``MAX_DIRECTIONS``,
-    keeping the directions with the most edge length."""
+    et al. 2021), one per direction modulo pi: the long axis first, the short one, then the edge
+    directions by angle; at most ``MAX_DIRECTIONS`` of them, those with the most edge length.
+
+    The order and the choice do not depend on rounding noise (the same polygon in another local
+    frame, a regular polygon's equal edges): weights are compared to 6 significant digits."""
     poly = _clean_polygon(polygon_xy)
     along, across = sweep_axes(poly)
     edges = np.roll(poly, -1, axis=0) - poly
@@ -397,9 +402,11 @@ def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> 
         else:
             chosen.append(a)
             weight.append(ln)
-    order = np.argsort(-np.asarray(weight), kind="stable")[: MAX_DIRECTIONS]
+    top = max(weight, default=1.0)
+    ranked = sorted(range(len(chosen)), key=lambda i: (-round(weight[i] / top, 6), chosen[i]))
+    kept = sorted(chosen[i] for i in ranked[:MAX_DIRECTIONS])
     out = [along, across]
-    for a in np.asarray(chosen)[order].tolist() if chosen else []:
+    for a in kept:
         v = _canonical(np.array([math.cos(a), math.sin(a)]))
         if all(abs(float(v @ u)) < math.cos(_SAME_DIRECTION) for u in out):
             out.append(v)
@@ -428,11 +435,14 @@ def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
     short_side = frame.y_hi - frame.y_lo
     if short_side / width > _SCREEN_LANES and len(candidates) > _SCREEN_KEEP:
         coarse = short_side / _SCREEN_LANES
-        rough = [_flown_length(poly, coarse, v)[0] for v in candidates]
-        keep = np.argsort(rough, kind="stable")[:_SCREEN_KEEP]
+        rough = np.array([_flown_length(poly, coarse, v)[0] for v in candidates])
+        bar = np.sort(rough)[_SCREEN_KEEP - 1] * (1.0 + _SAME_LENGTH)
+        keep = np.flatnonzero(rough <= bar)
         candidates = candidates[np.union1d(keep, [0])]  # (the long axis always stays)
     scores = [_flown_length(poly, width, v) for v in candidates]
-    best = min(range(len(candidates)), key=lambda i: (round(scores[i][0], 6), scores[i][1], i))
+    shortest = min(length for length, _ in scores)
+    near = [i for i, (length, _) in enumerate(scores) if length <= shortest * (1 + _SAME_LENGTH)]
+    best = min(near, key=lambda i: (scores[i][1], i))  # fewer segments, then the earlier
     chosen = np.array(candidates[best])
     chosen.setflags(write=False)
     return chosen

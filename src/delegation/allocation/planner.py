@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 import uuid as uuid_module
 from collections.abc import Callable, Sequence
@@ -13,14 +14,15 @@ import numpy as np
 from delegation.allocation.auction import unassigned_reason
 from delegation.allocation.bounds import makespan_lower_bound
 from delegation.allocation.instantiate import Placement
-from delegation.allocation.plan import Assignment, Plan, Unassigned
+from delegation.allocation.plan import Assignment, Plan, SharedPart, SharedSearch, Unassigned
 from delegation.allocation.plausibility import plausibility_notes
 from delegation.allocation.problem import Problem, build_problem, flatten_tree
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.share_plan import (
+    REFINEMENTS,
     SharedTree,
-    measured_overheads,
+    measured,
     share_searches,
     shareable,
 )
@@ -145,14 +147,18 @@ def _shared_plan(
 ) -> tuple[SharedTree, Problem, StrategyResult] | None:
     """The plan with searches shared (``share_plan``), when it is better than ``result``:
     parts sized from ``result``'s schedule, cut, measured, sized and cut again with their real
-    sweep overheads, then planned by the same strategy with the rest of the tree."""
-    first = share_searches(prepared, problem, tables, result.schedule, new_uuid)
-    if first is None:
+    sweeps (``REFINEMENTS`` times), then planned by the same strategy with the rest of the
+    tree."""
+    shared = share_searches(prepared, problem, tables, result.schedule, new_uuid)
+    if shared is None:
         return None
-    first_tables = _tables_of(first.tree, units, tables)
-    shared = share_searches(prepared, problem, tables, result.schedule, new_uuid,
-                            measured_overheads(first, first_tables)) or first
-    shared_tables = first_tables if shared is first else _tables_of(shared.tree, units, tables)
+    shared_tables = _tables_of(shared.tree, units, tables)
+    for _ in range(REFINEMENTS):
+        again = share_searches(prepared, problem, tables, result.schedule, new_uuid,
+                               measured(shared, shared_tables))
+        if again is None:
+            break
+        shared, shared_tables = again, _tables_of(again.tree, units, tables)
     shared_problem = build_problem(shared.tree, units, shared_tables)
     outcome = STRATEGIES[strategy](shared_problem, objective, time_limit)
     if outcome.schedule.key(objective) >= result.schedule.key(objective):
@@ -249,9 +255,31 @@ def make_plan(
         precedence_makespan=precedence_makespan,
         fallback=fallback,
         lower_bound=makespan_lower_bound(problem),
-        shared=[] if shared is None else list(shared.searches),
+        shared=_shared_summary(shared, problem, schedule),
         planned=None if shared is None else prepared,
     )
+
+
+def _shared_summary(shared: SharedTree | None, problem: Problem, schedule: Schedule
+                    ) -> list[SharedSearch]:
+    """The plan's account of each shared search: parts with their units, areas, sweeps and
+    times in the schedule of the tree sent."""
+    if shared is None:
+        return []
+    index = {task.uuid: t for t, task in enumerate(problem.tasks)}
+    out = []
+    for search in shared.searches:
+        parts = []
+        for part in search.parts:
+            t = index[part.node_uuid]
+            u = int(schedule.assign[t])
+            sweep = float(problem.work_distance[u, t]) if u >= 0 else math.nan
+            parts.append(SharedPart(part.node_uuid, problem.tasks[t].name, part.unit,
+                                    part.area_m2, sweep, float(schedule.start[t]),
+                                    float(schedule.end[t])))
+        out.append(SharedSearch(search.node_uuid, search.name, search.area_m2, search.bound,
+                                tuple(parts)))
+    return out
 
 
 def _share_notes(shared: SharedTree | None) -> list[str]:

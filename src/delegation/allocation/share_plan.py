@@ -9,8 +9,8 @@ the node's own uuid and every other common field, holding one ``search-area`` pe
 several pieces: a ``search-areas``) with that unit fixed, every other parameter copied. The
 planner then plans the tree with the parts (the rest of the tree is allocated around them) and
 keeps whichever of the two plans is better. Once the parts are cut, their real sweep lengths are
-known: the shares are sized again with each unit's real overhead and the area cut again (one
-refinement).
+known: the shares are sized again with each unit's real overhead and flight to where its sweep
+starts, and the area cut again (``REFINEMENTS`` times).
 """
 
 from __future__ import annotations
@@ -44,9 +44,24 @@ if TYPE_CHECKING:
 
 #: Parameters that say where a search is: replaced by each part's own.
 _GEOMETRY = ("area", "areas", "geopoint", "radius")
+#: How many times the shares are sized again from the parts' real sweeps.
+REFINEMENTS = 2
 #: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
 #: is known only once the part is cut; the refinement and the plan's check do the rest).
 ENDURANCE_MARGIN = 0.9
+
+
+@dataclass(frozen=True, slots=True)
+class Fit:
+    """What a unit's earlier part measured: its sweep overhead (path / (A / w)) and where its
+    sweep started (east, north m)."""
+
+    overhead: float
+    start: tuple[float, float] | None = None
+
+
+#: Per shared search uuid, per unit index: what its part measured.
+Fits = dict[str, dict[int, Fit]]
 
 
 @dataclass(frozen=True)
@@ -94,7 +109,7 @@ def shareable(node: TstNode) -> bool:
 
 
 def _sharers(problem: Problem, tables: CostTables, schedule: Schedule, t: int,
-             region: shapely.Geometry, overhead: dict[int, float]) -> list[Sharer]:
+             region: shapely.Geometry, fits: dict[int, Fit]) -> list[Sharer]:
     """The units that could sweep part of task ``t``'s area, read from ``schedule``."""
     node_of = problem.structure.node_of_task[t]
     act = 0.0
@@ -118,8 +133,12 @@ def _sharers(problem: Problem, tables: CostTables, schedule: Schedule, t: int,
             last = max(prior, key=lambda k: float(schedule.end[k]))
             end = tables.end_for(u, last)
             here = here if end is None else end
-        travel = float(region.distance(Point(here))) / speed
-        rate = speed * width / overhead.get(u, PLAN_OVERHEAD)
+        fit = fits.get(u, Fit(PLAN_OVERHEAD))
+        if fit.start is not None:
+            travel = float(np.hypot(fit.start[0] - here[0], fit.start[1] - here[1])) / speed
+        else:
+            travel = float(region.distance(Point(here))) / speed
+        rate = speed * width / fit.overhead
         cap = math.inf
         if math.isfinite(float(tables.endurance[u])):
             back = 0.0
@@ -177,13 +196,12 @@ def share_searches(
     tables: CostTables,
     schedule: Schedule,
     new_uuid: Callable[[], str],
-    overheads: dict[str, dict[int, float]] | None = None,
+    fits: Fits | None = None,
 ) -> SharedTree | None:
     """``tree`` (the tree ``problem`` and ``tables`` were built from) with every search worth
     sharing replaced by its parts (None when none is): a search is shared when at least two units
     get a part, or when the one unit that can cover it is another than ``schedule``'s (or it had
-    none: endurance). ``overheads``: per search uuid, per unit, the sweep overhead measured on
-    earlier parts (the refinement)."""
+    none: endurance). ``fits``: what earlier parts measured (the refinement)."""
     frame = tables.frame
     from delegation.costs import search_polygons_xy
 
@@ -198,13 +216,15 @@ def share_searches(
         region = region_of(polygons)
         if region.is_empty or region.area <= 0.0:
             continue
-        ovh = (overheads or {}).get(task.uuid, {})
-        sharers = _sharers(problem, tables, schedule, t, region, ovh)
+        fit = (fits or {}).get(task.uuid, {})
+        sharers = _sharers(problem, tables, schedule, t, region, fit)
         wanted = shares(float(region.area), sharers)
         if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
             continue
         geoms = divide(region, wanted, {s.key: s.point for s in sharers})
-        raw = [replace(s, rate=s.rate * ovh.get(s.key, PLAN_OVERHEAD)) for s in sharers]
+        # The bound: raw rates (no turns), each unit at the area's nearest point.
+        raw = [replace(s, rate=s.rate * PLAN_OVERHEAD)
+               for s in _sharers(problem, tables, schedule, t, region, {})]
         bound = lower_bound(float(region.area), raw)
         nodes, parts = [], []
         for u in sorted(geoms, key=lambda k: tables.units[k].name):
@@ -229,20 +249,23 @@ def share_searches(
     return SharedTree(map_tree(tree, swap), searches)
 
 
-def measured_overheads(shared: SharedTree, tables: CostTables) -> dict[str, dict[int, float]]:
-    """Per shared search, per unit index: its part's real sweep length over ``A / w``, read from
-    ``tables`` (the cost tables of ``shared.tree``), for sizing the shares again."""
+def measured(shared: SharedTree, tables: CostTables) -> Fits:
+    """Per shared search, per unit index: its part's real sweep length over ``A / w`` and where
+    its sweep starts, read from ``tables`` (the cost tables of ``shared.tree``), for sizing the
+    shares again."""
     index = {node.node_uuid: t for t, node in enumerate(tables.tasks)}
     names = {unit.name: u for u, unit in enumerate(tables.units)}
-    out: dict[str, dict[int, float]] = {}
+    out: Fits = {}
     for search in shared.searches:
-        per: dict[int, float] = {}
+        per: dict[int, Fit] = {}
         for part in search.parts:
             t, u = index.get(part.node_uuid), names.get(part.unit)
             if t is None or u is None or part.area_m2 <= 0.0:
                 continue
             width, length = float(tables.width[u, t]), float(tables.work_distance[u, t])
             if math.isfinite(length) and width > 0.0:
-                per[u] = max(1.0, length / (part.area_m2 / width))
+                start = tables.start_xy[t]
+                per[u] = Fit(max(1.0, length / (part.area_m2 / width)),
+                             (float(start[0]), float(start[1])))
         out[search.node_uuid] = per
     return out

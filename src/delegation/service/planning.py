@@ -171,7 +171,7 @@ class Planning(MissionPart):
                               tst=plan_json["tst"], plan=plan_json,
                               nodes={**(node_infos(plan.source) if plan.source else {}),
                                      **node_infos(plan.tst)},
-                              operator=(OperatorView.of(plan.source, plan.tst)
+                              operator=(OperatorView.of(plan.source, plan.tst, plan.part_map())
                                         if plan.source else None),
                               received=to_dict(job.tree.root), command=job.key,
                               owner=self.desk.caller(job.key)))
