@@ -1,7 +1,7 @@
-"""Area search: how much a sweep wastes on concave polygons (DESIGN 3.11).
+"""Searching as a team (DESIGN 3.11): sweeps, sharing, bounds, solve time.
 
-    python benchmarks/team_search.py                 # every polygon, drone (37 m) and boat widths
-    python benchmarks/team_search.py --widths 37
+    python benchmarks/team_search.py                 # everything below
+    python benchmarks/team_search.py --only sweeps   # (or team, mixed, endurance, speed)
 
 The polygons are generated here, deterministically (fixed seeds): coastline-like radial polygons
 with bays, and L, U, comb, crescent and star shapes, each scaled to 0.2-4 km2 (the published
@@ -9,7 +9,16 @@ multi-robot coverage benchmark's polygons cannot be downloaded here). For each p
 width it prints the coverage path length over ``A / w`` (the area divided by the sweep width: no
 turns, no overlap), once with the lanes along the minimum rectangle's long axis (the old rule) and
 once along the direction ``delegation.coverage.sweep_direction`` chooses, then the geometric mean
-and the worst of each. Pure geometry: no broker, no clock beyond the timing of the choice.
+and the worst of each.
+
+``team``: each polygon searched (``execunit: "*"``) by a heterogeneous fleet of 3-6 units (drones
+of different speeds, 37 m lanes; a boat, 9 m lanes), placed 0.5-2.5 km from the area (seeded):
+the makespan of ``auction`` over the 3.11 lower bound (geometric mean and worst), the same with
+``--no-split`` (one unit) and with ``nearest``, the share of the area the parts cover (union) and
+how much they overlap, and the solve time. ``mixed``: the search inside a tree with other tasks
+(seq and conc around it): the search's end over its bound. ``endurance``: drones whose endurance
+is too short for the area alone, the fleet's total 1.1 x or more what the area needs: feasible?
+``speed``: ``auction`` on 10 units and 20 tasks with two large searches (wall time).
 """
 
 from __future__ import annotations
@@ -20,9 +29,22 @@ import random
 import time
 
 import numpy as np
+import shapely
 from shapely.geometry import Polygon
 
+from delegation.allocation import plan_mission
+from delegation.allocation.planner import flatten_tree
+from delegation.allocation.problem import build_problem
+from delegation.allocation.share_plan import search_bound
+from delegation.allocation.sharing import region_of
+from delegation.costs import cost_tables, search_polygons_xy
 from delegation.coverage import coverage_length, sweep_axes, sweep_direction
+from delegation.fleet import UnitState, make_unit
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.tst import TstNode, make_node, with_defaults, with_uuids
+
+FRAME = LocalFrame(57.76, 16.68)
+TASKS = ("move-to", "move-path", "search-area", "search-areas", "search-around-position")
 
 #: Sweep widths (m): a drone at 40 m with a 60 degree camera, and a boat at 10 m.
 WIDTHS = (37.0, 9.2)
@@ -108,11 +130,106 @@ def sweep_overhead(widths: tuple[float, ...]) -> None:
           f"worst {max(new_all):.3f} ({len(new_all)} sweeps)")
 
 
+def _geo(x: float, y: float, altitude: float = 40.0) -> dict[str, float]:
+    lat, lon = FRAME.to_geo(x, y)
+    return {"latitude": float(lat), "longitude": float(lon), "altitude": altitude}
+
+
+def _unit(name: str, kind: str, x: float, y: float, **kw: object) -> UnitState:
+    lat, lon = FRAME.to_geo(x, y)
+    point = GeoPoint(latitude=float(lat), longitude=float(lon), altitude=0.0)
+    return make_unit(name, kind, point, TASKS, **kw)  # type: ignore[arg-type]
+
+
+def fleet(seed: int, poly: np.ndarray, endurance: float | None = None) -> list[UnitState]:
+    """3-6 units around the area: drones at 2.5-4 m/s standard, one boat in every other fleet."""
+    rng = random.Random(seed)
+    n = 3 + seed % 4
+    reach = float(np.hypot(*(poly - poly.mean(axis=0)).T).max())
+    units = []
+    for i in range(n):
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        r = reach + rng.uniform(500.0, 2500.0)
+        boat = i == n - 1 and seed % 2 == 0
+        std = rng.uniform(2.5, 4.0) if not boat else 2.5
+        units.append(_unit(f"{'usv' if boat else 'dji'}{i}", "surface" if boat else "air",
+                           r * math.cos(a), r * math.sin(a),
+                           speeds={"slow": std / 2, "standard": std, "fast": 2 * std},
+                           endurance=None if boat else endurance))
+    return units
+
+
+def _search(poly: np.ndarray) -> TstNode:
+    return make_node("search-area", execunit="*", params={
+        "area": [_geo(x, y) for x, y in poly], "speed": "standard", "target-size": 2.0})
+
+
+def _bound(tree: TstNode, units: list[UnitState], uuid: str) -> float:
+    """The 3.11 bound of the search ``uuid`` with every unit free at the start."""
+    prepared = with_defaults(with_uuids(tree))
+    tables = cost_tables(units, [node for _, node in flatten_tree(prepared)[1]])
+    problem = build_problem(prepared, units, tables)
+    t = next(t for t, task in enumerate(problem.tasks) if task.uuid == uuid)
+    return search_bound(problem, tables, None, t)
+
+
+def _parts_cover(plan, tree: TstNode) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """(union of the parts / area, overlap / area) of the plan's one shared search."""
+    if not plan.shared:
+        return 1.0, 0.0
+    frame = LocalFrame(57.76, 16.68)
+    area = region_of(search_polygons_xy(tree, frame))
+    leaves = {n.node_uuid: n for _, n in flatten_tree(plan.planned)[1]}
+    parts = [region_of(search_polygons_xy(leaves[p.node_uuid], frame))
+             for p in plan.shared[0].parts]
+    union = shapely.union_all(parts)
+    inside = float(shapely.intersection(union, area).area)
+    return inside / area.area, (sum(p.area for p in parts) - union.area) / area.area
+
+
+def team(seeds: int) -> None:
+    """Makespan / bound per polygon and fleet: shared (auction), one unit, nearest."""
+    rows: dict[str, list[float]] = {"auction": [], "no-split": [], "nearest": []}
+    covers, overlaps, solves = [], [], []
+    print(f"{'polygon':<20} {'units':>5} {'bound s':>8} {'auction':>8} {'no-split':>8} "
+          f"{'nearest':>8} {'parts':>5} {'cover':>7} {'overlap':>7} {'solve s':>7}")
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            units = fleet(10 * k + seed, poly)
+            tree = with_uuids(_search(poly))
+            shared = plan_mission(tree, units, strategy="auction")
+            alone = plan_mission(tree, units, strategy="auction", split=False)
+            near = plan_mission(tree, units, strategy="nearest")
+            bound = _bound(tree, units, tree.node_uuid or "")
+            cover, overlap = _parts_cover(shared, tree)
+            for key, plan in (("auction", shared), ("no-split", alone), ("nearest", near)):
+                rows[key].append(plan.makespan / bound)
+            covers.append(cover)
+            overlaps.append(overlap)
+            solves.append(shared.solve_time)
+            parts = len(shared.shared[0].parts) if shared.shared else 1
+            print(f"{name:<20} {len(units):5d} {bound:8.0f} {rows['auction'][-1]:8.3f} "
+                  f"{rows['no-split'][-1]:8.3f} {rows['nearest'][-1]:8.3f} {parts:5d} "
+                  f"{cover:7.2%} {overlap:7.2%} {shared.solve_time:7.3f}")
+    for key, ratios in rows.items():
+        print(f"makespan / bound, {key}: geo-mean {_geo_mean(ratios):.3f}, worst {max(ratios):.3f}")
+    gains = [a / b for a, b in zip(rows["auction"], rows["no-split"], strict=True)]
+    print(f"sharing vs one unit (auction / no-split makespan): geo-mean {_geo_mean(gains):.3f}")
+    print(f"parts: union covers >= {min(covers):.3%} of the area, overlap <= {max(overlaps):.3%}; "
+          f"solve time median {sorted(solves)[len(solves) // 2]:.3f} s, max {max(solves):.3f} s")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--widths", type=float, nargs="+", default=list(WIDTHS))
+    parser.add_argument("--only", choices=("sweeps", "team", "mixed", "endurance", "speed"),
+                        default=None)
+    parser.add_argument("--seeds", type=int, default=2, help="fleets per polygon (default 2)")
     args = parser.parse_args()
-    sweep_overhead(tuple(args.widths))
+    if args.only in (None, "sweeps"):
+        sweep_overhead(tuple(args.widths))
+    if args.only in (None, "team"):
+        team(args.seeds)
 
 
 if __name__ == "__main__":

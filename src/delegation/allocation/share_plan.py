@@ -108,12 +108,14 @@ def shareable(node: TstNode) -> bool:
     return kind is ExecUnitKind.FREE
 
 
-def _sharers(problem: Problem, tables: CostTables, schedule: Schedule, t: int,
+def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
              region: shapely.Geometry, fits: dict[int, Fit]) -> list[Sharer]:
-    """The units that could sweep part of task ``t``'s area, read from ``schedule``."""
+    """The units that could sweep part of task ``t``'s area, read from ``schedule`` (None:
+    every unit free at the start)."""
     node_of = problem.structure.node_of_task[t]
     act = 0.0
-    if schedule.node_act is not None and math.isfinite(float(schedule.node_act[node_of])):
+    if (schedule is not None and schedule.node_act is not None
+            and math.isfinite(float(schedule.node_act[node_of]))):
         act = float(schedule.node_act[node_of])
     before = problem.before
     out = []
@@ -124,13 +126,16 @@ def _sharers(problem: Problem, tables: CostTables, schedule: Schedule, t: int,
             continue
         if tables.exclude_busy and unit.busy:
             continue
-        prior = [k for k in schedule.orders[u] if k != t and not before[t, k]]
-        free = max([act, 0.0 if problem.ready is None else float(problem.ready[u])]
-                   + [float(schedule.end[k]) for k in prior])
-        used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
+        free = 0.0 if problem.ready is None else float(problem.ready[u])
+        free, used, prior = max(act, free), 0.0, list[int]()
+        if schedule is not None:
+            prior = [k for k in schedule.orders[u] if k != t and not before[t, k]]
+            free = max([free] + [float(schedule.end[k]) for k in prior])
+            used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
         here = tables.unit_xy[u]
-        if prior:
-            last = max(prior, key=lambda k: float(schedule.end[k]))
+        if prior and schedule is not None:
+            ends = schedule.end
+            last = max(prior, key=lambda k: float(ends[k]))
             end = tables.end_for(u, last)
             here = here if end is None else end
         fit = fits.get(u, Fit(PLAN_OVERHEAD))
@@ -190,6 +195,19 @@ def _conc_of(original: TstNode, parts: list[TstNode]) -> TstNode:
                    extra=dict(original.extra))
 
 
+def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int
+                 ) -> float:
+    """DESIGN 3.11's lower bound (s from mission start) for search task ``t``: each unit that
+    could take part sweeps ``speed x width`` m2/s, with no turns, from when it could be at the
+    area's nearest point (free of what it does first in ``schedule``; None: free at once)."""
+    from delegation.costs import search_polygons_xy
+
+    region = region_of(search_polygons_xy(problem.tasks[t].node, tables.frame))
+    raw = [replace(s, rate=s.rate * PLAN_OVERHEAD)
+           for s in _sharers(problem, tables, schedule, t, region, {})]
+    return lower_bound(float(region.area), raw)
+
+
 def share_searches(
     tree: TstNode,
     problem: Problem,
@@ -222,10 +240,7 @@ def share_searches(
         if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
             continue
         geoms = divide(region, wanted, {s.key: s.point for s in sharers})
-        # The bound: raw rates (no turns), each unit at the area's nearest point.
-        raw = [replace(s, rate=s.rate * PLAN_OVERHEAD)
-               for s in _sharers(problem, tables, schedule, t, region, {})]
-        bound = lower_bound(float(region.area), raw)
+        bound = search_bound(problem, tables, schedule, t)
         nodes, parts = [], []
         for u in sorted(geoms, key=lambda k: tables.units[k].name):
             pieces = pieces_xy(geoms[u])
