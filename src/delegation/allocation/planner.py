@@ -152,14 +152,13 @@ def _shared_plan(
     shared = share_searches(prepared, problem, tables, result.schedule, new_uuid)
     if shared is None:
         return None
-    shared_tables = _tables_of(shared.tree, units, tables)
     for _ in range(REFINEMENTS):
         again = share_searches(prepared, problem, tables, result.schedule, new_uuid,
-                               measured(shared, shared_tables))
+                               measured(shared, tables))
         if again is None:
             break
-        shared, shared_tables = again, _tables_of(again.tree, units, tables)
-    shared_problem = build_problem(shared.tree, units, shared_tables)
+        shared = again
+    shared_problem = build_problem(shared.tree, units, _tables_of(shared.tree, units, tables))
     outcome = STRATEGIES[strategy](shared_problem, objective, time_limit)
     if outcome.schedule.key(objective) >= result.schedule.key(objective):
         log.info("sharing searches did not improve the plan: kept the unshared one")

@@ -265,22 +265,37 @@ def share_searches(
 
 
 def measured(shared: SharedTree, tables: CostTables) -> Fits:
-    """Per shared search, per unit index: its part's real sweep length over ``A / w`` and where
-    its sweep starts, read from ``tables`` (the cost tables of ``shared.tree``), for sizing the
-    shares again."""
+    """Per shared search, per unit index: its part's real sweep length over ``A / w`` (at the
+    unit's width) and where its sweep starts (at the narrowest width of the units offering the
+    search, as the cost tables place a search's start), for sizing the shares again. ``tables``
+    are those of the tree before sharing (the parts' widths are their search's)."""
+    from delegation.coverage import coverage_path, multi_coverage_path, path_length
+
     index = {node.node_uuid: t for t, node in enumerate(tables.tasks)}
     names = {unit.name: u for u, unit in enumerate(tables.units)}
     out: Fits = {}
     for search in shared.searches:
+        t = index.get(search.node_uuid)
+        if t is None:
+            continue
+        col = tables.width[:, t]
+        offered = col[np.isfinite(col) & tables.listed[:, t]]
+        ref = float(offered.min()) if len(offered) else math.nan
         per: dict[int, Fit] = {}
         for part in search.parts:
-            t, u = index.get(part.node_uuid), names.get(part.unit)
-            if t is None or u is None or part.area_m2 <= 0.0:
+            u = names.get(part.unit)
+            width = math.nan if u is None else float(col[u])
+            if u is None or not width > 0.0 or part.area_m2 <= 0.0:
                 continue
-            width, length = float(tables.width[u, t]), float(tables.work_distance[u, t])
-            if math.isfinite(length) and width > 0.0:
-                start = tables.start_xy[t]
-                per[u] = Fit(max(1.0, length / (part.area_m2 / width)),
-                             (float(start[0]), float(start[1])))
+
+            def sweep(w: float, pieces: tuple[np.ndarray, ...] = part.polygons_xy) -> np.ndarray:
+                if len(pieces) == 1:
+                    return coverage_path(pieces[0], w)
+                return multi_coverage_path(list(pieces), w)
+
+            path = sweep(width)
+            start = path[0] if not (ref > 0.0) or ref == width else sweep(ref)[0]
+            per[u] = Fit(max(1.0, path_length(path) / (part.area_m2 / width)),
+                         (float(start[0]), float(start[1])))
         out[search.node_uuid] = per
     return out
