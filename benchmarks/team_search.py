@@ -24,6 +24,7 @@ is too short for the area alone, the fleet's total 1.1 x or more what the area n
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import random
 import time
@@ -222,6 +223,95 @@ def team(seeds: int) -> None:
           f"{sorted(solves)[len(solves) // 2]:.3f} s, max {max(solves):.3f} s")
 
 
+def _move(x: float, y: float) -> TstNode:
+    return make_node("move-to", execunit="*", params={"waypoint": _geo(x, y), "speed": "standard"})
+
+
+def _path(rng: random.Random, reach: float) -> TstNode:
+    pts = [_geo(rng.uniform(-reach, reach), rng.uniform(-reach, reach)) for _ in range(3)]
+    return make_node("move-path", execunit="*", params={"waypoints": pts, "speed": "standard"})
+
+
+def mixed(seeds: int) -> None:
+    """The search inside seq(move-to, conc(search, move-path, move-to), move-to): its end over
+    its bound (units busy first, the bound from when each could be there)."""
+    ratios = []
+    print(f"{'polygon':<20} {'units':>5} {'search end':>10} {'bound s':>8} {'ratio':>6} "
+          f"{'makespan':>9}")
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            rng = random.Random(100 + 10 * k + seed)
+            units = fleet(10 * k + seed, poly)
+            reach = float(np.hypot(*(poly - poly.mean(axis=0)).T).max()) + 1000.0
+            tree = make_node("seq", children=[
+                _move(rng.uniform(-reach, reach), rng.uniform(-reach, reach)),
+                make_node("conc", children=[_search(poly), _path(rng, reach),
+                                            _move(rng.uniform(-reach, reach), -reach)]),
+                _move(rng.uniform(-reach, reach), reach)])
+            plan = plan_mission(tree, units, strategy="auction")
+            if not plan.shared:
+                print(f"{name:<20} {len(units):5d} not shared")
+                continue
+            s = plan.shared[0]
+            ratios.append(s.end / s.bound)
+            print(f"{name:<20} {len(units):5d} {s.end:10.0f} {s.bound:8.0f} {ratios[-1]:6.3f} "
+                  f"{plan.makespan:9.0f}")
+    print(f"search end / its bound with other tasks: geo-mean {_geo_mean(ratios):.3f}, worst "
+          f"{max(ratios):.3f} ({len(ratios)} trees)")
+
+
+def endurance(seeds: int) -> None:
+    """Drones whose endurance is 45 % of what the best of them needs for the area alone, four
+    of them (1.8 x the area's need in total): is the plan feasible, and within endurance?"""
+    feasible, total = 0, 0
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            probe = [u for u in fleet(10 * k + seed, poly) if u.agent_type == "air"]
+            tree = with_uuids(_search(poly))
+            alone = plan_mission(tree, probe, strategy="auction", split=False)
+            need = min(a.end for a in alone.assignments)
+            limit = 0.45 * need
+            units = [dataclasses.replace(u, endurance=limit) for u in fleet(10 * k + seed, poly)
+                     if u.agent_type == "air"]
+            units = (units * 2)[:4] if len(units) < 4 else units[:4]
+            units = [dataclasses.replace(u, name=f"dji{i}") for i, u in enumerate(units)]
+            plan = plan_mission(tree, units, strategy="auction")
+            one = plan_mission(tree, units, strategy="auction", split=False)
+            total += 1
+            ok = plan.feasible and all(
+                sum(a.travel_time + a.work_time for a in r) <= limit * (1 + 1e-9)
+                for r in plan.routes.values())
+            feasible += ok
+            verdict = "feasible" if ok else "INFEASIBLE"
+            print(f"{name:<20} endurance {limit:7.0f} s x 4: shared {verdict} "
+                  f"({len(plan.assignments)} parts, makespan {plan.makespan:.0f} s); one unit "
+                  f"{'feasible' if one.feasible else 'infeasible'}")
+    print(f"endurance: {feasible} of {total} areas needing 2.2+ units' endurance planned feasibly")
+
+
+def speed(repeats: int = 3) -> None:
+    """``auction`` on 10 units and 20 tasks with two large searches: wall and CPU time."""
+    polys = concave_polygons()
+    rng = random.Random(7)
+    a, b = polys["coast1-2km2"], polys["star-4km2"] + np.array([4000.0, 0.0])
+    units = [_unit(f"dji{i}", "air", rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3))
+             for i in range(8)]
+    units += [_unit(f"usv{i}", "surface", rng.uniform(-3e3, 6e3), -3500.0) for i in range(2)]
+    others = [_move(rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3)) for _ in range(12)]
+    others += [_path(rng, 3000.0) for _ in range(6)]
+    for run in range(repeats):
+        tree = make_node("conc", children=[
+            make_node("seq", children=[others[0], _search(a), others[1]]),
+            _search(b), *others[2:]])
+        wall, cpu = time.perf_counter(), time.process_time()
+        plan = plan_mission(tree, units, strategy="auction")
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        print(f"auction, 10 units, 20 tasks, two searches (run {run + 1}, "
+              f"{'caches cold' if run == 0 else 'same areas again'}): {wall:.3f} s wall, "
+              f"{cpu:.3f} s CPU; {len(plan.shared)} shared, feasible {plan.feasible}, makespan "
+              f"{plan.makespan:.0f} s")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--widths", type=float, nargs="+", default=list(WIDTHS))
@@ -233,6 +323,12 @@ def main() -> None:
         sweep_overhead(tuple(args.widths))
     if args.only in (None, "team"):
         team(args.seeds)
+    if args.only in (None, "mixed"):
+        mixed(args.seeds)
+    if args.only in (None, "endurance"):
+        endurance(args.seeds)
+    if args.only in (None, "speed"):
+        speed()
 
 
 if __name__ == "__main__":

@@ -48,7 +48,7 @@ _GEOMETRY = ("area", "areas", "geopoint", "radius")
 REFINEMENTS = 2
 #: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
 #: is known only once the part is cut; the refinement and the plan's check do the rest).
-ENDURANCE_MARGIN = 0.9
+ENDURANCE_MARGIN = 0.97
 
 
 @dataclass(frozen=True, slots=True)
