@@ -61,6 +61,7 @@ def test_a_shared_search_is_flown_by_its_units_and_the_operator_sees_its_node(
     assert search in relayed and not relayed & set(parts)  # the parts are not shown
     # Every drone flew its own part to the end.
     for part in parts:
+        done = (part, "succeeded")
         engine.wait_json(f"{team.engine_base}/tst/feedback",
-                         lambda d, p=part: (d.get("node-uuid"), d.get("status")) == (p, "succeeded"),
+                         lambda d, x=done: (d.get("node-uuid"), d.get("status")) == x,
                          timeout=5, what=f"succeeded for part {part}")
