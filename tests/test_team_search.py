@@ -353,3 +353,11 @@ def test_the_table_shows_each_shared_search(tmp_path, capsys) -> None:  # type: 
     out = capsys.readouterr().out
     assert "shared:" in out and "bound" in out and "gap" in out
     assert out.count("/dji") >= 6  # the assignments and the parts
+
+
+def test_a_small_search_stays_whole() -> None:
+    # 60 x 40 m: the flight there dominates; sharing could not end it much sooner.
+    units = fleet()
+    small = np.array([[0.0, 0.0], [60.0, 0.0], [60.0, 40.0], [0.0, 40.0]])
+    plan = plan_mission(search(small), units, strategy="auction")
+    assert plan.shared == [] and len(plan.assignments) == 1

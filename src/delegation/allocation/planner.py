@@ -24,7 +24,7 @@ from delegation.allocation.share_plan import (
     SharedTree,
     measured,
     share_searches,
-    shareable,
+    worth_sharing,
 )
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective, StrategyResult
 from delegation.costs import CostTables, cost_tables
@@ -97,7 +97,8 @@ def plan_mission(
     tables = cost_tables(list(units), [node for _, node in flatten_tree(prepared)[1]])
     problem = build_problem(prepared, units, tables)
     built = time.perf_counter()
-    sharing = split and strategy != "nearest" and any(shareable(t.node) for t in problem.tasks)
+    sharing = split and strategy != "nearest" and any(
+        worth_sharing(problem, tables, t) for t in range(problem.n_tasks))
     planned, shared = prepared, None
     if sharing:
         shared, problem, result = _share_or_not(

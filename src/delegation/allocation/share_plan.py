@@ -44,6 +44,10 @@ if TYPE_CHECKING:
 
 #: Parameters that say where a search is: replaced by each part's own.
 _GEOMETRY = ("area", "areas", "geopoint", "radius")
+#: A search is worth sharing when its 3.11 bound is below this share of what the quickest unit
+#: alone needs (travel and sweep): small searches stay whole (cutting them costs more planning
+#: time than it saves mission time).
+WORTH_SHARING = 0.6
 #: How many times the shares are sized again from the parts' real sweeps.
 REFINEMENTS = 2
 #: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
@@ -208,6 +212,18 @@ def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None
     return lower_bound(float(region.area), raw)
 
 
+def worth_sharing(problem: Problem, tables: CostTables, t: int) -> bool:
+    """Task ``t`` may be shared (``shareable``) and sharing could end it much sooner than the
+    quickest unit alone (``WORTH_SHARING``), or no unit can do it alone (endurance)."""
+    if not shareable(problem.tasks[t].node):
+        return False
+    alone = tables.need_time[:, t][tables.listed[:, t]]
+    single = float(alone.min()) if len(alone) else math.inf
+    if not math.isfinite(single):
+        return True
+    return search_bound(problem, tables, None, t) < WORTH_SHARING * single
+
+
 def share_searches(
     tree: TstNode,
     problem: Problem,
@@ -226,7 +242,7 @@ def share_searches(
     replaced: dict[str, TstNode] = {}
     searches: list[SharedSearch] = []
     for t, task in enumerate(problem.tasks):
-        if not shareable(task.node):
+        if not worth_sharing(problem, tables, t):
             continue
         polygons = search_polygons_xy(task.node, frame)
         if not polygons:
