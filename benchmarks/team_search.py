@@ -38,7 +38,7 @@ from delegation.allocation.planner import flatten_tree
 from delegation.allocation.problem import build_problem
 from delegation.allocation.share_plan import search_bound
 from delegation.allocation.sharing import region_of
-from delegation.costs import cost_tables, search_polygons_xy
+from delegation.costs import cost_tables, search_polygons_xy, sweep_width, task_path
 from delegation.coverage import coverage_length, sweep_axes, sweep_direction
 from delegation.fleet import UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
@@ -188,10 +188,36 @@ def _parts_cover(plan, tree: TstNode) -> tuple[float, float]:  # type: ignore[no
     return inside / area.area, (sum(p.area for p in parts) - union.area) / area.area
 
 
+def _swept(plan, tree: TstNode, units: list[UnitState]  # type: ignore[no-untyped-def]
+           ) -> tuple[float, float]:
+    """(area within w/2 of some unit's flown path / area, area swept by two units' paths /
+    area): what the paths the simulator flies (``costs.task_path``) cover, each part with its
+    unit's own width; the single-unit path for an unshared plan."""
+    frame = LocalFrame(57.76, 16.68)
+    area = region_of(search_polygons_xy(tree, frame))
+    by_name = {u.name: u for u in units}
+    leaves = {n.node_uuid: n for _, n in flatten_tree(plan.planned or plan.tst)[1]}
+    bands = []
+    for a in plan.assignments:
+        unit = by_name[a.execunit.strip("/")]
+        node = leaves.get(a.node_uuid) or tree
+        points = task_path(node, unit, frame)
+        xy = frame.points_xy(points)
+        g = node.params.get("target-size", 2.0)
+        w = sweep_width(unit, float(g))
+        bands.append(shapely.LineString(xy).buffer(w / 2.0, cap_style="flat")
+                     if len(xy) > 1 else shapely.Point(xy[0]).buffer(w / 2.0))
+    union = shapely.union_all(bands)
+    covered = float(shapely.intersection(union, area).area) / area.area
+    twice = (sum(float(shapely.intersection(b, area).area) for b in bands)
+             - float(shapely.intersection(union, area).area)) / area.area
+    return covered, twice
+
+
 def team(seeds: int) -> None:
     """Makespan / bound per polygon and fleet: shared (auction), one unit, nearest."""
     rows: dict[str, list[float]] = {"auction": [], "no-split": [], "nearest": []}
-    covers, overlaps, solves = [], [], []
+    covers, overlaps, solves, swept, twice = [], [], [], [], []
     print(f"{'polygon':<20} {'units':>5} {'bound s':>8} {'auction':>8} {'no-split':>8} "
           f"{'nearest':>8} {'parts':>5} {'cover':>7} {'overlap':>7} {'solve s':>7} {'cpu s':>7}")
     for k, (name, poly) in enumerate(concave_polygons().items()):
@@ -209,6 +235,9 @@ def team(seeds: int) -> None:
                 rows[key].append(plan.makespan / bound)
             covers.append(cover)
             overlaps.append(overlap)
+            flown = _swept(shared, tree, units)
+            swept.append(flown[0])
+            twice.append(flown[1])
             solves.append(cpu)
             parts = len(shared.shared[0].parts) if shared.shared else 1
             print(f"{name:<20} {len(units):5d} {bound:8.0f} {rows['auction'][-1]:8.3f} "
@@ -221,6 +250,8 @@ def team(seeds: int) -> None:
     print(f"parts: union covers >= {min(covers):.3%} of the area, overlap <= {max(overlaps):.3%}; "
           f"auction CPU time (first plan of each area, caches cold) median "
           f"{sorted(solves)[len(solves) // 2]:.3f} s, max {max(solves):.3f} s")
+    print(f"flown paths (w/2 either side): cover >= {min(swept):.2%} of the area (geo-mean "
+          f"{_geo_mean(swept):.2%}), swept twice <= {max(twice):.2%}")
 
 
 def _move(x: float, y: float) -> TstNode:
