@@ -29,8 +29,10 @@ def test_plans_keep_the_invariants(path: Path, strategy: str) -> None:
         plan = plan_mission(tree, units, strategy=strategy, objective=objective, time_limit=0.4)
         assert check_invariants(plan, tree, units) == []
         assert plan.strategy == strategy and plan.objective == objective
-        # Every task is either assigned or unassigned with a reason.
-        assert len(plan.assignments) + len(plan.unassigned) == len(leaves(tree))
+        # Every task (a shared search: each of its parts) is either assigned or unassigned with
+        # a reason.
+        planned = plan.planned if plan.planned is not None else tree
+        assert len(plan.assignments) + len(plan.unassigned) == len(leaves(planned))
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.name for p in SCENARIOS])

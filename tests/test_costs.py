@@ -25,6 +25,7 @@ from delegation.coverage import (
     coverage_estimate,
     multi_coverage_path,
     path_length,
+    sweep_axes,
     sweep_lanes,
 )
 from delegation.errors import InputError
@@ -411,9 +412,15 @@ def test_coverage_properties_on_random_convex_polygons(
     hull = MultiPoint(points).convex_hull
     assume(isinstance(hull, Polygon) and hull.area > 1000.0)
     poly = np.asarray(hull.exterior.coords)[:-1]
-    lanes = sweep_lanes(poly, width)
-    path = coverage_path(poly, width)
-    # as many lanes as strips of at most `width` across the minimum rotated rectangle
+    long_axis = sweep_axes(poly)[0]
+    lanes = sweep_lanes(poly, width, along=long_axis)
+    path = coverage_path(poly, width, along=long_axis)
+    # the chosen direction is never worse than the long axis, and covers the polygon as well
+    chosen = coverage_path(poly, width)
+    assert path_length(chosen) <= path_length(path) + 1e-6
+    assert all(hull.buffer(1e-6).contains(Point(p)) for p in chosen)
+    # along the long axis: as many lanes as strips of at most `width` across the minimum rotated
+    # rectangle
     rect = hull.minimum_rotated_rectangle.exterior.coords
     sides = sorted(math.dist(rect[i], rect[i + 1]) for i in range(2))
     assert len(lanes) == max(1, math.ceil(sides[0] / width - 1e-9))
@@ -426,4 +433,4 @@ def test_coverage_properties_on_random_convex_polygons(
     long_enough = np.hypot(*directions.T) > 1e-6
     unit_dirs = directions[long_enough] / np.hypot(*directions[long_enough].T)[:, None]
     assert np.allclose(np.abs(unit_dirs @ unit_dirs[0]), 1.0)
-    assert coverage_length(poly, width) == pytest.approx(path_length(path))
+    assert coverage_length(poly, width, along=long_axis) == pytest.approx(path_length(path))

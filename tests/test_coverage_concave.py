@@ -13,12 +13,15 @@ import shapely
 from shapely.geometry import LineString, Polygon
 
 from delegation.coverage import (
+    candidate_directions,
     coverage_estimate,
     coverage_length,
     coverage_path,
     multi_coverage_path,
     path_length,
+    sweep_axes,
     sweep_cells,
+    sweep_direction,
     sweep_lanes,
 )
 
@@ -76,9 +79,10 @@ def test_the_u_is_covered_and_every_lane_is_in_the_path(width: float) -> None:
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_the_u_is_three_cells_and_the_gap_is_crossed_once(width: float) -> None:
-    cells = sweep_cells(U_SHAPE, width)
+    east = np.array([1.0, 0.0])  # (lanes across the arms; the chosen direction runs along them)
+    cells = sweep_cells(U_SHAPE, width, along=east)
     assert len(cells) == 3  # the base and the two arms
-    path = coverage_path(U_SHAPE, width)
+    path = coverage_path(U_SHAPE, width, along=east)
     # Legs over the gap (outside the area) are transitions; with the cells flown one after the
     # other the gap is crossed at most once, not on every split lane.
     gap = Polygon([(100.0, 100.0), (200.0, 100.0), (200.0, 200.0), (100.0, 200.0)])
@@ -131,7 +135,51 @@ def test_a_convex_case_is_unchanged() -> None:
 
 def test_a_lane_along_an_inner_edge_is_one_segment() -> None:
     # 7 strips of 200/7 m: the fourth lane runs exactly along the bottom of the gap (y = 100).
-    lanes = sweep_lanes(U_SHAPE, 33.0)
+    lanes = sweep_lanes(U_SHAPE, 33.0, along=np.array([1.0, 0.0]))
     on_edge = lanes[np.isclose(lanes[:, 0, 1], 100.0)]
     assert len(on_edge) == 1
     assert np.hypot(*(on_edge[0, 1] - on_edge[0, 0])) == pytest.approx(300.0)
+
+
+# --------------------------------------------------------------------------- sweep direction
+
+
+def test_the_u_is_swept_along_its_arms_in_one_cell() -> None:
+    # Lanes north-south run along the arms: one cell, no transition over the gap, shorter than
+    # the long axis (east-west) even with 50 % more lanes.
+    for width in WIDTHS:
+        along = sweep_direction(U_SHAPE, width)
+        assert abs(float(along[1])) == pytest.approx(1.0)
+        assert len(sweep_cells(U_SHAPE, width)) == 1
+        assert coverage_length(U_SHAPE, width) < coverage_length(
+            U_SHAPE, width, along=np.array([1.0, 0.0])
+        )
+
+
+def test_candidates_are_the_rectangle_axes_and_the_edge_directions() -> None:
+    poly = rotate(U_SHAPE, 23.0)
+    candidates = candidate_directions(poly)
+    assert np.allclose(np.hypot(*candidates.T), 1.0)
+    # the long axis first; the U's edges have only two directions, the rectangle's axes
+    assert candidates[0] == pytest.approx(sweep_axes(poly)[0])
+    assert len(candidates) == 2
+    tri = np.array([[0.0, 0.0], [100.0, 0.0], [30.0, 80.0]])
+    assert len(candidate_directions(tri)) >= 3
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_chosen_sweep_is_the_shortest_candidate_covers_and_stays_inside(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 20
+    angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, n))
+    radii = rng.uniform(150.0, 400.0, n)
+    poly = np.column_stack([radii * np.cos(angles), radii * np.sin(angles)])
+    shape = Polygon(poly)
+    assert shape.is_valid
+    width = 20.0
+    chosen = coverage_length(poly, width)
+    every = [coverage_length(poly, width, along=v) for v in candidate_directions(poly)]
+    assert chosen == pytest.approx(min(every), rel=1e-9)
+    lanes = sweep_lanes(poly, width)
+    assert shapely.within(shapely.linestrings(lanes), shape.buffer(1e-6)).all()
+    assert covered_fraction(coverage_path(poly, width), shape, width) > 0.99

@@ -133,23 +133,26 @@ def test_unassigned_leaves_keep_their_execunit() -> None:
 DEMO = Path(__file__).resolve().parents[1] / "scenarios" / "demo.yaml"
 
 
-def _demo_plan(strategy: str) -> tuple[Any, Any, Any]:
+def _demo_plan(strategy: str, without: str = "") -> tuple[Any, Any, Any]:
     scenario = load_scenario(DEMO)
-    tree, units = scenario.tree(), scenario.units()
+    tree, units = scenario.tree(), [u for u in scenario.units() if u.name != without]
     return plan_mission(tree, units, strategy=strategy, time_limit=1.0), tree, units
 
 
 def test_plan_times_are_those_of_the_instantiated_tree() -> None:
-    # The demo with nearest: dji0 takes the move-to of seq(move-to, search-area) and the
-    # move-path; usv0 the search-area and a move-to. The old rule ran the whole seq (usv0's
-    # search included) before the move-path; the series-parallel tree runs the move-path right
-    # after dji0's move-to, beside usv0's search, and the plan's times are that tree's.
-    plan, tree, units = _demo_plan("nearest")
+    # The demo without dji1, with nearest: dji0 takes the move-to of seq(move-to, search-area),
+    # another move-to and the move-path; usv0 the search-area and a move-to. The old rule ran the
+    # whole seq (usv0's search included) before the move-path; the series-parallel tree runs the
+    # move-path right after dji0's move-tos, beside usv0's search, and the plan's times are that
+    # tree's. (With dji1, the search's shorter sweep (lanes along the short side) gives it to dji1.)
+    plan, tree, units = _demo_plan("nearest", without="dji1")
     by_name = {a.name: a for a in plan.assignments}
     search, path = by_name["search-area"], by_name["move-path"]
-    first = next(a for a in plan.assignments if a.name == "move-to" and a.execunit == "/dji0")
     assert path.execunit == "/dji0" and search.execunit == "/usv0"
-    assert path.start == pytest.approx(first.end)
+    before = max((a for a in plan.assignments if a.execunit == "/dji0" and a.end <= path.start),
+                 key=lambda a: a.end)
+    assert before.name == "move-to"
+    assert path.start == pytest.approx(before.end)
     assert path.start < search.end
     assert plan.precedence_makespan == pytest.approx(plan.makespan)
     assert any("series-parallel tree" in note for note in plan.notes)

@@ -15,7 +15,7 @@ DEMO = str(ROOT / "scenarios" / "demo.yaml")
 
 PLAN_KEYS = {"strategy", "objective", "feasible", "makespan", "total-time", "total-distance",
              "solve-time", "bound", "gap", "precedence-makespan", "instantiation-loss", "fallback",
-             "assignments", "unassigned", "tst", "notes"}
+             "assignments", "unassigned", "shared-searches", "tst", "notes"}
 ASSIGNMENT_KEYS = {"node-uuid", "name", "execunit", "start", "end", "travel-time", "work-time",
                    "distance"}
 

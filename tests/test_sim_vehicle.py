@@ -182,6 +182,37 @@ def test_battery_drains_and_fails_the_task() -> None:
     assert v.start_task("move-to", {"waypoint": at(0, 0).to_wire()}, "u") == BATTERY_EMPTY
 
 
+def test_a_unit_of_unknown_endurance_flies_what_the_planner_plans() -> None:
+    # The planner gives a unit that reports no endurance no limit (docs/plan.md §2.5): a task of
+    # 5,000 s is feasible for it. The simulator agrees: its battery never drains (it drained as
+    # if the unit had 3,600 s, and the planned task failed with "battery depleted").
+    from delegation.costs import cost_tables
+    from delegation.tst import make_node
+
+    v = vehicle()
+    far = at(0, 25_000)  # 5,000 s at 5 m/s
+    node = make_node("move-to", params={"waypoint": far.to_wire(), "speed": "standard"})
+    tables = cost_tables([v.unit], [node], frame=FRAME)
+    assert tables.capable[0, 0] and tables.need_time[0, 0] == pytest.approx(5000.0, rel=1e-3)
+    v.start_task("move-to", {"waypoint": far.to_wire(), "speed": "standard"}, "t")
+    events = run_until(v, 5010.0, dt=1.0)
+    assert events == [TaskEvent("t", "finished")]
+    assert v.battery == 1.0
+
+
+def test_a_unit_with_endurance_fails_where_the_planner_refuses() -> None:
+    from delegation.costs import cost_tables
+    from delegation.tst import make_node
+
+    v = vehicle(endurance=4000.0)
+    far = at(0, 25_000)
+    node = make_node("move-to", params={"waypoint": far.to_wire(), "speed": "standard"})
+    assert not cost_tables([v.unit], [node], frame=FRAME).capable[0, 0]
+    v.start_task("move-to", {"waypoint": far.to_wire(), "speed": "standard"}, "t")
+    events = run_until(v, 4010.0, dt=1.0)
+    assert events == [TaskEvent("t", "failed", BATTERY_EMPTY)]
+
+
 ALL = [
     ("move-to", {"waypoint": at(100, 0).to_wire()}, False),
     ("move-path", {"waypoints": [at(0, 50).to_wire(), at(50, 50).to_wire()]}, False),

@@ -73,6 +73,7 @@ __all__ = [
     "cost_tables",
     "coverage_length",
     "coverage_path",
+    "search_polygons_xy",
     "sweep_width",
     "task_geometry",
     "task_path",
@@ -248,6 +249,15 @@ def _polygons_from(g: TaskGeometry, xy: np.ndarray) -> list[np.ndarray]:
     return [xy[a:b] for a, b in itertools.pairwise(bounds)]
 
 
+def search_polygons_xy(node: TstNode, frame: LocalFrame) -> list[np.ndarray]:
+    """The polygons (east/north m in ``frame``) a search task sweeps: its ``area``, each of its
+    ``areas``, or the polygon standing in for its circle; empty for other tasks."""
+    g = task_geometry(node)
+    if g.kind != "areas":
+        return []
+    return _polygons_xy(g, frame)
+
+
 def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:
     if len(polygons) == 1:
         return coverage_path(polygons[0], width)
@@ -291,8 +301,9 @@ class CostTables:
     ``start_xy``/``end_xy`` rows are NaN where the point depends on the unit (``go-home``: its home)
     or where the task is done in place (``travels`` False: the unit stays where it is); use
     ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
-    For search tasks ``end_xy`` is the end of the sweep at the narrowest sweep width among the units
-    that offer the task (the end lane depends on how many lanes a unit needs; the start does not).
+    For search tasks ``start_xy``/``end_xy`` are the ends of the sweep at the narrowest sweep width
+    among the units that offer the task (the end lane depends on how many lanes a unit needs, and
+    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width).
     Open-ended tasks have ``work_time`` 0.
     """
 

@@ -71,6 +71,11 @@ class _Subject:
     units: Sequence[UnitState]
 
     @cached_property
+    def planned(self) -> TstNode:
+        """The caller's tree as planned: with each shared search's parts (DESIGN 3.11)."""
+        return self.plan.planned if self.plan.planned is not None else self.tree
+
+    @cached_property
     def inst_leaves(self) -> list[TstNode]:
         return leaves(self.plan.tst)
 
@@ -125,7 +130,7 @@ def _tasks_kept(x: _Subject) -> list[str]:
     """The instantiated tree keeps the caller's tasks and their uuids (control nodes may be
     regrouped, docs/protocol.md §8)."""
     out = []
-    original = leaves(x.tree)
+    original = leaves(x.planned)
     if len(original) != len(x.inst_leaves):
         out.append(f"tree has {len(original)} tasks but the plan's tree {len(x.inst_leaves)}")
     inst_uuids = {n.node_uuid for _, n in walk(x.plan.tst)}
@@ -184,7 +189,7 @@ def _units_valid(x: _Subject) -> list[str]:
 def _fixed_and_aliases(x: _Subject) -> list[str]:
     out = []
     assigned = x.assigned
-    for _, node in walk(x.tree):
+    for _, node in walk(x.planned):
         if node.is_control or not node.node_uuid or node.node_uuid not in assigned:
             continue
         kind, ref = classify_execunit(node.execunit)
@@ -192,7 +197,7 @@ def _fixed_and_aliases(x: _Subject) -> list[str]:
             out.append(f"{node.node_uuid} is fixed to /{ref} but planned on "
                        f"{assigned[node.node_uuid].execunit}")
     aliases: dict[str, set[str]] = {}
-    for orig in leaves(x.tree):
+    for orig in leaves(x.planned):
         kind, ref = classify_execunit(orig.execunit)
         hit = assigned.get(orig.node_uuid or "")
         if kind is ExecUnitKind.ALIAS and hit is not None:
@@ -235,11 +240,20 @@ def _source_kept(x: _Subject) -> list[str]:
     return out
 
 
+def _planned_source(x: _Subject) -> TstNode:
+    """The tree the plan's order refers to: the planned tree (shared searches' parts), else the
+    plan's source, else the tree sent."""
+    for tree in (x.plan.planned, x.plan.source):
+        if tree is not None:
+            return tree
+    return x.plan.tst
+
+
 def _seq_order(x: _Subject) -> list[str]:
     """The instantiated tree never runs two tasks of a unit at once; the source's seq order
     holds in the plan's times."""
     out = _unsafe_pairs(x.plan.tst, x.assigned)
-    source = x.plan.source if x.plan.source is not None else x.plan.tst
+    source = _planned_source(x)
     for path, node in walk(source):
         if node.name != "seq":
             continue
@@ -258,7 +272,7 @@ def _precedences_kept(x: _Subject) -> list[str]:
     each unit's route."""
     from delegation.allocation.sent_tree import missing_precedences
 
-    source = x.plan.source if x.plan.source is not None else x.plan.tst
+    source = _planned_source(x)
     routes = {name: [a.node_uuid for a in items] for name, items in x.routes.items()}
     return missing_precedences(source, x.plan.tst, routes)
 
@@ -361,6 +375,65 @@ def _durations(x: _Subject) -> dict[str, float]:
 
 
 #: Every check, in the order its sentences are reported.
+#: How far the union of a shared search's parts may be from its area (DESIGN 3.11: 0.5 %).
+COVER_TOL = 0.005
+
+
+def _shared_searches(x: _Subject) -> list[str]:
+    """Each shared search's parts lie inside its area and cover it (union within 0.5 %, overlap
+    within 0.5 %), each part on the unit it was cut for (DESIGN 3.11)."""
+    if not x.plan.shared or x.plan.source is None:
+        return []
+    from delegation.allocation.sharing import region_of
+    from delegation.costs import search_polygons_xy
+    from delegation.geo import GeoPoint, LocalFrame
+
+    originals = {n.node_uuid: n for _, n in walk(x.plan.source)}
+    parts = {n.node_uuid: n for n in leaves(x.planned)}
+    out: list[str] = []
+    for search in x.plan.shared:
+        node = originals.get(search.node_uuid)
+        if node is None:
+            out.append(f"shared search {search.node_uuid} is not in the caller's tree")
+            continue
+        pts = [GeoPoint.model_validate(p) for p in _geopoints(node.params)]
+        frame = LocalFrame.around(pts)
+        area = region_of(search_polygons_xy(node, frame))
+        pieces = []
+        for part in search.parts:
+            leaf = parts.get(part.node_uuid)
+            if leaf is None:
+                out.append(f"part {part.node_uuid} of {search.node_uuid} is not in the plan")
+                continue
+            pieces.append(region_of(search_polygons_xy(leaf, frame)))
+            got = x.assigned.get(part.node_uuid)
+            if got is not None and got.execunit != "/" + part.unit:
+                out.append(f"part {part.node_uuid} was cut for {part.unit}, runs on {got.execunit}")
+        if not pieces:
+            continue
+        import shapely
+
+        union = shapely.union_all(pieces)
+        outside = float(shapely.difference(union, area).area)
+        uncovered = float(shapely.difference(area, union).area)
+        overlap = sum(float(p.area) for p in pieces) - float(union.area)
+        for what, value in (("outside", outside), ("uncovered", uncovered), ("overlap", overlap)):
+            if value > COVER_TOL * float(area.area):
+                out.append(f"shared search {search.node_uuid}: {value:.0f} m2 {what} "
+                           f"({value / float(area.area):.2%} of its area)")
+    return out
+
+
+def _geopoints(params: dict[str, object]) -> list[object]:
+    """Every GeoPoint value of a search's parameters (its area(s) or centre)."""
+    if "area" in params and isinstance(params["area"], list):
+        return list(params["area"])
+    if "areas" in params and isinstance(params["areas"], list):
+        return [p for area in params["areas"] if isinstance(area, list) for p in area]
+    centre = params.get("geopoint")
+    return [centre[0] if isinstance(centre, list) else centre]
+
+
 CHECKS: list[Callable[[_Subject], list[str]]] = [
     _tasks_kept,
     _each_task_once,
@@ -372,6 +445,7 @@ CHECKS: list[Callable[[_Subject], list[str]]] = [
     _routes_exact,
     _times_and_totals,
     _tree_runs,
+    _shared_searches,
 ]
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
+import uuid as uuid_module
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -12,12 +14,20 @@ import numpy as np
 from delegation.allocation.auction import unassigned_reason
 from delegation.allocation.bounds import makespan_lower_bound
 from delegation.allocation.instantiate import Placement
-from delegation.allocation.plan import Assignment, Plan, Unassigned
+from delegation.allocation.plan import Assignment, Plan, SharedPart, SharedSearch, Unassigned
 from delegation.allocation.plausibility import plausibility_notes
-from delegation.allocation.problem import Problem, build_problem
+from delegation.allocation.problem import Problem, build_problem, flatten_tree
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
-from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective
+from delegation.allocation.share_plan import (
+    REFINEMENTS,
+    SharedTree,
+    measured,
+    share_searches,
+    worth_sharing,
+)
+from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective, StrategyResult
+from delegation.costs import CostTables, cost_tables
 from delegation.errors import InputError, InputProblem
 from delegation.tst import TstNode, with_defaults, with_uuids
 from delegation.tst.node import walk
@@ -64,8 +74,12 @@ def plan_mission(
     new_uuid: Callable[[], str] | None = None,
     limits: Limits = DEFAULT_LIMITS,
     stages: dict[str, float] | None = None,
+    split: bool = True,
 ) -> Plan:
     """Allocate ``units`` to the tasks of ``tree`` and return the plan with the instantiated tree.
+
+    With ``split`` (the default), ``auction`` and ``optimal`` may share a search among several
+    units (DESIGN 3.11, ``share_plan``); ``nearest`` never does.
 
     Never raises for infeasibility (those tasks go to ``unassigned``); raises ``InputError`` for an
     unknown strategy or objective or a tree that is not valid (a `ValidatedTree` was checked by
@@ -85,19 +99,83 @@ def plan_mission(
         log.warning("implausible input: %s", warning)
     began = time.perf_counter()
     prepared = with_defaults(with_uuids(tree, new_uuid))
-    problem = build_problem(prepared, units)
+    tables = cost_tables(list(units), [node for _, node in flatten_tree(prepared)[1]])
+    problem = build_problem(prepared, units, tables)
     built = time.perf_counter()
-    result = STRATEGIES[strategy](problem, Objective(objective), time_limit)
+    sharing = split and strategy != "nearest" and any(
+        worth_sharing(problem, tables, t) for t in range(problem.n_tasks))
+    planned, shared = prepared, None
+    if sharing:
+        shared, problem, result = _share_or_not(
+            prepared, units, problem, tables, strategy, Objective(objective), time_limit,
+            new_uuid or _uuid4)
+        if shared is not None:
+            planned = shared.tree
+    else:
+        result = STRATEGIES[strategy](problem, Objective(objective), time_limit)
     solved = time.perf_counter()
     plan = make_plan(
-        problem, result.schedule, prepared, strategy=strategy, objective=objective,
+        problem, result.schedule, planned, strategy=strategy, objective=objective,
         solve_time=solved - began, bound=result.bound, engine_unit=engine_unit,
         new_uuid=new_uuid, notes=[*warnings, *result.notes], fallback=result.fallback,
+        source=prepared, shared=shared,
     )
     if stages is not None:
         stages.update({"validation": began - clock, "problem": built - began,
                        "strategy": solved - built, "sent-tree": time.perf_counter() - solved})
     return plan
+
+
+def _uuid4() -> str:
+    return str(uuid_module.uuid4())
+
+
+def _share_or_not(
+    prepared: TstNode, units: Sequence[UnitState], problem: Problem, tables: CostTables,
+    strategy: str, objective: Objective, time_limit: float, new_uuid: Callable[[], str],
+) -> tuple[SharedTree | None, Problem, StrategyResult]:
+    """Plan with the searches shared or not, whichever is better: ``auction`` decides (for
+    ``optimal`` too, which then runs with its whole time limit on the tree chosen)."""
+    probe = "auction"
+    base = STRATEGIES[probe](problem, objective, time_limit)
+    better = _shared_plan(prepared, units, problem, tables, base, probe, objective, time_limit,
+                          new_uuid)
+    shared, chosen, result = (None, problem, base) if better is None else better
+    if strategy != probe:
+        result = STRATEGIES[strategy](chosen, objective, time_limit)
+    return shared, chosen, result
+
+
+def _shared_plan(
+    prepared: TstNode, units: Sequence[UnitState], problem: Problem, tables: CostTables,
+    result: StrategyResult, strategy: str, objective: Objective, time_limit: float,
+    new_uuid: Callable[[], str],
+) -> tuple[SharedTree, Problem, StrategyResult] | None:
+    """The plan with searches shared (``share_plan``), when it is better than ``result``:
+    parts sized from ``result``'s schedule, cut, measured, sized and cut again with their real
+    sweeps (``REFINEMENTS`` times), then planned by the same strategy with the rest of the
+    tree."""
+    shared = share_searches(prepared, problem, tables, result.schedule, new_uuid)
+    if shared is None:
+        return None
+    for _ in range(REFINEMENTS):
+        again = share_searches(prepared, problem, tables, result.schedule, new_uuid,
+                               measured(shared, tables))
+        if again is None:
+            break
+        shared = again
+    shared_problem = build_problem(shared.tree, units, _tables_of(shared.tree, units, tables))
+    outcome = STRATEGIES[strategy](shared_problem, objective, time_limit)
+    if outcome.schedule.key(objective) >= result.schedule.key(objective):
+        log.info("sharing searches did not improve the plan: kept the unshared one")
+        return None
+    return shared, shared_problem, outcome
+
+
+def _tables_of(tree: TstNode, units: Sequence[UnitState], like: CostTables) -> CostTables:
+    """Cost tables for ``tree``'s leaves in the frame of ``like``."""
+    return cost_tables(list(units), [node for _, node in flatten_tree(tree)[1]],
+                       frame=like.frame, exclude_busy=like.exclude_busy)
 
 
 def make_plan(
@@ -113,9 +191,14 @@ def make_plan(
     new_uuid: Callable[[], str] | None = None,
     notes: list[str] | None = None,
     fallback: str | None = None,
+    source: TstNode | None = None,
+    shared: SharedTree | None = None,
 ) -> Plan:
     """Turn a schedule (planned on the precedence graph) into a Plan: the tree to send
     (``sent_tree.choose_tree``) and its simulated times; assignments sorted by start, then unit.
+
+    ``prepared`` is the tree planned (with the parts of ``shared`` searches, if any); ``source``
+    the caller's (default ``prepared``).
     """
     placements = _placements(problem, schedule)
     sent = choose_tree(problem, schedule, prepared, placements, engine_unit, new_uuid)
@@ -172,12 +255,44 @@ def make_plan(
         unassigned=unassigned,
         tst=sent.tree,
         routes=routes,
-        notes=[*(notes or []), sent.note],
-        source=prepared,
+        notes=[*(notes or []), sent.note, *_share_notes(shared)],
+        source=prepared if source is None else source,
         precedence_makespan=precedence_makespan,
         fallback=fallback,
         lower_bound=makespan_lower_bound(problem),
+        shared=_shared_summary(shared, problem, schedule),
+        planned=None if shared is None else prepared,
     )
+
+
+def _shared_summary(shared: SharedTree | None, problem: Problem, schedule: Schedule
+                    ) -> list[SharedSearch]:
+    """The plan's account of each shared search: parts with their units, areas, sweeps and
+    times in the schedule of the tree sent."""
+    if shared is None:
+        return []
+    index = {task.uuid: t for t, task in enumerate(problem.tasks)}
+    out = []
+    for search in shared.searches:
+        parts = []
+        for part in search.parts:
+            t = index[part.node_uuid]
+            u = int(schedule.assign[t])
+            sweep = float(problem.work_distance[u, t]) if u >= 0 else math.nan
+            parts.append(SharedPart(part.node_uuid, problem.tasks[t].name, part.unit,
+                                    part.area_m2, sweep, float(schedule.start[t]),
+                                    float(schedule.end[t])))
+        out.append(SharedSearch(search.node_uuid, search.name, search.area_m2, search.bound,
+                                tuple(parts)))
+    return out
+
+
+def _share_notes(shared: SharedTree | None) -> list[str]:
+    if shared is None:
+        return []
+    return [f"{s.name} {s.node_uuid} ({s.area_m2 / 1e6:.3g} km2) shared among "
+            + ", ".join(f"{p.unit} ({p.area_m2 / s.area_m2:.0%})" for p in s.parts)
+            for s in shared.searches]
 
 
 def _placements(problem: Problem, schedule: Schedule) -> dict[str, Placement]:

@@ -1,13 +1,15 @@
 """``delegation plan SCENARIO``: plan a scenario's mission offline and print the plan.
 
 ``--format json`` prints exactly the plan of docs/plan.md §1 and nothing else on stdout; ``table``
-(the default) renders a summary, the assignments and the unassigned tasks with rich.
+(the default) renders a summary, the assignments, each shared search's parts (DESIGN 3.11) and
+the unassigned tasks with rich.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
@@ -17,7 +19,10 @@ from delegation.allocation.strategies import resolve_strategy
 from delegation.errors import DelegationError
 
 if TYPE_CHECKING:
+    from rich.table import Table
+
     from delegation.allocation import Plan
+    from delegation.allocation.plan import SharedSearch
 
 
 
@@ -79,6 +84,9 @@ def register(subparsers: Any) -> None:
                         help="what to minimise (default: makespan, ties broken by total time)")
     parser.add_argument("--time-limit", type=float, default=5.0, metavar="S",
                         help="solver time limit in seconds for optimal (default: 5)")
+    parser.add_argument("--no-split", dest="split", action="store_false",
+                        help="never share a search among units (auction and optimal share a "
+                        "search whose unit is free when that ends sooner)")
     parser.add_argument("--engine-unit", default="op0", metavar="NAME",
                         help="the TST engine that runs control nodes (default: op0)")
     parser.add_argument("--format", default="table", choices=("table", "json"),
@@ -105,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         objective=args.objective,
         time_limit=args.time_limit,
         engine_unit=args.engine_unit,
+        split=args.split,
     )
     plan.notes.extend([*input_warnings(tree, units), *notes])
     if args.format == "json":
@@ -115,7 +124,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _fmt(value: float | None, unit: str = "") -> str:
-    return "-" if value is None else f"{value:,.1f}{unit}"
+    return "-" if value is None or not math.isfinite(value) else f"{value:,.1f}{unit}"
+
+
+def _shared_table(search: SharedSearch) -> Table:
+    """One shared search (DESIGN 3.11): a row per part, the bound and the gap in the title."""
+    from rich.table import Table
+
+    gap = "-" if search.gap is None else f"{100 * search.gap:.1f} %"
+    table = Table(title=f"{search.name} {search.node_uuid} shared: {search.area_m2 / 1e6:.3f} km2, "
+                        f"ends {_fmt(search.end, ' s')}, bound {_fmt(search.bound, ' s')}, "
+                        f"gap {gap}")
+    for name in ("unit", "part", "area m2", "sweep m", "start s", "end s"):
+        table.add_column(name, justify="left" if name in ("unit", "part") else "right")
+    for p in search.parts:
+        table.add_row("/" + p.unit, p.name, f"{p.area_m2:,.0f}", _fmt(p.sweep_m), _fmt(p.start),
+                      _fmt(p.end))
+    return table
 
 
 def render_table(plan: Plan, title: str) -> None:
@@ -156,6 +181,8 @@ def render_table(plan: Plan, title: str) -> None:
                  _fmt(a.distance)]
         table.add_row(*cells)
     console.print(table)
+    for search in plan.shared:
+        console.print(_shared_table(search))
     if plan.unassigned:
         missing = Table(title="unassigned")
         missing.add_column("task")

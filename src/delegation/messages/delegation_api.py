@@ -49,6 +49,8 @@ class Delegate(Command):
     #: mission (nothing to cancel, nothing in ``list-missions``), never started (``start``
     #: ignored).
     preview: StrictBool = False
+    #: ``false``: no search is shared among units (DESIGN 3.11); the planner's choice otherwise.
+    split: StrictBool = True
 
 
 class GetBids(Command):

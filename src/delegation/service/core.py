@@ -364,7 +364,8 @@ class ServiceCore:
             return self.desk.respond("delegation", key, DelegationResponse(response="pong",
                                                                            response_to=key[1]))
         if isinstance(cmd, Delegate):
-            options = self.planning.options(cmd.strategy, cmd.objective, cmd.time_limit)
+            options = self.planning.options(cmd.strategy, cmd.objective, cmd.time_limit,
+                                            cmd.split)
             return self.planning.job("delegation", key, cmd.tst, now, options,
                                      start=cmd.start and not cmd.preview,
                                      source="preview" if cmd.preview else "delegate")

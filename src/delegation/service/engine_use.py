@@ -99,9 +99,10 @@ class EngineUse(MissionPart):
             effects.send(self.desk.topics.tst_feedback, TstFeedback(
                 node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
                 fail_reason=fb.fail_reason))
-        if operator is not None and operator.relayed(fb.node_uuid):
-            # The operator's control nodes the sent tree regrouped away: derived from their
-            # children (docs/protocol.md §8).
+        if operator is not None and operator.tracked(fb.node_uuid):
+            # The operator's control nodes the sent tree regrouped away, and shared searches
+            # whose parts' conc it regrouped away: derived from their children (docs/protocol.md
+            # §8, DESIGN 3.11).
             for uid, status in operator.changes(fb.node_uuid, mission.node_status):
                 effects.send(self.desk.topics.tst_feedback, TstFeedback(
                     node_uuid=uid, root_flag=uid == operator.root, status=status,

@@ -235,7 +235,8 @@ class FederatedPlanner:
 
     def __init__(self, root: TstNode, units: Sequence[UnitState], offers: Sequence[Offer], *,
                  strategy: str, objective: str, time_limit: float, engine_unit: str,
-                 limits: Limits = DEFAULT_LIMITS, kept: Sequence[Offer] = ()) -> None:
+                 limits: Limits = DEFAULT_LIMITS, kept: Sequence[Offer] = (),
+                 split: bool = True) -> None:
         self.root = root
         self.units = tuple(units)
         children = {c.node_uuid for c in root.children}
@@ -244,6 +245,8 @@ class FederatedPlanner:
         self.kept = [o for o in kept if o.covers and set(o.covers) <= children]
         self.strategy, self.objective = strategy, Objective(objective)
         self.time_limit, self.engine_unit, self.limits = time_limit, engine_unit, limits
+        #: Whether our own plans may share a search among units (``split: false`` says no).
+        self.split = split
         #: Our own plan of what is left, by the children given away (None: nothing left).
         self._own: dict[frozenset[str], Plan | None] = {}
         self.evaluations = 0
@@ -263,7 +266,7 @@ class FederatedPlanner:
             self._own[gone] = None if own_tree is None else plan_mission(
                 own_tree, self.units, strategy="auction", objective=self.objective,
                 time_limit=min(self.time_limit, COMPARE_TIME_LIMIT),
-                engine_unit=self.engine_unit, limits=self.limits)
+                engine_unit=self.engine_unit, limits=self.limits, split=self.split)
         return self._own[gone]
 
     def score(self, chosen: Sequence[Offer]) -> _Score:
@@ -317,7 +320,8 @@ class FederatedPlanner:
         own_tree = self.own_tree(chosen)
         own = None if own_tree is None else plan_mission(
             own_tree, self.units, strategy=self.strategy, objective=self.objective,
-            time_limit=self.time_limit, engine_unit=self.engine_unit, limits=self.limits)
+            time_limit=self.time_limit, engine_unit=self.engine_unit, limits=self.limits,
+            split=self.split)
         if not chosen and own is not None:
             own.notes.extend(self._notes(chosen, baseline))
             return own

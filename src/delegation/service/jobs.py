@@ -32,6 +32,8 @@ class PlanOptions:
     strategy: str
     objective: str
     time_limit: float
+    #: Searches may be shared among units (DESIGN 3.11; ``delegate``'s ``split``).
+    split: bool = True
 
 
 def plan_options(
@@ -41,6 +43,7 @@ def plan_options(
     *,
     defaults: PlanOptions,
     max_time_limit: float,
+    split: bool = True,
 ) -> PlanOptions:
     """The options a command asked for (``defaults`` where it did not); ``InputError`` naming a
     bad one, so the command is answered at once instead of after a trip to the planner."""
@@ -58,7 +61,7 @@ def plan_options(
         raise InputError(InputProblem("command", "time-limit",
                                  f"{time_limit:g} s is above this service's maximum of "
                                  f"{max_time_limit:g} s"))
-    return PlanOptions(strategy, objective, time_limit or defaults.time_limit)
+    return PlanOptions(strategy, objective, time_limit or defaults.time_limit, split)
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,7 +139,8 @@ def run_job(job: Job) -> JobResult:
             plan = FederatedPlanner(
                 job.tree.root, job.units, job.offers, strategy=job.options.strategy,
                 objective=job.options.objective, time_limit=job.options.time_limit,
-                engine_unit=job.engine, limits=job.limits, kept=kept).plan()
+                engine_unit=job.engine, limits=job.limits, kept=kept,
+                split=job.options.split).plan()
         else:
             plan = plan_mission(
                 job.tree,
@@ -145,6 +149,7 @@ def run_job(job: Job) -> JobResult:
                 objective=job.options.objective,
                 time_limit=job.options.time_limit,
                 engine_unit=job.engine,
+                split=job.options.split,
                 limits=job.limits,
             )
         used = {a.execunit.strip("/") for a in plan.assignments}

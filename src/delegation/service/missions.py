@@ -10,7 +10,7 @@ idempotency is `delegation.runtime.commands.CommandLog`, shared by every unit.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntFlag
 from typing import Any, Protocol
@@ -257,7 +257,8 @@ def mission_from_record(r: dict[str, Any]) -> Mission:
         redelegations=int(r.get("redelegations") or 0),
         owner=str(r.get("owner") or ""),
         # The operator's view is derived again from the tree received and the tree sent.
-        operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]))
+        operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]),
+                                  _part_map(r.get("plan") or {}))
                   if received and r.get("operator-view") else None),
     )
 
@@ -504,3 +505,14 @@ def failed_nodes_reason(mission: Mission) -> str:
         if info.is_task and mission.node_status.get(uid) == "failed"
     ]
     return "; ".join(parts)
+
+
+def _part_map(plan: Mapping[str, Any]) -> dict[str, list[str]]:
+    """Each shared search's uuid -> its parts' uuids, from a stored plan's ``shared-searches``
+    (DESIGN 3.11), so the operator's view is rebuilt the same after a restart."""
+    out: dict[str, list[str]] = {}
+    for search in plan.get("shared-searches") or ():
+        if isinstance(search, Mapping) and isinstance(search.get("parts"), list):
+            out[str(search.get("node-uuid"))] = [str(p.get("node-uuid")) for p in search["parts"]
+                                                 if isinstance(p, Mapping)]
+    return out

@@ -7,11 +7,17 @@ always kept). A control node of the operator's tree that the sent tree does not 
 from its children, as the engine computes a control node: failed when a child failed, aborted
 when a child was aborted (or revoked), succeeded when all succeeded, running once any child has
 started. Nodes that exist only in the sent tree are not shown.
+
+A search the plan shared among units (DESIGN 3.11) is sent as a ``conc`` of per-unit parts with
+the search's uuid; where the sent tree kept that ``conc``, the engine's feedback on it is relayed
+as the search's; where it regrouped it away, the search's status is derived from its parts' like
+a control node's (running when one runs, succeeded when all did). The parts themselves are not
+shown.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from delegation.tst.node import TstNode, walk
@@ -31,16 +37,26 @@ class OperatorView:
     leaves: set[str] = field(default_factory=set)
     kept: set[str] = field(default_factory=set)  # control nodes the sent tree has too
     shown: dict[str, str] = field(default_factory=dict)  # derived uuid -> last status published
+    #: Parts of shared searches whose ``conc`` the sent tree does not have (tracked, not shown).
+    parts: set[str] = field(default_factory=set)
 
     @classmethod
-    def of(cls, tree: TstNode, sent: TstNode | None = None) -> OperatorView:
+    def of(cls, tree: TstNode, sent: TstNode | None = None,
+           shared: Mapping[str, Sequence[str]] | None = None) -> OperatorView:
         """The view of a tree with a uuid on every node (the plan's ``source``); ``sent``: the
-        tree sent (its control nodes with the operator's uuids are relayed, not derived)."""
+        tree sent (its control nodes with the operator's uuids are relayed, not derived);
+        ``shared``: each shared search's uuid -> its parts' uuids (``Plan.part_map``)."""
         view = cls(root=tree.node_uuid or "")
         if sent is not None:
             view.kept = {n.node_uuid or "" for _, n in walk(sent) if n.is_control}
         for _, node in walk(tree):
             uid = node.node_uuid or ""
+            if not node.is_control and uid in (shared or {}) and uid not in view.kept:
+                view.children[uid] = list((shared or {})[uid])
+                for part in view.children[uid]:
+                    view.parent[part] = uid
+                    view.parts.add(part)
+                continue
             if not node.is_control:
                 view.leaves.add(uid)
                 continue
@@ -58,9 +74,14 @@ class OperatorView:
         return node_uuid in self.leaves or (node_uuid in self.children
                                             and node_uuid in self.kept)
 
+    def tracked(self, node_uuid: str) -> bool:
+        """The engine's feedback on this node moves the view: relayed, or a shared search's
+        part (shown only through the search's derived status)."""
+        return self.relayed(node_uuid) or node_uuid in self.parts
+
     def derive(self, node_uuid: str, statuses: Mapping[str, str]) -> str:
         """A control node's status from its children's (leaves: as the engine said)."""
-        if self.relayed(node_uuid):
+        if self.relayed(node_uuid) or node_uuid in self.parts:
             return statuses.get(node_uuid, "not-active")
         kids = [self.derive(k, statuses) for k in self.children.get(node_uuid, [])]
         if "failed" in kids:

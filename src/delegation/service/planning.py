@@ -84,13 +84,14 @@ class Planning(MissionPart):
         return self._job_ids
 
     def options(
-        self, strategy: str | None, objective: str | None, time_limit: float | None
+        self, strategy: str | None, objective: str | None, time_limit: float | None,
+        split: bool = True,
     ) -> PlanOptions:
         """The options asked for, this service's defaults elsewhere; ``InputError`` if bad."""
         c = self.config
         return plan_options(strategy, objective, time_limit,
                             defaults=PlanOptions(c.strategy, c.objective, c.time_limit),
-                            max_time_limit=c.max_time_limit)
+                            max_time_limit=c.max_time_limit, split=split)
 
     def job(
         self,
@@ -191,7 +192,7 @@ class Planning(MissionPart):
                               tst=plan_json["tst"], plan=plan_json,
                               nodes={**(node_infos(plan.source) if plan.source else {}),
                                      **node_infos(plan.tst)},
-                              operator=(OperatorView.of(plan.source, plan.tst)
+                              operator=(OperatorView.of(plan.source, plan.tst, plan.part_map())
                                         if plan.source else None),
                               received=to_dict(job.tree.root), command=job.key,
                               owner=self.desk.caller(job.key)))

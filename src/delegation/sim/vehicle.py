@@ -35,8 +35,6 @@ NOT_SUPPORTED = "Task is not supported"
 INVALID_TASK_UUID = "Invalid task-uuid"
 BATTERY_EMPTY = "battery depleted"
 
-#: Endurance (s at full battery) assumed for draining when a unit's endurance is unknown.
-DEFAULT_ENDURANCE_S = 3600.0
 #: How many finished tasks a vehicle remembers for query-status.
 HISTORY = 1000
 
@@ -156,7 +154,12 @@ class SimVehicle:
 
     @property
     def endurance(self) -> float:
-        return float(self.unit.endurance) if self.unit.endurance else DEFAULT_ENDURANCE_S
+        """Seconds at full battery, as the planner counts them (``UnitState.remaining_endurance``,
+        docs/plan.md §2.5): the unit's own; without one there is no limit, and the battery never
+        drains. (It drained as if the unit had 3,600 s, so a search the planner rightly found
+        feasible failed with "battery depleted": one model for both, issue 21.)"""
+        endurance = self.unit.endurance
+        return float(endurance) if endurance is not None and endurance > 0.0 else math.inf
 
     @property
     def busy(self) -> bool:

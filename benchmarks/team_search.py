@@ -1,0 +1,366 @@
+"""Searching as a team (DESIGN 3.11): sweeps, sharing, bounds, solve time.
+
+    python benchmarks/team_search.py                 # everything below
+    python benchmarks/team_search.py --only sweeps   # (or team, mixed, endurance, speed)
+
+The polygons are generated here, deterministically (fixed seeds): coastline-like radial polygons
+with bays, and L, U, comb, crescent and star shapes, each scaled to 0.2-4 km2 (the published
+multi-robot coverage benchmark's polygons cannot be downloaded here). For each polygon and sweep
+width it prints the coverage path length over ``A / w`` (the area divided by the sweep width: no
+turns, no overlap), once with the lanes along the minimum rectangle's long axis (the old rule) and
+once along the direction ``delegation.coverage.sweep_direction`` chooses, then the geometric mean
+and the worst of each.
+
+``team``: each polygon searched (``execunit: "*"``) by a heterogeneous fleet of 3-6 units (drones
+of different speeds, 37 m lanes; a boat, 9 m lanes), placed 0.5-2.5 km from the area (seeded):
+the makespan of ``auction`` over the 3.11 lower bound (geometric mean and worst), the same with
+``--no-split`` (one unit) and with ``nearest``, the share of the area the parts cover (union) and
+how much they overlap, and the solve time. ``mixed``: the search inside a tree with other tasks
+(seq and conc around it): the search's end over its bound. ``endurance``: drones whose endurance
+is too short for the area alone, the fleet's total 1.1 x or more what the area needs: feasible?
+``speed``: ``auction`` on 10 units and 20 tasks with two large searches (wall time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import random
+import time
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from delegation.allocation import plan_mission
+from delegation.allocation.planner import flatten_tree
+from delegation.allocation.problem import build_problem
+from delegation.allocation.share_plan import search_bound
+from delegation.allocation.sharing import region_of
+from delegation.costs import cost_tables, search_polygons_xy, sweep_width, task_path
+from delegation.coverage import coverage_length, sweep_axes, sweep_direction
+from delegation.fleet import UnitState, make_unit
+from delegation.geo import GeoPoint, LocalFrame
+from delegation.tst import TstNode, make_node, with_defaults, with_uuids
+
+FRAME = LocalFrame(57.76, 16.68)
+TASKS = ("move-to", "move-path", "search-area", "search-areas", "search-around-position")
+
+#: Sweep widths (m): a drone at 40 m with a 60 degree camera, and a boat at 10 m.
+WIDTHS = (37.0, 9.2)
+#: Areas (km2) the shapes are scaled to, in turn.
+AREAS_KM2 = (0.2, 0.5, 1.0, 2.0, 4.0)
+
+
+def _coast(seed: int, n: int = 48) -> np.ndarray:
+    """A star-shaped polygon with a ragged, coastline-like boundary and two or three deep bays."""
+    rng = random.Random(seed)
+    bays = [(rng.uniform(0, 2 * math.pi), rng.uniform(0.25, 0.5), rng.uniform(0.2, 0.45))
+            for _ in range(rng.randint(2, 3))]
+    pts = []
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        r = 1.0 + 0.12 * rng.uniform(-1, 1)
+        for centre, width, depth in bays:
+            d = abs((a - centre + math.pi) % (2 * math.pi) - math.pi)
+            if d < width:
+                r -= depth * (1 - d / width)
+        stretch = 1.6 if seed % 2 else 1.0
+        pts.append((stretch * r * math.cos(a), r * math.sin(a)))
+    return np.array(pts)
+
+
+def _shapes() -> dict[str, np.ndarray]:
+    shapes = {
+        "L": np.array([[0, 0], [3, 0], [3, 1], [1, 1], [1, 3], [0, 3]], dtype=float),
+        "U": np.array([[0, 0], [3, 0], [3, 2], [2, 2], [2, 1], [1, 1], [1, 2], [0, 2]],
+                      dtype=float),
+        "comb": np.array([[0, 0], [5, 0], [5, 3], [4, 3], [4, 1], [3, 1], [3, 3], [2, 3],
+                          [2, 1], [1, 1], [1, 3], [0, 3]], dtype=float),
+        "crescent": np.array(
+            [[math.cos(a), math.sin(a)] for a in np.linspace(0.0, math.pi, 24)]
+            + [[0.6 * math.cos(a), 0.45 * math.sin(a)] for a in np.linspace(math.pi, 0.0, 24)]
+        ),
+        "star": np.array([[(1.0 if i % 2 == 0 else 0.5) * math.cos(math.pi * i / 5 + 0.3),
+                           (1.0 if i % 2 == 0 else 0.5) * math.sin(math.pi * i / 5 + 0.3)]
+                          for i in range(10)]),
+    }
+    for seed in range(5):
+        shapes[f"coast{seed}"] = _coast(seed)
+    return shapes
+
+
+def concave_polygons() -> dict[str, np.ndarray]:
+    """Name -> (N, 2) polygon in metres: every shape rotated by a fixed angle and scaled to one of
+    ``AREAS_KM2`` in turn (deterministic)."""
+    out = {}
+    for i, (name, shape) in enumerate(sorted(_shapes().items())):
+        area_km2 = AREAS_KM2[i % len(AREAS_KM2)]
+        a = math.radians(17.0 * i + 5.0)
+        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+        centred = (shape - shape.mean(axis=0)) @ rot.T
+        scale = math.sqrt(area_km2 * 1e6 / Polygon(centred).area)
+        out[f"{name}-{area_km2:g}km2"] = centred * scale
+    return out
+
+
+def _geo_mean(xs: list[float]) -> float:
+    return math.exp(sum(math.log(x) for x in xs) / len(xs))
+
+
+def sweep_overhead(widths: tuple[float, ...]) -> None:
+    """Print path / (A / w) per polygon and width, old rule and chosen direction."""
+    old_all: list[float] = []
+    new_all: list[float] = []
+    print(f"{'polygon':<20} {'w m':>5} {'A/w m':>9} {'old':>6} {'chosen':>7} {'choose s':>9}")
+    for name, poly in concave_polygons().items():
+        area = Polygon(poly).area
+        for w in widths:
+            ideal = area / w
+            old = coverage_length(poly, w, along=sweep_axes(poly)[0]) / ideal
+            t0 = time.perf_counter()
+            along = sweep_direction(poly, w)
+            took = time.perf_counter() - t0
+            new = coverage_length(poly, w, along=along) / ideal
+            old_all.append(old)
+            new_all.append(new)
+            print(f"{name:<20} {w:5.1f} {ideal:9.0f} {old:6.3f} {new:7.3f} {took:9.3f}")
+    print(f"sweep overhead path/(A/w): long-axis rule geo-mean {_geo_mean(old_all):.3f} "
+          f"worst {max(old_all):.3f}; chosen direction geo-mean {_geo_mean(new_all):.3f} "
+          f"worst {max(new_all):.3f} ({len(new_all)} sweeps)")
+
+
+def _geo(x: float, y: float, altitude: float = 40.0) -> dict[str, float]:
+    lat, lon = FRAME.to_geo(x, y)
+    return {"latitude": float(lat), "longitude": float(lon), "altitude": altitude}
+
+
+def _unit(name: str, kind: str, x: float, y: float, **kw: object) -> UnitState:
+    lat, lon = FRAME.to_geo(x, y)
+    point = GeoPoint(latitude=float(lat), longitude=float(lon), altitude=0.0)
+    return make_unit(name, kind, point, TASKS, **kw)  # type: ignore[arg-type]
+
+
+def fleet(seed: int, poly: np.ndarray, endurance: float | None = None) -> list[UnitState]:
+    """3-6 units around the area: drones at 2.5-4 m/s standard, one boat in every other fleet."""
+    rng = random.Random(seed)
+    n = 3 + seed % 4
+    reach = float(np.hypot(*(poly - poly.mean(axis=0)).T).max())
+    units = []
+    for i in range(n):
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        r = reach + rng.uniform(500.0, 2500.0)
+        boat = i == n - 1 and seed % 2 == 0
+        std = rng.uniform(2.5, 4.0) if not boat else 2.5
+        units.append(_unit(f"{'usv' if boat else 'dji'}{i}", "surface" if boat else "air",
+                           r * math.cos(a), r * math.sin(a),
+                           speeds={"slow": std / 2, "standard": std, "fast": 2 * std},
+                           endurance=None if boat else endurance))
+    return units
+
+
+def _search(poly: np.ndarray) -> TstNode:
+    return make_node("search-area", execunit="*", params={
+        "area": [_geo(x, y) for x, y in poly], "speed": "standard", "target-size": 2.0})
+
+
+def _bound(tree: TstNode, units: list[UnitState], uuid: str) -> float:
+    """The 3.11 bound of the search ``uuid`` with every unit free at the start."""
+    prepared = with_defaults(with_uuids(tree))
+    tables = cost_tables(units, [node for _, node in flatten_tree(prepared)[1]])
+    problem = build_problem(prepared, units, tables)
+    t = next(t for t, task in enumerate(problem.tasks) if task.uuid == uuid)
+    return search_bound(problem, tables, None, t)
+
+
+def _parts_cover(plan, tree: TstNode) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """(union of the parts / area, overlap / area) of the plan's one shared search."""
+    if not plan.shared:
+        return 1.0, 0.0
+    frame = LocalFrame(57.76, 16.68)
+    area = region_of(search_polygons_xy(tree, frame))
+    leaves = {n.node_uuid: n for _, n in flatten_tree(plan.planned)[1]}
+    parts = [region_of(search_polygons_xy(leaves[p.node_uuid], frame))
+             for p in plan.shared[0].parts]
+    union = shapely.union_all(parts)
+    inside = float(shapely.intersection(union, area).area)
+    return inside / area.area, (sum(p.area for p in parts) - union.area) / area.area
+
+
+def _swept(plan, tree: TstNode, units: list[UnitState]  # type: ignore[no-untyped-def]
+           ) -> tuple[float, float]:
+    """(area within w/2 of some unit's flown path / area, area swept by two units' paths /
+    area): what the paths the simulator flies (``costs.task_path``) cover, each part with its
+    unit's own width; the single-unit path for an unshared plan."""
+    frame = LocalFrame(57.76, 16.68)
+    area = region_of(search_polygons_xy(tree, frame))
+    by_name = {u.name: u for u in units}
+    leaves = {n.node_uuid: n for _, n in flatten_tree(plan.planned or plan.tst)[1]}
+    bands = []
+    for a in plan.assignments:
+        unit = by_name[a.execunit.strip("/")]
+        node = leaves.get(a.node_uuid) or tree
+        points = task_path(node, unit, frame)
+        xy = frame.points_xy(points)
+        g = node.params.get("target-size", 2.0)
+        w = sweep_width(unit, float(g))
+        bands.append(shapely.LineString(xy).buffer(w / 2.0, cap_style="flat")
+                     if len(xy) > 1 else shapely.Point(xy[0]).buffer(w / 2.0))
+    union = shapely.union_all(bands)
+    covered = float(shapely.intersection(union, area).area) / area.area
+    twice = (sum(float(shapely.intersection(b, area).area) for b in bands)
+             - float(shapely.intersection(union, area).area)) / area.area
+    return covered, twice
+
+
+def team(seeds: int) -> None:
+    """Makespan / bound per polygon and fleet: shared (auction), one unit, nearest."""
+    rows: dict[str, list[float]] = {"auction": [], "no-split": [], "nearest": []}
+    covers, overlaps, solves, swept, twice = [], [], [], [], []
+    print(f"{'polygon':<20} {'units':>5} {'bound s':>8} {'auction':>8} {'no-split':>8} "
+          f"{'nearest':>8} {'parts':>5} {'cover':>7} {'overlap':>7} {'solve s':>7} {'cpu s':>7}")
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            units = fleet(10 * k + seed, poly)
+            tree = with_uuids(_search(poly))
+            cpu = time.process_time()
+            shared = plan_mission(tree, units, strategy="auction")
+            cpu = time.process_time() - cpu
+            alone = plan_mission(tree, units, strategy="auction", split=False)
+            near = plan_mission(tree, units, strategy="nearest")
+            bound = _bound(tree, units, tree.node_uuid or "")
+            cover, overlap = _parts_cover(shared, tree)
+            for key, plan in (("auction", shared), ("no-split", alone), ("nearest", near)):
+                rows[key].append(plan.makespan / bound)
+            covers.append(cover)
+            overlaps.append(overlap)
+            flown = _swept(shared, tree, units)
+            swept.append(flown[0])
+            twice.append(flown[1])
+            solves.append(cpu)
+            parts = len(shared.shared[0].parts) if shared.shared else 1
+            print(f"{name:<20} {len(units):5d} {bound:8.0f} {rows['auction'][-1]:8.3f} "
+                  f"{rows['no-split'][-1]:8.3f} {rows['nearest'][-1]:8.3f} {parts:5d} "
+                  f"{cover:7.2%} {overlap:7.2%} {shared.solve_time:7.3f} {cpu:7.3f}")
+    for key, ratios in rows.items():
+        print(f"makespan / bound, {key}: geo-mean {_geo_mean(ratios):.3f}, worst {max(ratios):.3f}")
+    gains = [a / b for a, b in zip(rows["auction"], rows["no-split"], strict=True)]
+    print(f"sharing vs one unit (auction / no-split makespan): geo-mean {_geo_mean(gains):.3f}")
+    print(f"parts: union covers >= {min(covers):.3%} of the area, overlap <= {max(overlaps):.3%}; "
+          f"auction CPU time (first plan of each area, caches cold) median "
+          f"{sorted(solves)[len(solves) // 2]:.3f} s, max {max(solves):.3f} s")
+    print(f"flown paths (w/2 either side): cover >= {min(swept):.2%} of the area (geo-mean "
+          f"{_geo_mean(swept):.2%}), swept twice <= {max(twice):.2%}")
+
+
+def _move(x: float, y: float) -> TstNode:
+    return make_node("move-to", execunit="*", params={"waypoint": _geo(x, y), "speed": "standard"})
+
+
+def _path(rng: random.Random, reach: float) -> TstNode:
+    pts = [_geo(rng.uniform(-reach, reach), rng.uniform(-reach, reach)) for _ in range(3)]
+    return make_node("move-path", execunit="*", params={"waypoints": pts, "speed": "standard"})
+
+
+def mixed(seeds: int) -> None:
+    """The search inside seq(move-to, conc(search, move-path, move-to), move-to): its end over
+    its bound (units busy first, the bound from when each could be there)."""
+    ratios = []
+    print(f"{'polygon':<20} {'units':>5} {'search end':>10} {'bound s':>8} {'ratio':>6} "
+          f"{'makespan':>9}")
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            rng = random.Random(100 + 10 * k + seed)
+            units = fleet(10 * k + seed, poly)
+            reach = float(np.hypot(*(poly - poly.mean(axis=0)).T).max()) + 1000.0
+            tree = make_node("seq", children=[
+                _move(rng.uniform(-reach, reach), rng.uniform(-reach, reach)),
+                make_node("conc", children=[_search(poly), _path(rng, reach),
+                                            _move(rng.uniform(-reach, reach), -reach)]),
+                _move(rng.uniform(-reach, reach), reach)])
+            plan = plan_mission(tree, units, strategy="auction")
+            if not plan.shared:
+                print(f"{name:<20} {len(units):5d} not shared")
+                continue
+            s = plan.shared[0]
+            ratios.append(s.end / s.bound)
+            print(f"{name:<20} {len(units):5d} {s.end:10.0f} {s.bound:8.0f} {ratios[-1]:6.3f} "
+                  f"{plan.makespan:9.0f}")
+    print(f"search end / its bound with other tasks: geo-mean {_geo_mean(ratios):.3f}, worst "
+          f"{max(ratios):.3f} ({len(ratios)} trees)")
+
+
+def endurance(seeds: int) -> None:
+    """Drones whose endurance is 45 % of what the best of them needs for the area alone, four
+    of them (1.8 x the area's need in total): is the plan feasible, and within endurance?"""
+    feasible, total = 0, 0
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            probe = [u for u in fleet(10 * k + seed, poly) if u.agent_type == "air"]
+            tree = with_uuids(_search(poly))
+            alone = plan_mission(tree, probe, strategy="auction", split=False)
+            need = min(a.end for a in alone.assignments)
+            limit = 0.45 * need
+            units = [dataclasses.replace(u, endurance=limit) for u in fleet(10 * k + seed, poly)
+                     if u.agent_type == "air"]
+            units = (units * 2)[:4] if len(units) < 4 else units[:4]
+            units = [dataclasses.replace(u, name=f"dji{i}") for i, u in enumerate(units)]
+            plan = plan_mission(tree, units, strategy="auction")
+            one = plan_mission(tree, units, strategy="auction", split=False)
+            total += 1
+            ok = plan.feasible and all(
+                sum(a.travel_time + a.work_time for a in r) <= limit * (1 + 1e-9)
+                for r in plan.routes.values())
+            feasible += ok
+            verdict = "feasible" if ok else "INFEASIBLE"
+            print(f"{name:<20} endurance {limit:7.0f} s x 4: shared {verdict} "
+                  f"({len(plan.assignments)} parts, makespan {plan.makespan:.0f} s); one unit "
+                  f"{'feasible' if one.feasible else 'infeasible'}")
+    print(f"endurance: {feasible} of {total} areas needing 2.2+ units' endurance planned feasibly")
+
+
+def speed(repeats: int = 3) -> None:
+    """``auction`` on 10 units and 20 tasks with two large searches: wall and CPU time."""
+    polys = concave_polygons()
+    rng = random.Random(7)
+    a, b = polys["coast1-2km2"], polys["star-4km2"] + np.array([4000.0, 0.0])
+    units = [_unit(f"dji{i}", "air", rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3))
+             for i in range(8)]
+    units += [_unit(f"usv{i}", "surface", rng.uniform(-3e3, 6e3), -3500.0) for i in range(2)]
+    others = [_move(rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3)) for _ in range(12)]
+    others += [_path(rng, 3000.0) for _ in range(6)]
+    for run in range(repeats):
+        tree = make_node("conc", children=[
+            make_node("seq", children=[others[0], _search(a), others[1]]),
+            _search(b), *others[2:]])
+        wall, cpu = time.perf_counter(), time.process_time()
+        plan = plan_mission(tree, units, strategy="auction")
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        print(f"auction, 10 units, 20 tasks, two searches (run {run + 1}, "
+              f"{'caches cold' if run == 0 else 'same areas again'}): {wall:.3f} s wall, "
+              f"{cpu:.3f} s CPU; {len(plan.shared)} shared, feasible {plan.feasible}, makespan "
+              f"{plan.makespan:.0f} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--widths", type=float, nargs="+", default=list(WIDTHS))
+    parser.add_argument("--only", choices=("sweeps", "team", "mixed", "endurance", "speed"),
+                        default=None)
+    parser.add_argument("--seeds", type=int, default=2, help="fleets per polygon (default 2)")
+    args = parser.parse_args()
+    if args.only in (None, "sweeps"):
+        sweep_overhead(tuple(args.widths))
+    if args.only in (None, "team"):
+        team(args.seeds)
+    if args.only in (None, "mixed"):
+        mixed(args.seeds)
+    if args.only in (None, "endurance"):
+        endurance(args.seeds)
+    if args.only in (None, "speed"):
+        speed()
+
+
+if __name__ == "__main__":
+    main()

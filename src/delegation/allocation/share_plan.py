@@ -1,0 +1,317 @@
+"""Which searches to share, among whom, and the tree that carries the parts (DESIGN 3.11).
+
+Pure: no network, no clock. ``planner.plan_mission`` plans the tree as given first; for each
+search a strategy may share (``sharing.SHAREABLE``, its ``execunit`` free), this module reads from
+that schedule when each unit could be at the area (``a_i``: free of the tasks it does that need not
+wait for the search, then its flight there), how fast it sweeps and how much endurance it has left,
+sizes the parts by water filling and cuts the area (``sharing``). The node becomes a ``conc`` with
+the node's own uuid and every other common field, holding one ``search-area`` per unit (a part in
+several pieces: a ``search-areas``) with that unit fixed, every other parameter copied. The
+planner then plans the tree with the parts (the rest of the tree is allocated around them) and
+keeps whichever of the two plans is better. Once the parts are cut, their real sweep lengths are
+known: the shares are sized again with each unit's real overhead and flight to where its sweep
+starts, and the area cut again (``REFINEMENTS`` times).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import shapely
+from shapely.geometry import Point
+
+from delegation.allocation.sharing import (
+    PLAN_OVERHEAD,
+    SHAREABLE,
+    Sharer,
+    divide,
+    lower_bound,
+    pieces_xy,
+    region_of,
+    shares,
+)
+from delegation.tst import ExecUnitKind, TstNode, classify_execunit, map_tree
+
+if TYPE_CHECKING:
+    from delegation.allocation.problem import Problem
+    from delegation.allocation.schedule import Schedule
+    from delegation.costs import CostTables
+    from delegation.geo import LocalFrame
+
+#: Parameters that say where a search is: replaced by each part's own.
+_GEOMETRY = ("area", "areas", "geopoint", "radius")
+#: A search is worth sharing when its 3.11 bound is below this share of what the quickest unit
+#: alone needs (travel and sweep): small searches stay whole (cutting them costs more planning
+#: time than it saves mission time).
+WORTH_SHARING = 0.6
+#: How many times the shares are sized again from the parts' real sweeps.
+REFINEMENTS = 2
+#: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
+#: is known only once the part is cut; the refinement and the plan's check do the rest).
+ENDURANCE_MARGIN = 0.97
+
+
+@dataclass(frozen=True, slots=True)
+class Fit:
+    """What a unit's earlier part measured: its sweep overhead (path / (A / w)) and where its
+    sweep started (east, north m)."""
+
+    overhead: float
+    start: tuple[float, float] | None = None
+
+
+#: Per shared search uuid, per unit index: what its part measured.
+Fits = dict[str, dict[int, Fit]]
+
+
+@dataclass(frozen=True)
+class Part:
+    """One unit's part of a shared search, as planned."""
+
+    node_uuid: str
+    unit: str
+    area_m2: float
+    polygons_xy: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class SharedSearch:
+    """A search node shared among units: its parts and the lower bound of 3.11 for it."""
+
+    node_uuid: str
+    name: str
+    area_m2: float
+    bound: float
+    parts: tuple[Part, ...]
+
+
+@dataclass
+class SharedTree:
+    """The tree with the shared searches replaced by their parts."""
+
+    tree: TstNode
+    searches: list[SharedSearch] = field(default_factory=list)
+
+    def parts_of(self) -> dict[str, list[str]]:
+        """Operator node uuid -> its parts' uuids."""
+        return {s.node_uuid: [p.node_uuid for p in s.parts] for s in self.searches}
+
+
+def shareable(node: TstNode) -> bool:
+    """A search whose unit the service chooses (a fixed unit or an alias is never shared)."""
+    if node.name not in SHAREABLE or node.is_control:
+        return False
+    try:
+        kind, _ = classify_execunit(node.execunit)
+    except TypeError:
+        return False
+    return kind is ExecUnitKind.FREE
+
+
+def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
+             region: shapely.Geometry, fits: dict[int, Fit]) -> list[Sharer]:
+    """The units that could sweep part of task ``t``'s area, read from ``schedule`` (None:
+    every unit free at the start)."""
+    node_of = problem.structure.node_of_task[t]
+    act = 0.0
+    if (schedule is not None and schedule.node_act is not None
+            and math.isfinite(float(schedule.node_act[node_of]))):
+        act = float(schedule.node_act[node_of])
+    before = problem.before
+    out = []
+    for u, unit in enumerate(tables.units):
+        width, speed = float(tables.width[u, t]), float(tables.speed[u, t])
+        if not (unit.alive and "search-area" in unit.tasks and tables.listed[u, t]
+                and math.isfinite(width) and width > 0.0 and speed > 0.0):
+            continue
+        if tables.exclude_busy and unit.busy:
+            continue
+        free = 0.0 if problem.ready is None else float(problem.ready[u])
+        free, used, prior = max(act, free), 0.0, list[int]()
+        if schedule is not None:
+            prior = [k for k in schedule.orders[u] if k != t and not before[t, k]]
+            free = max([free] + [float(schedule.end[k]) for k in prior])
+            used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
+        here = tables.unit_xy[u]
+        if prior and schedule is not None:
+            ends = schedule.end
+            last = max(prior, key=lambda k: float(ends[k]))
+            end = tables.end_for(u, last)
+            here = here if end is None else end
+        fit = fits.get(u, Fit(PLAN_OVERHEAD))
+        if fit.start is not None:
+            travel = float(np.hypot(fit.start[0] - here[0], fit.start[1] - here[1])) / speed
+        else:
+            travel = float(region.distance(Point(here))) / speed
+        rate = speed * width / fit.overhead
+        cap = math.inf
+        if math.isfinite(float(tables.endurance[u])):
+            back = 0.0
+            if not np.isnan(tables.home_xy[u]).any():
+                back = float(region.distance(Point(tables.home_xy[u]))) / speed
+            left = (float(tables.endurance[u]) - used - travel - back) * ENDURANCE_MARGIN
+            cap = max(0.0, left) * rate
+        out.append(Sharer(u, free + travel, rate, cap, (float(here[0]), float(here[1]))))
+    return out
+
+
+def _part_node(original: TstNode, polygons: list[np.ndarray], frame: LocalFrame, unit: str,
+               uuid: str) -> TstNode:
+    """One unit's part: a ``search-area`` (one piece) or ``search-areas`` (several), the
+    original's other parameters copied, the unit fixed."""
+    altitude = _altitude(original)
+    rings = []
+    for poly in polygons:
+        lat, lon = frame.to_geo(poly[:, 0], poly[:, 1])
+        rings.append([{"latitude": float(a), "longitude": float(b), "altitude": altitude}
+                      for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon), strict=True)])
+    params: dict[str, Any] = {k: v for k, v in original.params.items() if k not in _GEOMETRY}
+    if len(rings) == 1:
+        name, params["area"] = "search-area", rings[0]
+    else:
+        name, params["areas"] = "search-areas", rings
+    return TstNode(name=name, common_params={"execunit": "/" + unit, "node-uuid": uuid},
+                   params=params)
+
+
+def _altitude(node: TstNode) -> float:
+    """The altitude the original search is flown at (its first point's, or its centre's)."""
+    p = node.params
+    first: Any = p.get("geopoint")
+    if node.name == "search-area":
+        first = p["area"][0]
+    elif node.name == "search-areas":
+        first = p["areas"][0][0]
+    if isinstance(first, list) and first:
+        first = first[0]
+    value = first.get("altitude", 0.0) if isinstance(first, dict) else 0.0
+    return float(value) if isinstance(value, int | float) else 0.0
+
+
+def _conc_of(original: TstNode, parts: list[TstNode]) -> TstNode:
+    """The ``conc`` that replaces the original: its uuid and other common fields kept."""
+    common = {k: v for k, v in original.common_params.items() if k != "execunit"}
+    return TstNode(name="conc", children=tuple(parts), common_params=common,
+                   extra=dict(original.extra))
+
+
+def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int
+                 ) -> float:
+    """DESIGN 3.11's lower bound (s from mission start) for search task ``t``: each unit that
+    could take part sweeps ``speed x width`` m2/s, with no turns, from when it could be at the
+    area's nearest point (free of what it does first in ``schedule``; None: free at once)."""
+    from delegation.costs import search_polygons_xy
+
+    region = region_of(search_polygons_xy(problem.tasks[t].node, tables.frame))
+    raw = [replace(s, rate=s.rate * PLAN_OVERHEAD)
+           for s in _sharers(problem, tables, schedule, t, region, {})]
+    return lower_bound(float(region.area), raw)
+
+
+def worth_sharing(problem: Problem, tables: CostTables, t: int) -> bool:
+    """Task ``t`` may be shared (``shareable``) and sharing could end it much sooner than the
+    quickest unit alone (``WORTH_SHARING``), or no unit can do it alone (endurance)."""
+    if not shareable(problem.tasks[t].node):
+        return False
+    alone = tables.need_time[:, t][tables.listed[:, t]]
+    single = float(alone.min()) if len(alone) else math.inf
+    if not math.isfinite(single):
+        return True
+    return search_bound(problem, tables, None, t) < WORTH_SHARING * single
+
+
+def share_searches(
+    tree: TstNode,
+    problem: Problem,
+    tables: CostTables,
+    schedule: Schedule,
+    new_uuid: Callable[[], str],
+    fits: Fits | None = None,
+) -> SharedTree | None:
+    """``tree`` (the tree ``problem`` and ``tables`` were built from) with every search worth
+    sharing replaced by its parts (None when none is): a search is shared when at least two units
+    get a part, or when the one unit that can cover it is another than ``schedule``'s (or it had
+    none: endurance). ``fits``: what earlier parts measured (the refinement)."""
+    frame = tables.frame
+    from delegation.costs import search_polygons_xy
+
+    replaced: dict[str, TstNode] = {}
+    searches: list[SharedSearch] = []
+    for t, task in enumerate(problem.tasks):
+        if not worth_sharing(problem, tables, t):
+            continue
+        polygons = search_polygons_xy(task.node, frame)
+        if not polygons:
+            continue
+        region = region_of(polygons)
+        if region.is_empty or region.area <= 0.0:
+            continue
+        fit = (fits or {}).get(task.uuid, {})
+        sharers = _sharers(problem, tables, schedule, t, region, fit)
+        wanted = shares(float(region.area), sharers)
+        if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
+            continue
+        geoms = divide(region, wanted, {s.key: s.point for s in sharers})
+        bound = search_bound(problem, tables, schedule, t)
+        nodes, parts = [], []
+        for u in sorted(geoms, key=lambda k: tables.units[k].name):
+            pieces = pieces_xy(geoms[u])
+            if not pieces:
+                continue
+            uuid = new_uuid()
+            name = tables.units[u].name
+            nodes.append(_part_node(task.node, pieces, frame, name, uuid))
+            parts.append(Part(uuid, name, float(geoms[u].area), tuple(pieces)))
+        replaced[task.uuid] = _conc_of(task.node, nodes)
+        searches.append(SharedSearch(task.uuid, task.name, float(region.area), bound,
+                                     tuple(parts)))
+    if not replaced:
+        return None
+
+    def swap(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+        if not node.is_control and node.node_uuid in replaced:
+            return replaced[node.node_uuid or ""]
+        return replace(node, children=children) if node.is_control else node
+
+    return SharedTree(map_tree(tree, swap), searches)
+
+
+def measured(shared: SharedTree, tables: CostTables) -> Fits:
+    """Per shared search, per unit index: its part's real sweep length over ``A / w`` (at the
+    unit's width) and where its sweep starts (at the narrowest width of the units offering the
+    search, as the cost tables place a search's start), for sizing the shares again. ``tables``
+    are those of the tree before sharing (the parts' widths are their search's)."""
+    from delegation.coverage import coverage_path, multi_coverage_path, path_length
+
+    index = {node.node_uuid: t for t, node in enumerate(tables.tasks)}
+    names = {unit.name: u for u, unit in enumerate(tables.units)}
+    out: Fits = {}
+    for search in shared.searches:
+        t = index.get(search.node_uuid)
+        if t is None:
+            continue
+        col = tables.width[:, t]
+        offered = col[np.isfinite(col) & tables.listed[:, t]]
+        ref = float(offered.min()) if len(offered) else math.nan
+        per: dict[int, Fit] = {}
+        for part in search.parts:
+            u = names.get(part.unit)
+            width = math.nan if u is None else float(col[u])
+            if u is None or not width > 0.0 or part.area_m2 <= 0.0:
+                continue
+
+            def sweep(w: float, pieces: tuple[np.ndarray, ...] = part.polygons_xy) -> np.ndarray:
+                if len(pieces) == 1:
+                    return coverage_path(pieces[0], w)
+                return multi_coverage_path(list(pieces), w)
+
+            path = sweep(width)
+            start = path[0] if not (ref > 0.0) or ref == width else sweep(ref)[0]
+            per[u] = Fit(max(1.0, path_length(path) / (part.area_m2 / width)),
+                         (float(start[0]), float(start[1])))
+        out[search.node_uuid] = per
+    return out
