@@ -67,6 +67,15 @@ class SignalUnit(Command):
     unit: str
 
 
+class RebindTstNodes(Command):
+    """``rebind-tst-nodes`` (ours, not the seed's; docs/protocol.md §12.5): task nodes of an
+    executing tree run on other units from now on (``execunits``: node uuid -> ``/unit``), the
+    rest of the tree untouched. How the delegation service moves a lost unit's tasks."""
+
+    command: Literal["rebind-tst-nodes"] = "rebind-tst-nodes"
+    execunits: dict[str, str]
+
+
 class TstResponse(Answer):
     """The answer on ``tst/response`` (seed 14.4): ``ok``, ``started`` (with ``root-uuid``),
     ``failed`` (with ``fail-reason``), ``pong``.
