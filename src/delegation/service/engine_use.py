@@ -108,7 +108,8 @@ class EngineUse(MissionPart):
                     fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
         effects.extend(self.lifecycle.publish(events))
         if retry is not None:
-            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now))
+            # The engine already stopped the failed branch: the tree is replaced.
+            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now, rebind=False))
         return effects
 
     def _failed_task(self, fb: TstFeedback) -> tuple[str, str] | None:
@@ -136,6 +137,11 @@ class EngineUse(MissionPart):
         if got.mission_status is not None:
             effects.extend(self.lifecycle.set_status(req.root_uuid, got.mission_status, now,
                                                      got.fail_reason))
+        if req.kind == "rebind":
+            answer = got.answer
+            return effects.extend(self.repair.rebind_answered(
+                req.root_uuid, getattr(answer, "response", "") == "ok",
+                getattr(answer, "fail_reason", "") or "no answer", now))
         if req.key[0] == INTERNAL:
             return effects  # the service's own command (re-delegation): nobody to answer
         mission = self.book.find(req.root_uuid) if req.kind == "cancel" else None

@@ -294,6 +294,24 @@ def node_infos(tree: TstNode) -> dict[str, NodeInfo]:
     return out
 
 
+def _with_execunits(tst: dict[str, Any], execunits: dict[str, str]) -> dict[str, Any]:
+    """A copy of the JSON tree ``tst`` with the ``execunit`` of the nodes named changed (either
+    spelling of ``common_params``; walked with a stack, any depth)."""
+    root = dict(tst)
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        for key in ("common_params", "common-params"):
+            common = node.get(key)
+            if isinstance(common, dict) and common.get("node-uuid") in execunits:
+                node[key] = {**common, "execunit": execunits[common["node-uuid"]]}
+        children = node.get("children")
+        if isinstance(children, list):
+            node["children"] = [dict(c) if isinstance(c, dict) else c for c in children]
+            stack.extend(c for c in node["children"] if isinstance(c, dict))
+    return root
+
+
 class MissionBook:
     """Every mission the service has planned or run, indexed by root and by node uuid."""
 
@@ -397,6 +415,17 @@ class MissionBook:
         for uid in nodes:
             self._node_root[uid] = mission.root_uuid
         mission.current_root = root
+        mission.redelegations += 1
+        self.touch(mission.root_uuid, Change.TREE | Change.STATE)
+
+    def rebind(self, mission: Mission, execunits: dict[str, str]) -> None:
+        """Tasks of the running tree moved to other units (``rebind-tst-nodes``, node uuid ->
+        ``/unit``): same nodes, same tree, new units."""
+        for uid, unit in execunits.items():
+            info = mission.nodes.get(uid)
+            if info is not None:
+                mission.nodes[uid] = NodeInfo(uid, info.name, unit, info.path, info.is_task)
+        mission.current_tst = _with_execunits(mission.current_tst, execunits)
         mission.redelegations += 1
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 

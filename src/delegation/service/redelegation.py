@@ -2,14 +2,15 @@
 units is lost or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and
 rows out.
 
-Semantics (docs/protocol.md §11): the mission's tree on the engine is *replaced*. The remaining
-tree keeps the original structure (``seq`` order, ``conc`` grouping) with every task that has not
-succeeded; a task that succeeded is never run again, a control node left without tasks is
-dropped. Tasks of the lost (or failing) unit become free (``execunit`` ``""``) and are planned
-again with the live units from where they are; every other task stays on its unit. The service
-then sends ``$abort`` for the old tree and ``start-tst`` with the new one: a task that was running
-on a healthy unit is stopped and started again from where that unit is (a ``move-to`` continues
-to its waypoint; a ``search-area`` starts its pattern again).
+Semantics (docs/protocol.md §11): the remaining tree keeps the original structure (``seq``
+order, ``conc`` grouping) with every task that has not succeeded; a task that succeeded is never
+run again, a control node left without tasks is dropped. Tasks of the lost (or failing) unit
+become free (``execunit`` ``""``) and are planned again with the live units from where they are;
+every other task stays on its unit (so the plan puts the freed ones after them). The plan is then
+applied by `delegation.service.repair`: for a lost unit, each freed task moves to its planned
+unit within the running tree (``rebind-tst-nodes``: healthy units' tasks are not touched); for a
+failed task (whose branch the engine already stopped), or an engine that cannot move tasks, the
+old tree is aborted and the remaining one started in its place.
 """
 
 from __future__ import annotations

@@ -1,0 +1,82 @@
+"""A repair that moves only what must move, with real processes (issue 22 item 3, docs/protocol.md
+§11 and §12.5): three units busy in one mission, one killed -9 mid-task; its task moves to another
+unit within the running tree, and the two healthy units' running tasks are never signalled nor
+started again (counted on the wire: their ``exec/command`` carries one start-task each and no
+signal-task). The mission succeeds and every task finished exactly once.
+
+Same set-up as `test_faults` (private mosquitto, one ``delegation sim`` process per unit, the
+reference engine and the service in this process, the service quick to judge a unit lost)."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from delegation.engine import TstEngine
+from delegation.runtime.broker import PrivateMosquitto
+from test_faults import (
+    GOAL,
+    MIN_TIMEOUT,
+    SPEEDUP,
+    Processes,
+    conc,
+    delegate,
+    final_status,
+    finished_per_goal,
+    mosquitto,
+    move_to,
+    prefix,
+    procs,
+    pytestmark,
+    ready,
+    start_service,
+    wait_running,
+    watch,
+)
+
+__all__ = ["mosquitto", "prefix", "procs", "pytestmark"]
+
+#: u2 flies north from its home, 300 m like the others.
+GOAL_U2 = (57.7651, 16.6842)
+
+
+def test_a_unit_killed_mid_task_moves_alone_and_the_healthy_units_fly_on(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    settings = mosquitto.settings()
+    procs.sim("u1")
+    for name in ("u0", "u2"):  # slower: still flying when the repair is done
+        procs.sim(name, speedup=SPEEDUP / 4)
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, ["u0", "u1", "u2"])
+        col = watch(settings, prefix)
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u0"], "/u0"),
+                                               move_to(GOAL["u1"], "/u1"),
+                                               move_to(GOAL_U2, "/u2")))
+            wait_running(col, {"u0", "u1", "u2"})
+            procs.kill("u1")
+            killed = time.monotonic()
+            moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
+                                  lambda d: d.get("status") == "re-delegated", timeout=20.0)
+            # 3 heartbeat periods (at least MIN_TIMEOUT) + a tick + planning.
+            assert time.monotonic() - killed < MIN_TIMEOUT + 5.0
+            assert "/u1 lost" in moved["fail-reason"]
+            [task] = moved["tasks"]
+            assert task["node-uuid"] == task["replaces"] and task["unit"] in ("/u0", "/u2")
+            assert finished_per_goal(col) == {}, "the healthy units were still flying"
+            end = final_status(col, root, timeout=120.0)
+            assert end["status"] == "succeeded", end
+            done = finished_per_goal(col)
+            assert done.keys() == {GOAL["u0"], GOAL["u1"], GOAL_U2}, done
+            assert done[GOAL["u0"]] == ["u0"] and done[GOAL_U2] == ["u2"], done
+            assert done[GOAL["u1"]] == [task["unit"].strip("/")], done
+            for unit in ("u0", "u2"):
+                sent = [json.loads(m.payload) for m in list(col.messages)
+                        if m.topic.endswith(f"/{unit}/exec/command")]
+                assert not [d for d in sent if d.get("command") == "signal-task"], unit
+                # Its own task once (re-sends carry the same com-uuid), and the moved task after
+                # it if it took it.
+                starts = {d["com-uuid"] for d in sent if d.get("command") == "start-task"}
+                assert len(starts) == (2 if task["unit"] == f"/{unit}" else 1), (unit, sent)
+        finally:
+            col.stop()
