@@ -18,6 +18,7 @@ from typing import Any, Protocol
 from delegation.errors import InputError, InputProblem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.service.operator_view import OperatorView
+from delegation.service.redelegation import first_origin, statuses_by_first
 from delegation.tst.node import TstNode, parse_tree, walk
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
@@ -101,6 +102,12 @@ class Mission:
         """True while a replacement tree is being planned or sent."""
         return not self.current_root
 
+    def operator_statuses(self) -> dict[str, str]:
+        """Node statuses under the first tree's uuids (the operator's), whatever tree runs now."""
+        if not self.origin:
+            return self.node_status
+        return statuses_by_first(self.node_status, self.origin, self.current_nodes)
+
     @property
     def ended(self) -> bool:
         """True once the mission succeeded, failed or was aborted."""
@@ -129,16 +136,20 @@ class Mission:
         """The full form answered by ``query-mission``: status, node statuses, assignments."""
         nodes = []
         view = self.operator
+        statuses = self.operator_statuses()
+        # The node standing for each of the first tree's now (its unit may have changed).
+        now_for = {first_origin(self.origin, u): u for u in self.current_nodes} \
+            if self.origin else {}
         for uid, info in self.nodes.items():
             if view is not None and uid not in view:
                 continue  # only in the sent tree
-            status = (view.derive(uid, self.node_status) if view is not None
-                      else self.node_status.get(uid, "not-active"))
+            status = (view.derive(uid, statuses) if view is not None
+                      else statuses.get(uid, "not-active"))
             nodes.append(
                 {
                     "node-uuid": uid,
                     "name": info.name,
-                    "execunit": info.execunit,
+                    "execunit": self.nodes.get(now_for.get(uid, uid), info).execunit,
                     "path": info.path,
                     "status": status,
                     "started": _rel(self.node_started.get(uid), self.started_at),
@@ -416,6 +427,8 @@ class MissionBook:
             self._node_root[uid] = mission.root_uuid
         mission.current_root = root
         mission.redelegations += 1
+        if mission.operator is not None:
+            mission.operator.reset()
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 
     def rebind(self, mission: Mission, execunits: dict[str, str]) -> None:

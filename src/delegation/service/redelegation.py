@@ -112,3 +112,36 @@ def first_origin(origin: Mapping[str, str], uid: str) -> str:
         seen.add(uid)
         uid = origin[uid]
     return uid
+
+
+def current_node(origin: Mapping[str, str], current: Iterable[str], uid: str) -> str | None:
+    """The node of the current tree that stands for ``uid`` (a node of any earlier tree, e.g. the
+    operator's): ``uid`` itself while its tree runs, else the node whose origin chain leads to
+    it; None when no node of the current tree does (it ended before, or was regrouped away)."""
+    nodes = set(current)
+    if uid in nodes:
+        return uid
+    for node in sorted(nodes):
+        seen: set[str] = set()
+        step = node
+        while step in origin and step not in seen:
+            seen.add(step)
+            step = origin[step]
+            if step == uid:
+                return node
+    return None
+
+
+def statuses_by_first(node_status: Mapping[str, str], origin: Mapping[str, str],
+                      current: Iterable[str]) -> dict[str, str]:
+    """Node statuses under the uuids of the first tree (the operator's): what the first tree's
+    nodes said, then what the nodes standing for them in later trees say (a task that succeeded
+    in any tree; every node of the current tree, which replaces what its predecessors said)."""
+    out = dict(node_status)
+    for uid, status in node_status.items():
+        if uid in origin and status in DONE:
+            out[first_origin(origin, uid)] = status
+    for uid in current:
+        if uid in origin:
+            out[first_origin(origin, uid)] = node_status.get(uid, "not-active")
+    return out
