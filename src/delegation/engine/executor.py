@@ -58,7 +58,13 @@ from delegation.engine.tree import (
     check_instantiated,
 )
 from delegation.errors import InputError, InputProblem
-from delegation.messages import SIGNALS, TERMINAL_NODE_STATUSES, NodeStatus, Signal
+from delegation.messages import (
+    SIGNALS,
+    TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
+    NodeStatus,
+    Signal,
+)
 from delegation.tst.node import TstNode, walk, where, with_uuids
 
 log = logging.getLogger(__name__)
@@ -747,6 +753,9 @@ class TreeExecutor:
         node.attempt.answered = True
         if mapped in TERMINAL_NODE_STATUSES:
             reason = f"/{node.unit} reported {status}" if mapped is not NodeStatus.SUCCEEDED else ""
+            if mapped is NodeStatus.ABORTED and not node.abort_sent \
+                    and Signal.ABORT not in node.pending:
+                reason = f"/{node.unit} {UNIT_ABORTED}"  # nobody here asked it to
             self._finish(tree, node, mapped, now, actions, reason)
         else:
             self._set(tree, node, mapped, actions)

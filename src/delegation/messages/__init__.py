@@ -69,6 +69,7 @@ from delegation.messages.sensors import (
 )
 from delegation.messages.tst_exec import (
     TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
     NodeStatus,
     RebindTstNodes,
     SignalTstNode,
@@ -93,6 +94,7 @@ __all__ = [
     "SIGNALS",
     "TERMINAL_NODE_STATUSES",
     "TST_COMMANDS",
+    "UNIT_ABORTED",
     "CancelMission",
     "Delegate",
     "DelegationFeedback",

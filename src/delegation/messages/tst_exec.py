@@ -28,6 +28,11 @@ class NodeStatus(StrEnum):
     REVOKED = "revoked"
 
 
+#: The end of a task node's fail-reason (after ``/unit``) when the unit aborted the task without
+#: being asked to (its own operator, its own safety rules): the delegation service re-delegates
+#: it (docs/protocol.md §11, §12.3).
+UNIT_ABORTED = "aborted the task itself (not asked to)"
+
 #: Statuses after which a node never changes again.
 TERMINAL_NODE_STATUSES: frozenset[NodeStatus] = frozenset(
     {NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED, NodeStatus.REVOKED}

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from delegation.errors import InputError, InputProblem
 from delegation.messages import (
     TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
     CancelMission,
     DelegationResponse,
     MissionStatus,
@@ -155,7 +156,7 @@ class EngineUse(MissionPart):
         effects = self.relay(mission, fb)
         effects.extend(self.lifecycle.publish(events))
         if retry is not None:
-            # The engine already stopped the failed branch: the tree is replaced.
+            # The engine already ended the failed (or aborted) branch: the tree is replaced.
             effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now, rebind=False))
         return effects
 
@@ -188,8 +189,11 @@ class EngineUse(MissionPart):
 
     def _failed_task(self, fb: TstFeedback) -> tuple[str, str] | None:
         """(unit, why) when ``fb`` is a task of a running mission's current tree failing on its
-        unit with retry budget left, else None."""
-        if fb.status != "failed":
+        unit, or aborted by its unit unasked (docs/protocol.md §11), with retry budget left,
+        else None. An ``$abort`` the operator (or the engine, stopping a failed branch) sent
+        ends the task as asked: not re-delegated."""
+        if fb.status != "failed" and not (fb.status == "aborted"
+                                          and fb.fail_reason.endswith(UNIT_ABORTED)):
             return None
         mission = self.book.of_node(fb.node_uuid)
         if mission is None or mission.ended or mission.redelegating:
@@ -201,7 +205,7 @@ class EngineUse(MissionPart):
                 >= self.config.max_retries:
             return None  # the budget is spent: the failure ends the mission as usual
         unit = info.execunit.strip("/")
-        why = f"{info.path} ({info.name}) failed on /{unit}: {fb.fail_reason or 'failed'}"
+        why = f"{info.path} ({info.name}) {fb.status} on /{unit}: {fb.fail_reason or fb.status}"
         return unit, why
 
     def answer(self, got: EngineAnswer, now: float) -> Effects:
