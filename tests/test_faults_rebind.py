@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import time
+import uuid
 
+from conftest import Collector
 from delegation.engine import TstEngine
 from delegation.runtime.broker import PrivateMosquitto
 from test_faults import (
@@ -78,5 +80,47 @@ def test_a_unit_killed_mid_task_moves_alone_and_the_healthy_units_fly_on(
                 # it if it took it.
                 starts = {d["com-uuid"] for d in sent if d.get("command") == "start-task"}
                 assert len(starts) == (2 if task["unit"] == f"/{unit}" else 1), (unit, sent)
+        finally:
+            col.stop()
+
+
+def test_a_task_its_unit_aborts_unasked_is_re_delegated_and_the_operator_hears_the_end(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    """Issue 20 items 2 and 5 on a real broker: u1's pilot aborts its task (a ``signal-task
+    $abort`` straight to u1, not through the engine); the service re-delegates it (the tree is
+    replaced) and the operator's TST face hears the replacement under their own root uuid, to
+    ``succeeded``, never the old tree's abort."""
+    settings = mosquitto.settings()
+    for name in ("u0", "u1", "u2"):
+        procs.sim(name)
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, ["u0", "u1", "u2"])
+        col = Collector(settings, [f"{prefix}/unit/+/+/+/exec/#",
+                                   f"{prefix}/unit/+/+/delegator0/delegation/#",
+                                   f"{prefix}/unit/+/+/delegator0/tst/feedback"]).start()
+        try:
+            root = delegate(col, service, conc(move_to(GOAL["u0"], "/u0"),
+                                               move_to(GOAL["u1"], "/u1")))
+            wait_running(col, {"u0", "u1"})
+            [start] = [m for m in list(col.messages) if m.topic.endswith("/u1/exec/command")
+                       and json.loads(m.payload).get("command") == "start-task"][:1]
+            col.publish(start.topic, {"com-uuid": str(uuid.uuid4()), "command": "signal-task",
+                                      "sender": "pilot", "signal": "$abort",
+                                      "task-uuid": json.loads(start.payload)["task-uuid"]})
+            moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
+                                  lambda d: d.get("status") == "re-delegated", timeout=20.0)
+            assert "aborted on /u1" in moved["fail-reason"], moved
+            assert [t["unit"] for t in moved["tasks"]] in (["/u0"], ["/u2"]), moved
+            end = final_status(col, root, timeout=90.0)
+            assert end["status"] == "succeeded", end
+            face = col.wait_json("+/unit/+/+/delegator0/tst/feedback",
+                                 lambda d: d.get("node-uuid") == root
+                                 and d.get("status") == "succeeded", timeout=10.0)
+            assert face["root-flag"] is True
+            said = [d["status"] for d in col.json_on("+/unit/+/+/delegator0/tst/feedback")
+                    if d.get("node-uuid") == root]
+            assert "aborted" not in said and "failed" not in said, said
+            done = finished_per_goal(col)
+            assert done[GOAL["u1"]] == [moved["tasks"][0]["unit"].strip("/")], done
         finally:
             col.stop()
