@@ -111,3 +111,17 @@ def test_a_unit_lost_during_a_repair_is_repaired_next() -> None:
     [cmd] = on(again, "op0/tst/command")
     assert cmd["command"] == "rebind-tst-nodes" and "n2" in cmd["execunits"]
     assert all(u in ("/u0", "/u3") for u in cmd["execunits"].values())
+
+
+def test_a_failed_tasks_replan_made_again_still_replaces_the_tree() -> None:
+    # A failure replaces the tree (the engine already stopped its branch), also when a task
+    # succeeded while it was planned and it is planned again without it.
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    fleet(core, 100.0)
+    started_mission(core, _tree("conc", "root-1", _task("n0", "/u0"), _task("n1", "/u1")))
+    feedback(core, "n0", "running", 101.5)
+    failed = feedback(core, "n1", "failed", 102.0, reason="/u1 reported failed")
+    feedback(core, "n0", "succeeded", 102.05)
+    again = run_jobs(core, failed, 102.1)
+    assert len(again.jobs) == 1 and on(again, "op0/tst/command") == []
+    assert core.book.get("root-1").redelegating and not core.repair.replans["root-1"].rebind

@@ -200,7 +200,8 @@ class Repair(MissionPart):
                for uid in origin):
             # A task finished while this was planned: plan again without it (never run twice).
             mission.current_root = replan.old_root
-            return self.redelegate(mission, next(iter(replan.units)), replan.why, now)
+            return self.redelegate(mission, next(iter(replan.units)), replan.why, now,
+                                   rebind=False)
         problem = self.engine.problem(now)
         if problem:
             return self.abort_and_fail(mission, replan.old_root, f"{replan.why}; {problem}", now)
