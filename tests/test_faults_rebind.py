@@ -124,3 +124,65 @@ def test_a_task_its_unit_aborts_unasked_is_re_delegated_and_the_operator_hears_t
             assert done[GOAL["u1"]] == [moved["tasks"][0]["unit"].strip("/")], done
         finally:
             col.stop()
+
+
+def test_after_the_tree_was_replaced_the_operators_signals_reach_the_new_tree(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    """Issue 20 item 2 on a real broker: u1's task is aborted by its pilot, so the tree is
+    replaced (u0's task is started again in the new tree); the operator's ``$pause`` and
+    ``$continue`` to u0's task, by the uuid the operator knows, reach u0 for the task it runs
+    now, are answered ``ok``, and the mission still ends ``succeeded``."""
+    settings = mosquitto.settings()
+    procs.sim("u1")
+    for name in ("u0", "u2"):
+        procs.sim(name, speedup=SPEEDUP / 4)  # u0's task: about 15 s wall
+    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+        ready(service, ["u0", "u1", "u2"])
+        col = Collector(settings, [f"{prefix}/unit/+/+/+/exec/#",
+                                   f"{prefix}/unit/+/+/delegator0/delegation/#",
+                                   f"{prefix}/unit/+/+/delegator0/tst/response"]).start()
+        try:
+            com = str(uuid.uuid4())
+            col.publish(f"{service.config.base_topic}/delegation/command",
+                        {"com-uuid": com, "command": "delegate", "start": True,
+                         "tst": conc(move_to(GOAL["u0"], "/u0"), move_to(GOAL["u1"], "/u1"))})
+            answer = col.wait_json("+/unit/+/+/+/delegation/response",
+                                   lambda d: d.get("response-to") == com, timeout=30.0)
+            root = answer["plan"]["tst"]["common_params"]["node-uuid"]
+            mine = next(c["common_params"]["node-uuid"] for c in answer["plan"]["tst"]["children"]
+                        if c["common_params"]["execunit"] == "/u0")
+            wait_running(col, {"u0", "u1"})
+            [start] = [m for m in list(col.messages) if m.topic.endswith("/u1/exec/command")
+                       and json.loads(m.payload).get("command") == "start-task"][:1]
+            col.publish(start.topic, {"com-uuid": str(uuid.uuid4()), "command": "signal-task",
+                                      "sender": "pilot", "signal": "$abort",
+                                      "task-uuid": json.loads(start.payload)["task-uuid"]})
+            col.wait_json("+/unit/+/+/+/delegation/feedback",
+                          lambda d: d.get("status") == "re-delegated", timeout=20.0)
+
+            def u0_starts() -> list[dict[str, object]]:
+                return [d for d in col.json_on("+/unit/+/+/u0/exec/command")
+                        if d.get("command") == "start-task"]
+
+            col.wait_for(lambda m: len({d["com-uuid"] for d in u0_starts()}) == 2, 20.0,
+                         "u0's task started again in the new tree")
+            now_running = u0_starts()[-1]["task-uuid"]
+            col.wait_json("+/unit/+/+/u0/exec/feedback",
+                          lambda d: d.get("task-uuid") == now_running
+                          and d.get("status") == "running", timeout=20.0)
+            for sig in ("$pause", "$continue"):
+                ask = str(uuid.uuid4())
+                col.publish(f"{service.config.base_topic}/tst/command",
+                            {"com-uuid": ask, "command": "signal-tst-node", "sender": "test",
+                             "node-uuid": mine, "signal": sig})
+                said = col.wait_json("+/unit/+/+/delegator0/tst/response",
+                                     lambda d, a=ask: d.get("response-to") == a, timeout=20.0)
+                assert said["response"] == "ok", said
+                got = col.wait_json("+/unit/+/+/u0/exec/command",
+                                    lambda d, s=sig: d.get("command") == "signal-task"
+                                    and d.get("signal") == s, timeout=20.0)
+                assert got["task-uuid"] == now_running, got
+            end = final_status(col, root, timeout=120.0)
+            assert end["status"] == "succeeded", end
+        finally:
+            col.stop()
