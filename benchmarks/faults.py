@@ -1,14 +1,22 @@
-"""How fast a lost unit's tasks move (prints the figures): loss -> ``re-delegated`` -> mission end.
+"""How a lost unit's work moves, and what it costs the healthy units (prints the figures):
+loss -> ``re-delegated`` -> the lost task restarting elsewhere -> mission end, and how often the
+healthy units' running tasks were signalled or started again. Compares the service's two repairs
+(docs/protocol.md §11): ``rebind`` (the default: the lost unit's task moves within the running
+tree) and ``restart`` (the old one: the tree is aborted and the remaining one started).
 
-Set-up per run: a private mosquitto, three ``delegation sim`` processes (one unit each, heartbeat
-2 Hz, speed-up 10), the reference engine and the service in this process. A ``conc`` of two
-300 m move-tos on u0 and u1 is delegated; once both run, u1's process is killed with SIGKILL.
+Set-up per run: a private mosquitto, five ``delegation sim`` processes (one unit each, heartbeat
+2 Hz, speed-up 10), the reference engine and the service in this process. A ``conc`` of four
+``search-area`` tasks (a 120 m square at each of u0..u3's homes, u1's 60 m) is delegated; u4 is
+idle, 100 m from u1. Once the four run, u1's process is killed with SIGKILL: the healthy units'
+searches are the mission's critical path, so a repair that restarts them shows in its end.
 
-Measured (wall seconds, monotonic): kill -> ``re-delegated`` on ``delegation/feedback`` (the
-bound is u1's timeout, 3 periods at 2 Hz but at least 5 s, + a 0.2 s tick + planning); kill ->
-mission ``succeeded``; and whether every task finished exactly once.
+Measured (wall seconds, monotonic, from the kill): ``re-delegated`` on ``delegation/feedback``
+(the bound is u1's timeout, 3 periods at 2 Hz but at least ``--min-timeout``, + a 0.2 s tick +
+planning); the first new ``start-task`` of u1's search on another unit; the mission's end; and,
+counted on the healthy units' ``exec/command``, the signal-tasks and the start-tasks (distinct
+com-uuids) beyond their own first one.
 
-    PYTHONPATH=src python benchmarks/faults.py [--runs 3] [--min-timeout 5]
+    PYTHONPATH=src python benchmarks/faults.py [--runs 2] [--min-timeout 5] [--repair both]
 """
 
 from __future__ import annotations
@@ -33,28 +41,32 @@ from delegation.runtime.mqtt import Message, MqttClient
 from delegation.service import DelegationService, ServiceConfig
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
-HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
-GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840)}
+#: u0..u3 400 m apart, each searching a square at home (120 m; u1's 60 m, so that the healthy
+#: units' searches are what the mission waits for); u4 idle, 100 m north of u1.
+HOME = {f"u{i}": (57.7600, 16.6800 + 0.0066 * i) for i in range(4)} | {"u4": (57.7609, 16.6866)}
+BUSY = ("u0", "u1", "u2", "u3")
+LOST = "u1"
+SIDE = (0.00108, 0.002)  # 120 m in latitude and longitude degrees at 57.76 N
 
 
 class Watch:
     """Records messages; ``wait`` blocks on a condition until one matches (with a deadline)."""
 
     def __init__(self, settings: Any) -> None:
-        self.messages: list[Message] = []
+        self.messages: list[tuple[float, Message]] = []
         self.cond = threading.Condition()
         self.client = MqttClient(settings, sink=self.record)
 
     def record(self, m: Message) -> None:
         with self.cond:
-            self.messages.append(m)
+            self.messages.append((time.monotonic(), m))
             self.cond.notify_all()
 
-    def wait(self, pred: Any, timeout: float) -> Message:
-        found: list[Message] = []
+    def wait(self, pred: Any, timeout: float) -> tuple[float, Message]:
+        found: list[tuple[float, Message]] = []
 
         def check() -> bool:
-            found[:] = [m for m in self.messages if pred(m)]
+            found[:] = [(t, m) for t, m in self.messages if pred(m)]
             return bool(found)
 
         with self.cond:
@@ -63,10 +75,25 @@ class Watch:
         return found[0]
 
 
-def move_to(goal: tuple[float, float], unit: str) -> dict[str, Any]:
-    return {"name": "move-to", "common_params": {"execunit": unit},
-            "params": {"speed": "standard",
-                       "waypoint": {"latitude": goal[0], "longitude": goal[1], "altitude": 20.0}}}
+def js(m: Message) -> dict[str, Any]:
+    try:
+        data = json.loads(m.payload)
+    except ValueError:
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def area_of(unit: str) -> list[dict[str, float]]:
+    lat, lon = HOME[unit]
+    dlat, dlon = (SIDE[0] / 2, SIDE[1] / 2) if unit == LOST else SIDE
+    return [{"latitude": la, "longitude": lo, "altitude": 20.0}
+            for la, lo in ((lat, lon), (lat + dlat, lon), (lat + dlat, lon + dlon),
+                           (lat, lon + dlon))]
+
+
+def search(unit: str) -> dict[str, Any]:
+    return {"name": "search-area", "common_params": {"execunit": f"/{unit}"},
+            "params": {"area": area_of(unit), "speed": "standard"}}
 
 
 def sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[bytes]:
@@ -76,8 +103,9 @@ def sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[by
         "name": name, "description": "one unit",
         "agents": [{"name": name, "type": "air", "rate": 2.0,
                     "position": {"latitude": lat, "longitude": lon, "altitude": 20.0},
-                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0}, "tasks": ["move-to"]}],
-        "mission": move_to(GOAL["u0"], "*")}))
+                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
+                    "tasks": ["move-to", "search-area"]}],
+        "mission": search(name)}))
     return subprocess.Popen(
         [sys.executable, "-m", "delegation", "sim", str(path), "--speedup", "10", "--broker",
          "127.0.0.1", "--port", str(port), "--prefix", prefix],
@@ -85,13 +113,14 @@ def sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[by
         env={**os.environ, "PYTHONPATH": SRC})
 
 
-def one_run(min_timeout: float) -> dict[str, Any]:
+def one_run(min_timeout: float, repair: str) -> dict[str, Any]:
     prefix = f"bench-{uuid.uuid4().hex[:8]}"
     with PrivateMosquitto() as broker, tempfile.TemporaryDirectory() as tmp:
         settings = broker.settings()
         procs = {n: sim(n, settings.port, prefix, Path(tmp)) for n in HOME}
         try:
-            config = ServiceConfig(prefix=prefix, min_heartbeat_timeout=min_timeout)
+            config = ServiceConfig(prefix=prefix, min_heartbeat_timeout=min_timeout,
+                                   repair=repair)
             service = DelegationService(settings, config)
             with TstEngine(settings, prefix=prefix), service:
                 if not service.wait_ready(list(HOME), timeout=30.0):
@@ -114,50 +143,75 @@ def one_run(min_timeout: float) -> dict[str, Any]:
 def measure(service: DelegationService, watch: Watch,
             procs: dict[str, subprocess.Popen[bytes]]) -> dict[str, Any]:
     com = str(uuid.uuid4())
-    tree = {"name": "conc", "common_params": {},
-            "children": [move_to(GOAL["u0"], "/u0"), move_to(GOAL["u1"], "/u1")]}
+    tree = {"name": "conc", "common_params": {}, "children": [search(u) for u in BUSY]}
     # Our SUBSCRIBEs went out in on_connect on this connection, so the broker has them first.
     watch.client.publish(f"{service.config.base_topic}/delegation/command", json.dumps(
         {"com-uuid": com, "command": "delegate", "tst": tree, "start": True}).encode(), qos=1)
-
-    def js(m: Message) -> dict[str, Any]:
-        data = json.loads(m.payload)
-        return data if isinstance(data, dict) else {}
-
-    answer = js(watch.wait(lambda m: js(m).get("response-to") == com, 30.0))
+    _, m = watch.wait(lambda m: js(m).get("response-to") == com, 30.0)
+    answer = js(m)
+    if answer.get("response") != "started":
+        raise RuntimeError(f"not started: {answer}")
     root = answer["plan"]["tst"]["common_params"]["node-uuid"]
-    for unit in ("u0", "u1"):
-        watch.wait(lambda m, u=unit: m.topic.endswith(f"{u}/exec/feedback")
+    for unit in BUSY:
+        watch.wait(lambda m, u=unit: m.topic.endswith(f"/{u}/exec/feedback")
                    and js(m).get("status") == "running", 30.0)
-    procs["u1"].send_signal(signal.SIGKILL)
+    procs[LOST].send_signal(signal.SIGKILL)
     killed = time.monotonic()
-    watch.wait(lambda m: js(m).get("status") == "re-delegated", 30.0)
-    moved = time.monotonic() - killed
-    end = js(watch.wait(lambda m: js(m).get("root-uuid") == root
-                        and js(m).get("status") in ("succeeded", "failed", "aborted"), 90.0))
-    ended = time.monotonic() - killed
-    finished = [js(m).get("task-uuid") for m in watch.messages
-                if m.topic.endswith("exec/feedback") and js(m).get("status") == "finished"]
-    return {"re-delegated": moved, "ended": ended, "status": end["status"],
-            "finished": len(set(finished))}
+    moved_at, _ = watch.wait(lambda m: js(m).get("status") == "re-delegated", 30.0)
+    lost_area = area_of(LOST)
+    restarted_at, m = watch.wait(
+        lambda m: js(m).get("command") == "start-task" and f"/{LOST}/" not in m.topic
+        and js(m).get("task", {}).get("params", {}).get("area") == lost_area, 120.0)
+    taken_by = m.topic.split("/")[-3]
+    ended_at, m = watch.wait(lambda m: js(m).get("root-uuid") == root and js(m).get("status")
+                             in ("succeeded", "failed", "aborted"), 240.0)
+    healthy = [u for u in BUSY if u != LOST]
+    signals = starts = 0
+    for _, msg in list(watch.messages):
+        unit = msg.topic.split("/")[-3]
+        d = js(msg)
+        if unit in healthy and msg.topic.endswith("exec/command"):
+            signals += d.get("command") == "signal-task"
+    for unit in healthy:
+        own = {js(msg).get("com-uuid") for _, msg in list(watch.messages)
+               if msg.topic.endswith(f"/{unit}/exec/command")
+               and js(msg).get("command") == "start-task"
+               and js(msg).get("task", {}).get("params", {}).get("area") == area_of(unit)}
+        starts += len(own) - 1
+    return {"re-delegated": moved_at - killed, "restarted": restarted_at - killed,
+            "ended": ended_at - killed, "status": js(m)["status"], "taken-by": taken_by,
+            "signals": signals, "starts-again": starts}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--runs", type=int, default=2)
     parser.add_argument("--min-timeout", type=float, default=5.0,
                         help="the service's min_heartbeat_timeout (s; 3 periods at 2 Hz is 1.5)")
+    parser.add_argument("--repair", choices=("rebind", "restart", "both"), default="both")
     args = parser.parse_args()
-    rows = []
-    for i in range(args.runs):
-        row = one_run(args.min_timeout)
-        rows.append(row)
-        print(f"run {i + 1}: kill -> re-delegated {row['re-delegated']:.2f} s, kill -> "
-              f"{row['status']} {row['ended']:.2f} s, tasks finished {row['finished']} (of 2)")
-    moved = [r["re-delegated"] for r in rows]
-    print(f"kill -> re-delegated: median {statistics.median(moved):.2f} s, max {max(moved):.2f} s "
-          f"over {len(rows)} runs (bound: max(1.5 s, {args.min_timeout:g} s) timeout + "
-          f"0.2 s tick + planning)")
+    modes = ("rebind", "restart") if args.repair == "both" else (args.repair,)
+    summary = {}
+    for mode in modes:
+        rows = []
+        for i in range(args.runs):
+            row = one_run(args.min_timeout, mode)
+            rows.append(row)
+            print(f"{mode} run {i + 1}: kill -> re-delegated {row['re-delegated']:.2f} s, -> "
+                  f"u1's search restarted on {row['taken-by']} {row['restarted']:.2f} s, -> "
+                  f"{row['status']} {row['ended']:.2f} s; healthy units' running tasks: "
+                  f"{row['signals']} signal-task, {row['starts-again']} start-task again",
+                  flush=True)
+        summary[mode] = rows
+    for mode, rows in summary.items():
+        med = {k: statistics.median(r[k] for r in rows)
+               for k in ("re-delegated", "restarted", "ended")}
+        print(f"{mode}: median over {len(rows)} runs: kill -> re-delegated "
+              f"{med['re-delegated']:.2f} s, -> restarted elsewhere {med['restarted']:.2f} s, "
+              f"-> mission end {med['ended']:.2f} s; signal-tasks to the 3 healthy units "
+              f"{sum(r['signals'] for r in rows)}, start-tasks again "
+              f"{sum(r['starts-again'] for r in rows)} (bound for the first two: "
+              f"max(1.5 s, {args.min_timeout:g} s) timeout + 0.2 s tick + planning)")
 
 
 if __name__ == "__main__":

@@ -80,6 +80,24 @@ def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
     assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
 
 
+def test_a_unit_a_task_was_moved_onto_is_left_out_its_end_being_unknown() -> None:
+    view = _view()
+    _feed(view, "u0", 57.76, 0.0)
+    tree = {"name": "conc", "common_params": {"node-uuid": "t1"}, "children": [
+        {"name": "move-to", "common_params": {"node-uuid": f"k{i}", "execunit": f"/{u}"},
+         "params": {"waypoint": {"latitude": 57.8, "longitude": 16.7, "altitude": 20.0}}}
+        for i, u in enumerate(("u0", "u1"))]}
+    plan = {"assignments": [{"node-uuid": "k0", "execunit": "/u0", "end": 120.0},
+                            {"node-uuid": "k1", "execunit": "/u1", "end": 300.0}]}
+    mission = Mission(root_uuid="t1", source="delegate", created=1000.0, tst=tree, plan=plan,
+                      nodes=node_infos(parse_tree(tree)), status=MissionStatus.RUNNING,
+                      started_at=1000.0)
+    view.book.add(mission)
+    assert view.plannable(20.0)[0][0].available_at == 100.0
+    view.book.rebind(mission, {"k1": "/u0"})  # u1 lost: its task moved onto u0 in place
+    assert view.plannable(20.0) == ((), ("u0: left out, busy in mission t1",))
+
+
 def test_exclude_commitments_leave_the_busy_unit_out() -> None:
     view = _view(commitments="exclude")
     _feed(view, "u0", 57.76, 0.0)

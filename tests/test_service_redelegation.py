@@ -87,8 +87,8 @@ def test_the_remaining_tree_keeps_structure_drops_what_succeeded_and_frees_the_l
 # --------------------------------------------------------------------------- a lost unit
 
 
-def test_a_lost_unit_is_re_delegated_and_the_new_tree_ends_the_mission() -> None:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+def test_restart_a_lost_unit_is_re_delegated_and_the_new_tree_ends_the_mission() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, repair="restart"))
     fleet(core, 100.0)
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0"), _task("n1", "/u1")))
     feedback(core, "n0", "running", 101.5)
@@ -118,8 +118,8 @@ def test_a_lost_unit_is_re_delegated_and_the_new_tree_ends_the_mission() -> None
     assert core.book.get("root-1").to_json()["re-delegations"] == 1
 
 
-def test_a_rebooted_unit_is_re_delegated_at_once() -> None:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+def test_restart_a_rebooted_unit_is_re_delegated_at_once() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, repair="restart"))
     fleet(core, 100.0)
     started_mission(core, _tree("seq", "root-1", _task("n0", "/u0"), _task("n1", "/u1")))
     feedback(core, "n0", "succeeded", 102.0)

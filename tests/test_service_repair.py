@@ -22,8 +22,8 @@ from test_service_core import (
 )
 
 
-def _started() -> ServiceCore:
-    core = ServiceCore(ServiceConfig(prefix="t"))
+def _started(repair: str = "rebind") -> ServiceCore:
+    core = ServiceCore(ServiceConfig(prefix="t", repair=repair))
     for i, name in enumerate(("u0", "u1")):
         feed_unit(core, name, 57.760 + i * 0.001, 16.680, ["move-to"], 100.0)
     feed_engine(core, 100.0)
@@ -40,7 +40,7 @@ def _started() -> ServiceCore:
 
 
 def test_a_lost_unit_is_replanned_as_a_job_and_started_in_place() -> None:
-    core = _started()
+    core = _started("restart")
     out = core.repair.unit_lost(FleetEvent(FleetEventKind.LOST, "u0", 102.0), 102.0)
     [job] = out.jobs
     assert job.redelegate == "r" and job.key[0] == INTERNAL and "u0" not in {

@@ -34,6 +34,7 @@ from delegation.messages import (
     NodeStatus,
     Ping,
     QueryStatus,
+    RebindTstNodes,
     SignalTask,
     SignalTstNode,
     SignalTstTree,
@@ -264,6 +265,8 @@ class EngineCore:
             actions = self.executor.signal_tree(command.node_uuid, command.signal, now)
         elif isinstance(command, SignalUnit):
             actions = self.executor.signal_unit(command.unit, command.signal, now)
+        elif isinstance(command, RebindTstNodes):
+            actions = self.executor.rebind(command.execunits, now)
         else:  # a tst command this engine does not implement (decode knows every tst command)
             name = getattr(command, "command", type(command).__name__)
             reason = f"{name} is not supported by the TST engine"

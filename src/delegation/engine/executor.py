@@ -58,7 +58,13 @@ from delegation.engine.tree import (
     check_instantiated,
 )
 from delegation.errors import InputError, InputProblem
-from delegation.messages import SIGNALS, TERMINAL_NODE_STATUSES, NodeStatus, Signal
+from delegation.messages import (
+    SIGNALS,
+    TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
+    NodeStatus,
+    Signal,
+)
 from delegation.tst.node import TstNode, walk, where, with_uuids
 
 log = logging.getLogger(__name__)
@@ -805,6 +811,9 @@ class TreeExecutor:
         node.attempt.answered = True
         if mapped in TERMINAL_NODE_STATUSES:
             reason = f"/{node.unit} reported {status}" if mapped is not NodeStatus.SUCCEEDED else ""
+            if mapped is NodeStatus.ABORTED and not node.abort_sent \
+                    and Signal.ABORT not in node.pending:
+                reason = f"/{node.unit} {UNIT_ABORTED}"  # nobody here asked it to
             self._finish(tree, node, mapped, now, actions, reason)
         else:
             self._set(tree, node, mapped, actions)
@@ -854,6 +863,82 @@ class TreeExecutor:
         self._finish(tree, node, NodeStatus.FAILED, now, actions, why)
         self._drain(now, actions)
         return actions
+
+    # ---- re-binding tasks to other units (the service's repairs, docs/protocol.md §12.5)
+
+    def rebind(self, execunits: dict[str, str], now: float) -> list[Action]:
+        """``rebind-tst-nodes``: each task node (uuid -> ``/unit``) runs on another unit from now
+        on, in the same tree: one not started yet starts there when its turn comes; one waiting
+        or running on its old unit is started again on the new one (the old unit, which may
+        still fly it, is sent ``$abort`` for its old task-uuid, whose messages are ignored from
+        then). The rest of the tree is not touched. All or nothing: raises `InputError` naming
+        every node that cannot be re-bound (unknown, not a task, already ended, not a unit)."""
+        found: list[tuple[Tree, TaskNode, str]] = []
+        problems: list[InputProblem] = []
+        for uid, execunit in execunits.items():
+            field_name = f"execunits.{uid}"
+            tree = self.trees.get(self._node_tree.get(uid, ""))
+            node = tree.nodes.get(uid) if tree is not None else None
+            unit = execunit.strip("/") if isinstance(execunit, str) else ""
+            if tree is None or node is None:
+                problems.append(InputProblem("execunits", field_name, "no executing node"))
+            elif not isinstance(node, TaskNode):
+                problems.append(InputProblem(node.path, field_name, "not a task node"))
+            elif node.terminal:
+                problems.append(InputProblem(node.path, field_name,
+                                             f"already ended ({node.status.value})"))
+            elif not execunit.startswith("/") or not unit or "/" in unit:
+                problems.append(InputProblem(node.path, field_name,
+                                             f"{execunit!r} is not a unit (/name)"))
+            else:
+                found.append((tree, node, unit))
+        if problems:
+            raise InputError(problems)
+        actions: list[Action] = []
+        freed: list[str] = []
+        for tree, node, unit in found:
+            if unit != node.unit:
+                freed += self._rebind_task(tree, node, unit, now, actions)
+        for old in freed:  # its next queued task (if any) may start on it now
+            self._wake(old, now, actions)
+        self._drain(now, actions)
+        return actions
+
+    def _rebind_task(
+        self, tree: Tree, node: TaskNode, unit: str, now: float, actions: list[Action]
+    ) -> list[str]:
+        """Move one task node to ``unit``; the old unit's name if the node occupied it."""
+        old = node.unit
+        queue = self._queue.get(old)
+        if queue and node.uuid in queue:
+            queue.remove(node.uuid)
+        if node.sent:
+            # Detached from the node (no node uuid): its answer or its giving up changes nothing.
+            com = self.new_uuid()
+            self._signals[com] = _SignalOut(old, node.attempt.task_uuid, Signal.ABORT, "", 1, now)
+            actions.append(SendSignal(old, node.attempt.task_uuid, Signal.ABORT, com))
+        for com in node.signals:
+            self._signals.pop(com, None)
+        for task_uuid in node.known_uuids:
+            self._task_node.pop(task_uuid, None)
+        for com in node.known_coms:
+            self._com_node.pop(com, None)
+        for kept in (node.signals, node.known_uuids, node.known_coms, node.refused):
+            kept.clear()
+        node.pending.clear()
+        node.attempt = TaskAttempt()
+        node.retry_at = None
+        node.abort_sent = False
+        node.abort_answered_at = None
+        released = node.vehicle and self._occupant.get(old) == node.uuid
+        if released:
+            del self._occupant[old]
+        node.unit = unit
+        log.info("task %s (%s) re-bound from /%s to /%s", node.uuid, node.path, old, unit)
+        if node.turn:
+            node.waiting_since = now
+            self._try_start(tree, node, now, actions)
+        return [old] if released else []
 
     # ---- time
 

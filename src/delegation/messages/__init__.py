@@ -69,7 +69,9 @@ from delegation.messages.sensors import (
 )
 from delegation.messages.tst_exec import (
     TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
     NodeStatus,
+    RebindTstNodes,
     SignalTstNode,
     SignalTstTree,
     SignalUnit,
@@ -92,6 +94,7 @@ __all__ = [
     "SIGNALS",
     "TERMINAL_NODE_STATUSES",
     "TST_COMMANDS",
+    "UNIT_ABORTED",
     "CancelMission",
     "Delegate",
     "DelegationFeedback",
@@ -111,6 +114,7 @@ __all__ = [
     "Ping",
     "QueryMission",
     "QueryStatus",
+    "RebindTstNodes",
     "SensorInfo",
     "SensorReading",
     "SensorValue",

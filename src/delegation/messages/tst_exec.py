@@ -28,6 +28,11 @@ class NodeStatus(StrEnum):
     REVOKED = "revoked"
 
 
+#: The end of a task node's fail-reason (after ``/unit``) when the unit aborted the task without
+#: being asked to (its own operator, its own safety rules): the delegation service re-delegates
+#: it (docs/protocol.md §11, §12.3).
+UNIT_ABORTED = "aborted the task itself (not asked to)"
+
 #: Statuses after which a node never changes again.
 TERMINAL_NODE_STATUSES: frozenset[NodeStatus] = frozenset(
     {NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED, NodeStatus.REVOKED}
@@ -65,6 +70,15 @@ class SignalUnit(Command):
     command: Literal["signal-unit"] = "signal-unit"
     signal: str
     unit: str
+
+
+class RebindTstNodes(Command):
+    """``rebind-tst-nodes`` (ours, not the seed's; docs/protocol.md §12.5): task nodes of an
+    executing tree run on other units from now on (``execunits``: node uuid -> ``/unit``), the
+    rest of the tree untouched. How the delegation service moves a lost unit's tasks."""
+
+    command: Literal["rebind-tst-nodes"] = "rebind-tst-nodes"
+    execunits: dict[str, str]
 
 
 class TstResponse(Answer):

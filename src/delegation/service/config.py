@@ -50,6 +50,11 @@ class ServiceConfig:
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).
     max_retries: int = 2
+    #: How a lost unit's tasks move (docs/protocol.md §11): ``rebind`` moves them within the
+    #: running tree (`rebind-tst-nodes`, our engine's), healthy units' tasks untouched;
+    #: ``restart`` replaces the tree (``$abort`` + ``start-tst``), as for an engine without it
+    #: (a refused or unanswered rebind falls back to it anyway).
+    repair: str = "rebind"
     #: Units busy in another running mission of this service: ``wait`` plans them from when and
     #: where they become free (by that mission's plan), ``exclude`` leaves them out, ``share``
     #: ignores commitments (the engine queues the tasks). Said in the plan's notes.

@@ -32,7 +32,7 @@ from delegation.service.faces import Face, failure
 
 log = logging.getLogger(__name__)
 
-RequestKind = Literal["start", "signal", "cancel"]
+RequestKind = Literal["start", "signal", "cancel", "rebind"]
 
 #: How many trees' engine topics are remembered (feedback for older ones is ignored).
 MAX_TREES = 10_000

@@ -12,10 +12,12 @@ for the engine's confirmation (`delegation.service.cancels`).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from delegation.errors import InputError, InputProblem
 from delegation.messages import (
+    TERMINAL_NODE_STATUSES,
+    UNIT_ABORTED,
     CancelMission,
     DelegationResponse,
     MissionStatus,
@@ -23,16 +25,26 @@ from delegation.messages import (
     SignalTstTree,
     SignalUnit,
     TstFeedback,
-    WireModel,
+    TstResponse,
 )
 from delegation.runtime.commands import CommandKey
 from delegation.runtime.core import Effects
 from delegation.service.engine_link import EngineAnswer
+from delegation.service.missions import Mission
 from delegation.service.planning import MissionPart
-from delegation.service.redelegation import first_origin
+from delegation.service.redelegation import current_node, first_origin
 from delegation.service.repair import INTERNAL, Repair
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class _Fanout:
+    """One caller's signal sent as several (a regrouped control node): answers still awaited
+    and the failures among those in."""
+
+    waiting: int
+    failures: list[str] = field(default_factory=list)
 
 
 @dataclass(eq=False)
@@ -40,6 +52,8 @@ class EngineUse(MissionPart):
     """The engine's feedback and answers, applied; ``cancel-mission`` sent to it."""
 
     repair: Repair
+    #: Callers' signals sent as several, by the caller's command key.
+    fanout: dict[CommandKey, _Fanout] = field(default_factory=dict)
 
     def signal(self, cmd: SignalTstNode | SignalTstTree | SignalUnit, key: CommandKey,
                now: float) -> Effects:
@@ -59,10 +73,56 @@ class EngineUse(MissionPart):
                 cmd.command, "node-uuid",
                 f"{cmd.node_uuid!r} is not a node of any mission of {self.config.name}"))
         self.desk.authorise(cmd.command, found, key)
-        node: WireModel = type(cmd)(node_uuid=cmd.node_uuid, signal=cmd.signal,
-                                    sender=self.config.name)
-        return Effects(publish=[self.engine.send("signal", key, "tst", node, now,
-                                                 found.root_uuid)])
+        if found.redelegating:
+            raise InputError(InputProblem(
+                cmd.command, "node-uuid", f"mission {found.root_uuid} is being re-delegated: "
+                "its new tree is not sent yet, signal again in a moment"))
+        view = found.operator
+        target = (None if view is not None and cmd.node_uuid in view.children
+                  and not view.relayed(cmd.node_uuid)  # regrouped away: not in the tree sent
+                  else current_node(found.origin, found.current_nodes, cmd.node_uuid))
+        targets = [target] if target is not None else self._regrouped(found, cmd)
+        if not targets:
+            return self.desk.respond("tst", key, TstResponse(response="ok", response_to=key[1]))
+        if len(targets) > 1:
+            self.fanout[key] = _Fanout(len(targets))
+        kind: type[SignalTstNode | SignalTstTree] = type(cmd) if target is not None \
+            else SignalTstNode
+        return Effects(publish=[
+            self.engine.send("signal", key, "tst", kind(node_uuid=uid, signal=cmd.signal,
+                                                        sender=self.config.name),
+                             now, found.root_uuid)
+            for uid in targets])
+
+    def _regrouped(self, mission: Mission, cmd: SignalTstNode | SignalTstTree) -> list[str]:
+        """A signal to an operator's control node that the tree running does not have (the
+        sent tree regrouped it away; docs/protocol.md §4): the tasks under it it reaches, as
+        nodes of the running tree. ``signal-tst-tree`` and ``$abort``: every task that has not
+        ended; ``signal-tst-node`` ``$pause``/``$continue``/``$enough`` (the node alone: what has
+        not started under it): the tasks that have not started."""
+        operator = mission.operator
+        uid = cmd.node_uuid
+        if operator is None or uid not in operator.children:
+            raise InputError(InputProblem(
+                cmd.command, "node-uuid", f"{uid!r} ended before mission {mission.root_uuid} "
+                "was re-delegated: it is not part of the tree running now"))
+        leaves: list[str] = []
+        stack = [uid]
+        while stack:
+            node = stack.pop()
+            if node in operator.leaves:
+                leaves.append(node)
+            stack.extend(reversed(operator.children.get(node, [])))
+        alone = isinstance(cmd, SignalTstNode) and cmd.signal != "$abort"
+        out = []
+        for leaf in leaves:
+            now_uid = current_node(mission.origin, mission.current_nodes, leaf)
+            if now_uid is None or mission.node_status.get(now_uid) in TERMINAL_NODE_STATUSES:
+                continue
+            if alone and now_uid in mission.node_started:
+                continue
+            out.append(now_uid)
+        return out
 
     def receive(self, topic: str, payload: bytes, now: float) -> Effects:
         """One message from the engine: feedback (from where its tree was sent only), or the
@@ -93,29 +153,50 @@ class EngineUse(MissionPart):
         if mission is None:
             return Effects()  # a tree someone else gave the engine
         self.view.task_feedback(fb, now)
+        effects = self.relay(mission, fb)
+        effects.extend(self.lifecycle.publish(events))
+        if retry is not None:
+            # The engine already ended the failed (or aborted) branch: the tree is replaced.
+            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now, rebind=False))
+        return effects
+
+    def relay(self, mission: Mission, fb: TstFeedback) -> Effects:
+        """The operator hears a node's status in the tree they sent (docs/protocol.md §4, §11):
+        under the uuid of the first tree's node it stands for (after a re-delegation replaced
+        the tree), leaves and kept control nodes unchanged, regrouped control nodes derived.
+        Nothing of a tree that was replaced (its abort is not news), and only tasks' own
+        statuses while its replacement is planned (the failure that started it spreads up)."""
         effects = Effects()
+        uid = fb.node_uuid
+        if uid not in mission.current_nodes or (mission.redelegating and uid in mission.nodes
+                                                 and not mission.nodes[uid].is_task):
+            return effects
+        first = first_origin(mission.origin, uid)
         operator = mission.operator
-        if operator is None or operator.relayed(fb.node_uuid):  # leaves and kept nodes: unchanged
+        relayed = operator is None or operator.relayed(first)
+        if operator is not None and not relayed and not operator.tracked(first):
+            return effects  # a node only the sent tree has
+        if relayed:  # leaves and kept nodes: as the engine said (a shared search's part: not)
             effects.send(self.desk.topics.tst_feedback, TstFeedback(
-                node_uuid=fb.node_uuid, root_flag=fb.root_flag, status=fb.status,
+                node_uuid=first, root_flag=first == mission.root_uuid, status=fb.status,
                 fail_reason=fb.fail_reason))
-        if operator is not None and operator.tracked(fb.node_uuid):
+        if operator is not None:
             # The operator's control nodes the sent tree regrouped away, and shared searches
             # whose parts' conc it regrouped away: derived from their children (docs/protocol.md
             # §8, DESIGN 3.11).
-            for uid, status in operator.changes(fb.node_uuid, mission.node_status):
+            for node, status in operator.changes(first, mission.operator_statuses()):
                 effects.send(self.desk.topics.tst_feedback, TstFeedback(
-                    node_uuid=uid, root_flag=uid == operator.root, status=status,
+                    node_uuid=node, root_flag=node == operator.root, status=status,
                     fail_reason=fb.fail_reason if status in ("failed", "aborted") else ""))
-        effects.extend(self.lifecycle.publish(events))
-        if retry is not None:
-            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now))
         return effects
 
     def _failed_task(self, fb: TstFeedback) -> tuple[str, str] | None:
         """(unit, why) when ``fb`` is a task of a running mission's current tree failing on its
-        unit with retry budget left, else None."""
-        if fb.status != "failed":
+        unit, or aborted by its unit unasked (docs/protocol.md §11), with retry budget left,
+        else None. An ``$abort`` the operator (or the engine, stopping a failed branch) sent
+        ends the task as asked: not re-delegated."""
+        if fb.status != "failed" and not (fb.status == "aborted"
+                                          and fb.fail_reason.endswith(UNIT_ABORTED)):
             return None
         mission = self.book.of_node(fb.node_uuid)
         if mission is None or mission.ended or mission.redelegating:
@@ -127,7 +208,7 @@ class EngineUse(MissionPart):
                 >= self.config.max_retries:
             return None  # the budget is spent: the failure ends the mission as usual
         unit = info.execunit.strip("/")
-        why = f"{info.path} ({info.name}) failed on /{unit}: {fb.fail_reason or 'failed'}"
+        why = f"{info.path} ({info.name}) {fb.status} on /{unit}: {fb.fail_reason or fb.status}"
         return unit, why
 
     def answer(self, got: EngineAnswer, now: float) -> Effects:
@@ -137,8 +218,26 @@ class EngineUse(MissionPart):
         if got.mission_status is not None:
             effects.extend(self.lifecycle.set_status(req.root_uuid, got.mission_status, now,
                                                      got.fail_reason))
+        if req.kind == "rebind":
+            answer = got.answer
+            return effects.extend(self.repair.rebind_answered(
+                req.root_uuid, getattr(answer, "response", "") == "ok",
+                getattr(answer, "fail_reason", "") or "no answer", now))
         if req.key[0] == INTERNAL:
             return effects  # the service's own command (re-delegation): nobody to answer
+        fan = self.fanout.get(req.key)
+        if fan is not None:  # one of several signals for one command: answered once, at the end
+            fan.waiting -= 1
+            if getattr(got.answer, "response", "") == "failed":
+                fan.failures.append(getattr(got.answer, "fail_reason", "") or "failed")
+            if fan.waiting > 0:
+                return effects
+            del self.fanout[req.key]
+            if fan.failures:
+                return effects.extend(self.desk.fail(req.face, req.key, req.key[1],
+                                                     "; ".join(fan.failures)))
+            return effects.extend(self.desk.respond(req.face, req.key, TstResponse(
+                response="ok", response_to=req.key[1])))
         mission = self.book.find(req.root_uuid) if req.kind == "cancel" else None
         if mission is not None and not mission.ended \
                 and getattr(got.answer, "response", "") == "ok":

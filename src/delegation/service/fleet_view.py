@@ -188,7 +188,8 @@ class FleetView:
 
     def free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
         """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
-        that mission's plan; None when the plan does not say (a re-delegated tree)."""
+        that mission's plan; None when the plan does not say (a re-delegated tree, or a task
+        moved onto the unit since)."""
         m = self.book.find(root)
         if m is None:
             return None
@@ -197,6 +198,11 @@ class FleetView:
                     a.get("node-uuid", "")) not in TERMINAL]
         if not mine or any(a.get("node-uuid") not in m.current_nodes for a in mine):
             return None
+        planned = {a.get("node-uuid") for a in mine}
+        if any(m.nodes[uid].is_task and m.nodes[uid].execunit == unit.execunit
+               and uid not in planned and m.node_status.get(uid) not in TERMINAL
+               for uid in m.current_nodes):
+            return None  # a task moved onto it (re-delegated in place): its end is not known
         last = max(mine, key=lambda a: float(a.get("end", 0.0)))
         began = m.started_at if m.started_at is not None else self.epoch(now)
         wait = max(0.0, began + float(last.get("end", 0.0)) - self.epoch(now))

@@ -18,6 +18,7 @@ from typing import Any, Protocol
 from delegation.errors import InputError, InputProblem
 from delegation.messages import FINAL_MISSION_STATUSES, TERMINAL_NODE_STATUSES, MissionStatus
 from delegation.service.operator_view import OperatorView
+from delegation.service.redelegation import first_origin, statuses_by_first
 from delegation.tst.node import TstNode, parse_tree, walk
 
 #: Statuses only move forward: a late "started" answer cannot undo "running".
@@ -101,6 +102,12 @@ class Mission:
         """True while a replacement tree is being planned or sent."""
         return not self.current_root
 
+    def operator_statuses(self) -> dict[str, str]:
+        """Node statuses under the first tree's uuids (the operator's), whatever tree runs now."""
+        if not self.origin:
+            return self.node_status
+        return statuses_by_first(self.node_status, self.origin, self.current_nodes)
+
     @property
     def ended(self) -> bool:
         """True once the mission succeeded, failed or was aborted."""
@@ -129,16 +136,20 @@ class Mission:
         """The full form answered by ``query-mission``: status, node statuses, assignments."""
         nodes = []
         view = self.operator
+        statuses = self.operator_statuses()
+        # The node standing for each of the first tree's now (its unit may have changed).
+        now_for = {first_origin(self.origin, u): u for u in self.current_nodes} \
+            if self.origin else {}
         for uid, info in self.nodes.items():
             if view is not None and uid not in view:
                 continue  # only in the sent tree
-            status = (view.derive(uid, self.node_status) if view is not None
-                      else self.node_status.get(uid, "not-active"))
+            status = (view.derive(uid, statuses) if view is not None
+                      else statuses.get(uid, "not-active"))
             nodes.append(
                 {
                     "node-uuid": uid,
                     "name": info.name,
-                    "execunit": info.execunit,
+                    "execunit": self.nodes.get(now_for.get(uid, uid), info).execunit,
                     "path": info.path,
                     "status": status,
                     "started": _rel(self.node_started.get(uid), self.started_at),
@@ -295,6 +306,24 @@ def node_infos(tree: TstNode) -> dict[str, NodeInfo]:
     return out
 
 
+def _with_execunits(tst: dict[str, Any], execunits: dict[str, str]) -> dict[str, Any]:
+    """A copy of the JSON tree ``tst`` with the ``execunit`` of the nodes named changed (either
+    spelling of ``common_params``; walked with a stack, any depth)."""
+    root = dict(tst)
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        for key in ("common_params", "common-params"):
+            common = node.get(key)
+            if isinstance(common, dict) and common.get("node-uuid") in execunits:
+                node[key] = {**common, "execunit": execunits[common["node-uuid"]]}
+        children = node.get("children")
+        if isinstance(children, list):
+            node["children"] = [dict(c) if isinstance(c, dict) else c for c in children]
+            stack.extend(c for c in node["children"] if isinstance(c, dict))
+    return root
+
+
 class MissionBook:
     """Every mission the service has planned or run, indexed by root and by node uuid."""
 
@@ -398,6 +427,19 @@ class MissionBook:
         for uid in nodes:
             self._node_root[uid] = mission.root_uuid
         mission.current_root = root
+        mission.redelegations += 1
+        if mission.operator is not None:
+            mission.operator.reset()
+        self.touch(mission.root_uuid, Change.TREE | Change.STATE)
+
+    def rebind(self, mission: Mission, execunits: dict[str, str]) -> None:
+        """Tasks of the running tree moved to other units (``rebind-tst-nodes``, node uuid ->
+        ``/unit``): same nodes, same tree, new units."""
+        for uid, unit in execunits.items():
+            info = mission.nodes.get(uid)
+            if info is not None:
+                mission.nodes[uid] = NodeInfo(uid, info.name, unit, info.path, info.is_task)
+        mission.current_tst = _with_execunits(mission.current_tst, execunits)
         mission.redelegations += 1
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 

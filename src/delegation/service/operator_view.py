@@ -4,9 +4,11 @@ The tree sent to the engine may regroup the caller's control nodes (series-paral
 instantiation). The service relays unchanged the engine's feedback on the leaves and on the
 control nodes the sent tree kept (same uuid, same tasks: the engine computes them; the root is
 always kept). A control node of the operator's tree that the sent tree does not have is derived
-from its children, as the engine computes a control node: failed when a child failed, aborted
-when a child was aborted (or revoked), succeeded when all succeeded, running once any child has
-started. Nodes that exist only in the sent tree are not shown.
+from its children, as the engine computes a control node (docs/protocol.md §12.3): once every
+child has ended, failed when a child failed, else aborted when a child was aborted, revoked when
+every child was revoked (skipped), else succeeded (a ``revoked`` child is skipped work, not a
+failure); before that, running once any child has started. Nodes that exist only in the sent tree
+are not shown.
 
 A search the plan shared among units (DESIGN 3.11) is sent as a ``conc`` of per-unit parts with
 the search's uuid; where the sent tree kept that ``conc``, the engine's feedback on it is relayed
@@ -24,7 +26,7 @@ from delegation.tst.node import TstNode, walk
 
 _FINAL = frozenset({"succeeded", "failed", "aborted", "revoked"})
 _STARTED = frozenset({"active", "waiting", "running", "paused", "succeeded", "failed",
-                      "aborted", "revoked"})
+                      "aborted"})
 
 
 @dataclass
@@ -84,15 +86,19 @@ class OperatorView:
         if self.relayed(node_uuid) or node_uuid in self.parts:
             return statuses.get(node_uuid, "not-active")
         kids = [self.derive(k, statuses) for k in self.children.get(node_uuid, [])]
-        if "failed" in kids:
-            return "failed"
-        if "aborted" in kids or "revoked" in kids:
-            return "aborted"
-        if kids and all(k == "succeeded" for k in kids):
-            return "succeeded"
+        if kids and all(k in _FINAL for k in kids):
+            if "failed" in kids:
+                return "failed"
+            if "aborted" in kids:
+                return "aborted"
+            return "revoked" if all(k == "revoked" for k in kids) else "succeeded"
         if any(k in _STARTED for k in kids):
             return "running"
         return "not-active"
+
+    def reset(self) -> None:
+        """The tree was replaced (a re-delegation): what was shown may change again."""
+        self.shown.clear()
 
     def changes(self, node_uuid: str, statuses: Mapping[str, str]) -> list[tuple[str, str]]:
         """After relayed ``node_uuid``'s status changed: the derived control nodes above it whose

@@ -2,14 +2,15 @@
 units is lost or fails a task, as a tree to plan again. Pure: trees and statuses in, trees and
 rows out.
 
-Semantics (docs/protocol.md §11): the mission's tree on the engine is *replaced*. The remaining
-tree keeps the original structure (``seq`` order, ``conc`` grouping) with every task that has not
-succeeded; a task that succeeded is never run again, a control node left without tasks is
-dropped. Tasks of the lost (or failing) unit become free (``execunit`` ``""``) and are planned
-again with the live units from where they are; every other task stays on its unit. The service
-then sends ``$abort`` for the old tree and ``start-tst`` with the new one: a task that was running
-on a healthy unit is stopped and started again from where that unit is (a ``move-to`` continues
-to its waypoint; a ``search-area`` starts its pattern again).
+Semantics (docs/protocol.md §11): the remaining tree keeps the original structure (``seq``
+order, ``conc`` grouping) with every task that has not succeeded; a task that succeeded is never
+run again, a control node left without tasks is dropped. Tasks of the lost (or failing) unit
+become free (``execunit`` ``""``) and are planned again with the live units from where they are;
+every other task stays on its unit (so the plan puts the freed ones after them). The plan is then
+applied by `delegation.service.repair`: for a lost unit, each freed task moves to its planned
+unit within the running tree (``rebind-tst-nodes``: healthy units' tasks are not touched); for a
+failed task (whose branch the engine already stopped), or an engine that cannot move tasks, the
+old tree is aborted and the remaining one started in its place.
 """
 
 from __future__ import annotations
@@ -111,3 +112,36 @@ def first_origin(origin: Mapping[str, str], uid: str) -> str:
         seen.add(uid)
         uid = origin[uid]
     return uid
+
+
+def current_node(origin: Mapping[str, str], current: Iterable[str], uid: str) -> str | None:
+    """The node of the current tree that stands for ``uid`` (a node of any earlier tree, e.g. the
+    operator's): ``uid`` itself while its tree runs, else the node whose origin chain leads to
+    it; None when no node of the current tree does (it ended before, or was regrouped away)."""
+    nodes = set(current)
+    if uid in nodes:
+        return uid
+    for node in sorted(nodes):
+        seen: set[str] = set()
+        step = node
+        while step in origin and step not in seen:
+            seen.add(step)
+            step = origin[step]
+            if step == uid:
+                return node
+    return None
+
+
+def statuses_by_first(node_status: Mapping[str, str], origin: Mapping[str, str],
+                      current: Iterable[str]) -> dict[str, str]:
+    """Node statuses under the uuids of the first tree (the operator's): what the first tree's
+    nodes said, then what the nodes standing for them in later trees say (a task that succeeded
+    in any tree; every node of the current tree, which replaces what its predecessors said)."""
+    out = dict(node_status)
+    for uid, status in node_status.items():
+        if uid in origin and status in DONE:
+            out[first_origin(origin, uid)] = status
+    for uid in current:
+        if uid in origin:
+            out[first_origin(origin, uid)] = node_status.get(uid, "not-active")
+    return out

@@ -2,11 +2,13 @@
 §11).
 
 A unit lost (heartbeat stopped, or a new agent-uuid) or answering ``failed`` has its unfinished
-tasks re-delegated: what remains of the mission is planned without it (a job), then the old tree
-is aborted and the new one started, and the operator is told which task moved where
-(`delegation.service.redelegation` computes the remaining tree). A task re-delegated
-``max_retries`` times, or one nobody can take, fails the mission naming it. An engine lost or
-restarted fails its missions with the reason: the trees it executed are gone with it.
+tasks re-delegated: what remains of the mission is planned without it (a job), and the operator is
+told which task moved where (`delegation.service.redelegation` computes the remaining tree).
+A lost unit's tasks move within the running tree (``rebind-tst-nodes``): the other units' tasks
+go on untouched. A failed task (its branch already stopped by the engine), or a rebind the engine
+refuses, replaces the tree: the old one is aborted and the remaining one started. A task
+re-delegated ``max_retries`` times, or one nobody can take, fails the mission naming it. An engine
+lost or restarted fails its missions with the reason: the trees it executed are gone with it.
 """
 
 from __future__ import annotations
@@ -15,9 +17,17 @@ import logging
 import uuid
 from dataclasses import dataclass, field
 
+from delegation.allocation import Plan
 from delegation.errors import InputError
 from delegation.fleet import FleetEvent, FleetEventKind
-from delegation.messages import DelegationFeedback, MissionStatus, SignalTstTree, StartTst
+from delegation.messages import (
+    TERMINAL_NODE_STATUSES,
+    DelegationFeedback,
+    MissionStatus,
+    RebindTstNodes,
+    SignalTstTree,
+    StartTst,
+)
 from delegation.runtime.core import Effects
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.missions import Mission, node_infos
@@ -28,6 +38,7 @@ from delegation.service.redelegation import (
     moved_tasks,
     remaining_tree,
     unfinished_on,
+    unit_of,
 )
 from delegation.tst.node import parse_tree, walk, where
 from delegation.tst.validate import validate_tree
@@ -46,6 +57,20 @@ class Replan:
     why: str
     old_root: str
     units: frozenset[str]
+    #: The planning job's id (a newer replan of the mission supersedes this one).
+    job: int = 0
+    #: Move the freed tasks within the running tree (`rebind-tst-nodes`) rather than replace it.
+    rebind: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Rebinding:
+    """A ``rebind-tst-nodes`` sent and not answered yet: what it moves, and why."""
+
+    execunits: dict[str, str]
+    why: str
+    units: frozenset[str]
+    tasks: list[dict[str, str]]
 
 
 @dataclass(eq=False)
@@ -55,12 +80,17 @@ class Repair(MissionPart):
     planning: Planning
     #: Missions whose re-delegation is being planned, by root uuid.
     replans: dict[str, Replan] = field(default_factory=dict)
+    #: Missions whose ``rebind-tst-nodes`` waits for the engine's answer, by root uuid.
+    rebinds: dict[str, Rebinding] = field(default_factory=dict)
 
     def forget(self, root_uuid: str, now: float) -> Effects:
         """The mission ends while re-delegating (cancelled): abort its old tree, still running
         on a live engine, and drop the replan."""
+        self.rebinds.pop(root_uuid, None)
         replan = self.replans.pop(root_uuid, None)
-        return self.abort_tree(replan.old_root, now) if replan is not None else Effects()
+        if replan is None or replan.rebind:  # a rebind's tree is the mission's: cancel aborts it
+            return Effects()
+        return self.abort_tree(replan.old_root, now)
 
     def engine_gone(self, event: FleetEvent, now: float) -> Effects:
         """The engine's heartbeat stopped, or it came back with a new agent-uuid: the trees it
@@ -87,13 +117,20 @@ class Repair(MissionPart):
             if m.ended or m.redelegating or m.status not in (MissionStatus.STARTED,
                                                              MissionStatus.RUNNING):
                 continue
+            if m.root_uuid in self.replans or m.root_uuid in self.rebinds:
+                continue  # one repair at a time: the next looks for lost units again
             if unfinished_on(parse_tree(m.current_tst), m.node_status, event.name):
                 effects.extend(self.redelegate(m, event.name, why, now))
         return effects
 
-    def redelegate(self, mission: Mission, unit: str, why: str, now: float) -> Effects:
-        """Plan what ``mission`` still has to do without ``unit`` (a job); the mission waits for
-        it (``redelegating``: no root status ends it meanwhile)."""
+    def redelegate(self, mission: Mission, unit: str, why: str, now: float,
+                   *, rebind: bool | None = None) -> Effects:
+        """Plan what ``mission`` still has to do without ``unit`` (a job). With ``rebind``
+        (``repair: rebind``, the default for a lost unit) the tree runs on meanwhile and the
+        freed tasks then move within it; else the mission waits for a replacement tree
+        (``redelegating``: no root status ends it meanwhile)."""
+        if rebind is None:
+            rebind = self.config.repair == "rebind"
         tree = parse_tree(mission.current_tst)
         # Every unit of the tree that is gone too (e.g. lost while this was being planned).
         lost = {unit} | {n.execunit.strip("/") for _, n in walk(tree) if not n.is_control
@@ -115,12 +152,16 @@ class Repair(MissionPart):
             return self.abort_and_fail(mission, mission.current_root, f"{why}; {exc.fail_reason}",
                                        now)
         old_root = mission.current_root
-        mission.current_root = ""  # re-delegating
+        if not rebind:
+            mission.current_root = ""  # re-delegating
+        self.rebinds.pop(mission.root_uuid, None)  # a replacement supersedes a rebind in flight
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
-        self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost))
+        job_id = self.planning.next_id()
+        self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
+                                                 job_id, rebind)
         options = self.planning.options(mission.plan.get("strategy"),
                                         mission.plan.get("objective"), None)
-        job = Job(id=self.planning.next_id(), kind="plan",
+        job = Job(id=job_id, kind="plan",
                   key=(INTERNAL, f"{mission.root_uuid}#{mission.redelegations + 1}"),
                   face="delegation", tree=checked, units=units, options=options,
                   engine=self.config.engine, start=True, source="redelegate", received=now,
@@ -132,10 +173,13 @@ class Repair(MissionPart):
     def redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
         """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
         or fail the mission naming the unit and the tasks nobody can take."""
-        replan = self.replans.pop(job.redelegate, None)
+        replan = self.replans.get(job.redelegate)
+        if replan is None or replan.job != job.id:
+            return Effects()  # cancelled, or superseded by a newer replan
+        del self.replans[job.redelegate]
         mission = self.book.find(job.redelegate)
-        if replan is None or mission is None or mission.ended:
-            return Effects()  # cancelled or ended meanwhile
+        if mission is None or mission.ended:
+            return Effects()  # ended meanwhile
         if isinstance(result, JobFailed):
             return self.abort_and_fail(mission, replan.old_root, f"{replan.why}; {result.reason}",
                                         now)
@@ -150,11 +194,14 @@ class Repair(MissionPart):
                      for u in plan.unassigned]
             reason = f"{replan.why}; nobody can take " + "; ".join(parts)
             return self.abort_and_fail(mission, replan.old_root, reason, now)
+        if replan.rebind:
+            return self.rebind(mission, replan, plan, now)
         if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
                for uid in origin):
             # A task finished while this was planned: plan again without it (never run twice).
             mission.current_root = replan.old_root
-            return self.redelegate(mission, next(iter(replan.units)), replan.why, now)
+            return self.redelegate(mission, next(iter(replan.units)), replan.why, now,
+                                   rebind=False)
         problem = self.engine.problem(now)
         if problem:
             return self.abort_and_fail(mission, replan.old_root, f"{replan.why}; {problem}", now)
@@ -178,6 +225,69 @@ class Repair(MissionPart):
         for note in plan.notes:
             log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
         return effects
+
+    def rebind(self, mission: Mission, replan: Replan, plan: Plan, now: float) -> Effects:
+        """Send ``rebind-tst-nodes`` for the freed tasks that have not ended, each to the unit
+        the plan gave it (the rest of the running tree is not touched)."""
+        origin = replan.remaining.origin
+        unit_by_uuid = {n.node_uuid: unit_of(n) for _, n in walk(plan.tst) if not n.is_control}
+        execunits = {origin[uid]: f"/{unit_by_uuid[uid]}" for uid in sorted(replan.remaining.freed)
+                     if unit_by_uuid.get(uid)
+                     and mission.node_status.get(origin[uid]) not in TERMINAL_NODE_STATUSES}
+        if not execunits:
+            return Effects()
+        problem = self.engine.problem(now)
+        if problem:
+            return self.abort_and_fail(mission, mission.current_root,
+                                       f"{replan.why}; {problem}", now)
+        tasks = []
+        for old, unit in execunits.items():
+            info = mission.nodes[old]
+            tasks.append({"node-uuid": old, "replaces": old, "name": info.name,
+                          "path": info.path, "unit": unit})
+        self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks)
+        model = RebindTstNodes(execunits=execunits, sender=self.config.name)
+        key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
+        return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
+                                                 mission.root_uuid)])
+
+    def rebind_answered(self, root_uuid: str, ok: bool, reason: str, now: float) -> Effects:
+        """The engine's answer to ``rebind-tst-nodes``: the tasks moved (the book follows, the
+        operator is told ``re-delegated``); refused or unanswered (an engine without it), the
+        tree is replaced instead."""
+        sent = self.rebinds.pop(root_uuid, None)
+        mission = self.book.find(root_uuid)
+        if sent is None or mission is None or mission.ended or mission.redelegating:
+            return Effects()
+        if not ok:
+            log.warning("mission %s: the engine did not re-bind (%s): replacing the tree",
+                        root_uuid, reason)
+            why = f"{sent.why} (the engine did not move the tasks: {reason})"
+            return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
+                                   rebind=False)
+        self.book.rebind(mission, sent.execunits)
+        for uid in sent.execunits:
+            first = first_origin(mission.origin, uid)
+            mission.retries[first] = mission.retries.get(first, 0) + 1
+        effects = Effects()
+        effects.send(self.desk.topics.delegation_feedback, DelegationFeedback(
+            root_uuid=root_uuid, status=MissionStatus.RE_DELEGATED.value, fail_reason=sent.why,
+            tasks=sent.tasks))
+        log.info("mission %s re-delegated in place: %s", root_uuid,
+                 ", ".join(f"{t['path']} -> {t['unit']}" for t in sent.tasks))
+        return effects.extend(self.still_lost(mission, now))
+
+    def still_lost(self, mission: Mission, now: float) -> Effects:
+        """After a repair: a unit of the mission lost meanwhile has its tasks moved too."""
+        tree = parse_tree(mission.current_tst)
+        for _, node in walk(tree):
+            unit = unit_of(node) if not node.is_control else ""
+            if unit and not self.view.fleet.is_alive(f"/{unit}", now) \
+                    and unfinished_on(tree, mission.node_status, unit):
+                return self.redelegate(mission, unit, f"/{unit} lost (no heartbeat)", now)
+        return Effects()
 
     def abort_tree(self, root: str, now: float) -> Effects:
         """``$abort`` a tree the service gave the engine (no caller waits for the answer)."""
