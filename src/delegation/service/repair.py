@@ -113,6 +113,10 @@ class Repair(MissionPart):
         why = (f"/{event.name} lost (no heartbeat)" if event.kind is FleetEventKind.LOST
                else f"/{event.name} rebooted (new agent-uuid): its tasks are gone")
         effects = Effects()
+        # A delegator runs whole subtrees (not task nodes that could move): its part is planned
+        # again in a replacement tree (docs/protocol.md §15.4).
+        delegator = event.name in {d.name for d in self.view.fleet.delegators(
+            now, alive_only=False)}
         for m in self.book:
             if m.ended or m.redelegating or m.status not in (MissionStatus.STARTED,
                                                              MissionStatus.RUNNING):
@@ -120,7 +124,8 @@ class Repair(MissionPart):
             if m.root_uuid in self.replans or m.root_uuid in self.rebinds:
                 continue  # one repair at a time: the next looks for lost units again
             if unfinished_on(parse_tree(m.current_tst), m.node_status, event.name):
-                effects.extend(self.redelegate(m, event.name, why, now))
+                effects.extend(self.redelegate(m, event.name, why, now,
+                                               rebind=False if delegator else None))
         return effects
 
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
