@@ -297,8 +297,9 @@ class CoreUnit(MqttUnit, Generic[C]):
 
     ``clock`` gives the core's ``now`` (monotonic by default), read when each message or event
     arrived, and for a tick the arrival of the oldest item still queued (`MqttUnit`); ``wall``
-    gives epoch seconds for the ``stamp`` of status messages. Status goes out as soon as the unit is subscribed (so peers
-    started earlier see it at once) and then every ``core.status_period`` seconds.
+    gives epoch seconds for the ``stamp`` of status messages. Status goes out as soon as the
+    unit is subscribed (so peers started earlier see it at once) and then every
+    ``core.status_period`` seconds.
     """
 
     def __init__(
