@@ -25,6 +25,7 @@ from delegation.errors import DelegationError
 from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.service.config import ServiceConfig
+from delegation.service.outage import DEFAULT_BOUND
 from delegation.service.store import SqliteStore, Store
 from delegation.service.unit import DEFAULT_RETENTION, DelegationService
 
@@ -78,12 +79,15 @@ def run_active(
     stop: threading.Event,
     *,
     retention: float = DEFAULT_RETENTION,
+    store_bound: float = DEFAULT_BOUND,
     poll: float = STANDBY_POLL,
     probe: float = PROBE_SECONDS,
     announce: Callable[[str], None] = log.info,
 ) -> int:
     """Become the active instance (or stand by until it can), then serve until ``stop``; 0 after
-    ``stop``, 1 if the lock was lost. `InstanceConflict` when it must not start at all."""
+    ``stop``, 1 if it gave up: the lock was lost, or the store failed for ``store_bound`` s (the
+    service has left the broker by then; the caller closes the store, which releases the lock).
+    `InstanceConflict` when it must not start at all."""
     if not store.acquire(config.name):
         if not store.shared:
             holder = store.holder() if isinstance(store, SqliteStore) else "?"
@@ -106,14 +110,16 @@ def run_active(
                 f"{settings.describe()}: heartbeat on {other}; two instances would answer every "
                 f"command twice: stop it or use another --name")
     began = time.monotonic()
-    service = DelegationService(settings, config, store=store, retention=retention)
+    service = DelegationService(settings, config, store=store, retention=retention,
+                                store_bound=store_bound)
     service.core.identity = config.identity(agent_uuid)
     service.start()
     announce(f"{config.name}: active ({len(service.core.book)} open missions from "
              f"{store.where}, ready in {time.monotonic() - began:.1f} s)")
     try:
         while not stop.wait(0.5):
-            if service.lock_lost.is_set():
+            if service.failed.is_set():
+                announce(f"{config.name}: gave up: {service.failure}")
                 return 1
         return 0
     finally:
