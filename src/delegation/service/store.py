@@ -37,9 +37,9 @@ import logging
 import os
 import sqlite3
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from delegation.errors import DelegationError
 from delegation.runtime.commands import CommandEntry, CommandKey, CommandState
@@ -54,6 +54,7 @@ from delegation.service.missions import (
 )
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: Tables (the same DDL for SQLite and PostgreSQL; times are epoch seconds). A mission is three
 #: JSON parts: ``data`` what never changes (written once: the trees, the plan, the command),
@@ -266,9 +267,11 @@ class _SqlStore:
                 conn.commit()
             except Exception as exc:
                 self._failed(conn, exc)
-                raise
+                raise StoreError(f"cannot read from {self.where}: "
+                                 f"{type(exc).__name__}: {exc}".strip()) from exc
             finally:
-                cur.close()
+                with contextlib.suppress(Exception):
+                    cur.close()
             return rows
 
     def _create(self) -> None:
@@ -523,15 +526,24 @@ class PostgresStore(_SqlStore):
         """As `_SqlStore.save`; a connection found dropped when used (idle, cut by a NAT or the
         server) is replaced and the write made once more at once (every write is idempotent: an
         upsert or an update to the whole state)."""
+        self._again_if_dropped(lambda: super(PostgresStore, self).save(missions, commands))
+
+    def _fetch(self, sql: str, args: Sequence[Any] = ()) -> list[Any]:
+        return self._again_if_dropped(lambda: super(PostgresStore, self)._fetch(sql, args))
+
+    def _again_if_dropped(self, call: Callable[[], T]) -> T:
+        """``call()``, and once more if it found the connection dropped (not when it was
+        already known dropped: then ``call`` tried to reconnect, and that failed)."""
+        known_down = self._conn.broken or self._conn.closed
         try:
-            super().save(missions, commands)
+            return call()
         except LockLost:
             raise
         except StoreError:
-            if not self._conn.broken:
+            if known_down or not self._conn.broken:
                 raise
             log.warning("state store: the connection to %s was dropped; reconnecting", self.where)
-            super().save(missions, commands)
+            return call()
 
     def holds(self) -> bool:
         if self._lock_name is None:

@@ -33,6 +33,7 @@ from typing import Any
 
 from delegation.runtime.commands import CommandEntry, CommandLog, CommandState
 from delegation.runtime.core import Effects, Outgoing
+from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.unit import CoreUnit
 from delegation.service.config import ServiceConfig
@@ -41,7 +42,7 @@ from delegation.service.faces import failure
 from delegation.service.jobs import Job, JobResult, run_job
 from delegation.service.missions import MissionBook
 from delegation.service.outage import DEFAULT_BOUND, Outage
-from delegation.service.store import LockLost, Store
+from delegation.service.store import LockLost, Store, StoreError
 from delegation.topics import QOS_PERIODIC
 
 log = logging.getLogger(__name__)
@@ -89,6 +90,9 @@ class DelegationService(CoreUnit[ServiceCore]):
         self._next_lock_check = 0.0
         #: Messages waiting for their batch's state to be stored (in order).
         self._held: list[Outgoing] = []
+        #: Received messages whose step needed a read the store could not do (queued again when
+        #: the store is tried next).
+        self._unread: list[Message] = []
         self._writes = Outage(store_bound)
         self._lock_checks = Outage(store_bound)
         #: Whether the store's lock was taken (`run_active`): only then can it be lost.
@@ -153,6 +157,19 @@ class DelegationService(CoreUnit[ServiceCore]):
         """Messages waiting for the store (for tests and logs)."""
         return len(self._held)
 
+    def handle(self, message: Message) -> None:
+        """As `CoreUnit.handle`; a step that needed the store (a command seen long ago, a
+        mission no longer in memory) and could not read it changed nothing yet: the message is
+        kept and queued again when the store is tried next (`_flush`)."""
+        try:
+            super().handle(message)
+        except StoreError as exc:
+            if self.store is None:
+                raise
+            self._unread.append(message)
+            self._store_failed(self._writes, self.clock(),
+                               f"a read from {self.store.where} failed", exc)
+
     def _flush(self, store: Store) -> None:
         """Write what is noted (when not backing off), then publish what waited for it."""
         if self._fenced:
@@ -160,15 +177,19 @@ class DelegationService(CoreUnit[ServiceCore]):
         now = self.clock()
         if not self._writes.due(now):
             return
+        unread, self._unread = self._unread, []
+        for message in unread:  # handled again in the next batch (the store is tried again)
+            self.call_soon(message)
         try:
-            self._persist(store)
+            wrote = self._persist(store)
         except LockLost as exc:
             self._give_up(f"lost the lock on {store.where}: {exc}", lock=True)
             return
         except Exception as exc:
             self._store_failed(self._writes, now, f"a write to {store.where} failed", exc)
             return
-        lasted = self._writes.recovered(now)
+        # Only a write shows that the store works again (a read may still fail: it counts).
+        lasted = self._writes.recovered(now) if wrote else None
         if lasted is not None:
             log.warning("%s: the store %s works again after %.1f s; %d held messages go out",
                         self.name, store.where, lasted, len(self._held))
@@ -176,11 +197,14 @@ class DelegationService(CoreUnit[ServiceCore]):
         for out in held:
             self.send(out)
 
-    def _persist(self, store: Store) -> None:
+    def _persist(self, store: Store) -> bool:
+        """Write what the core changed; False when there was nothing to write."""
         core = self.core
         with self._state:  # only this thread changes the core: it may read it unlocked below
             missions = core.book.drain_dirty()
             commands = core.commands.drain_dirty()
+        if not missions and not commands:
+            return False
         try:
             store.save(missions, commands)
         except BaseException:
@@ -189,6 +213,7 @@ class DelegationService(CoreUnit[ServiceCore]):
                 core.book.undrain(missions)
                 core.commands.dirty.update(e.key for e in commands)
             raise
+        return True
 
     def _store_failed(self, outage: Outage, now: float, what: str, exc: Exception) -> None:
         first = not outage.ongoing
