@@ -131,6 +131,10 @@ class MqttUnit:
         """Called on the unit's thread after a batch of queued messages (and after a tick): a
         unit that defers its output to this point sends it here."""
 
+    def between(self) -> None:
+        """Called on the unit's thread after each item of a batch: work that must not wait for
+        the batch to end (a batch of slow steps can take seconds)."""
+
     # ---- lifecycle
 
     def start(self, timeout: float = 10.0) -> None:
@@ -264,6 +268,7 @@ class MqttUnit:
             else:
                 self._guard(lambda e=item: self.handle_event(e))  # type: ignore[misc]
             handled += 1
+            self._guard(self.between)
             if handled >= BATCH_MAX:
                 break  # the rest opens the next batch (a tick may run first)
             next_entry = self._inbox.get_nowait()
@@ -379,8 +384,12 @@ class CoreUnit(MqttUnit, Generic[C]):
 
     def tick(self, now: float) -> None:
         self._run_core(lambda: self.core.on_tick(now))
-        # Status runs on the clock, not the inbox's frontier: it says we are alive now, and its
-        # ``now`` pairs with the wall clock's stamp.
+        self.between()
+
+    def between(self) -> None:
+        """Status when it is due, also between the items of a long batch (peers must not take a
+        unit busy with a backlog for a lost one). On the clock, not the inbox's frontier: it says
+        the unit is alive now, and its ``now`` pairs with the wall clock's stamp."""
         real = self.clock()
         if real >= self._next_status:
             self._publish_status(real)
