@@ -264,3 +264,50 @@ def test_postgres_lock_check_reconnects_a_dropped_session(pg_dsn: str) -> None:
         assert store._conn.info.backend_pid != before
     finally:
         store.close()
+
+
+@pytest.mark.mqtt
+def test_a_standby_keeps_standing_by_while_the_database_is_unreachable(
+    mqtt_settings: BrokerSettings, prefix: str, tmp_path: Path,
+) -> None:
+    from delegation.service.active import run_active
+
+    class Shared(SqliteStore):
+        """Tries of the lock: unreachable twice, held by another once, then free."""
+
+        shared = True
+
+        def __init__(self, path: Path) -> None:
+            super().__init__(path)
+            self.tries = 0
+
+        def acquire(self, name: str) -> bool:
+            self.tries += 1
+            if self.tries in (2, 3):
+                raise StoreError("cannot connect to the database (simulated)")
+            return self.tries >= 5 and super().acquire(name)
+
+    store = Shared(tmp_path / "state.sqlite")
+    said: list[str] = []
+    stop = threading.Event()
+    active = threading.Event()
+
+    def announce(text: str) -> None:
+        said.append(text)
+        if ": active" in text:
+            active.set()
+
+    result: list[int] = []
+    runner = threading.Thread(target=lambda: result.append(run_active(
+        mqtt_settings, ServiceConfig(name="svc", prefix=prefix), store, stop, poll=0.05,
+        announce=announce)))
+    runner.start()
+    try:
+        assert active.wait(15.0), said
+    finally:
+        stop.set()
+        runner.join(15.0)
+        store.close()
+    assert not runner.is_alive() and result == [0]
+    assert store.tries == 5
+    assert any("standby" in s for s in said) and any("taking over" in s for s in said)

@@ -26,7 +26,7 @@ from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.service.config import ServiceConfig
 from delegation.service.outage import DEFAULT_BOUND
-from delegation.service.store import SqliteStore, Store
+from delegation.service.store import SqliteStore, Store, StoreError
 from delegation.service.unit import DEFAULT_RETENTION, DelegationService
 
 log = logging.getLogger(__name__)
@@ -72,6 +72,16 @@ def other_instance(
     return found[0] if found else None
 
 
+def _try(store: Store, name: str) -> bool:
+    """One try of the lock by a standby; the database unreachable for now is no reason to stop
+    standing by (logged; tried again at the next poll)."""
+    try:
+        return store.acquire(name)
+    except StoreError as exc:
+        log.warning("%s: standby: cannot try the lock: %s", name, exc)
+        return False
+
+
 def run_active(
     settings: BrokerSettings,
     config: ServiceConfig,
@@ -97,7 +107,7 @@ def run_active(
                 f"another --state (and --name), or share a PostgreSQL --state to stand by")
         announce(f"{config.name}: standby: another instance is active on {store.where}; "
                  f"taking over when it stops")
-        while not store.acquire(config.name):
+        while not _try(store, config.name):
             if stop.wait(poll):
                 return 0
         announce(f"{config.name}: the active instance stopped; taking over")
