@@ -54,9 +54,17 @@ TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (``/proc/PID/stat``)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
+    """User + system CPU seconds of process ``pid`` and its live descendants so far (the
+    planner process, the forkserver: ``/proc/PID/stat``)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
+        return 0.0
+    own = (int(fields[11]) + int(fields[12])) / TICKS
+    children: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        children.extend(int(c) for c in task.read_text().split())
+    return own + sum(cpu_seconds(child) for child in children)
 
 
 class Watch:
@@ -111,12 +119,13 @@ def tree(rng: random.Random, span: float) -> dict[str, Any]:
             "children": [move() for _ in range(rng.randint(2, 5))]}
 
 
-def start_service(settings: BrokerSettings, tmp: Path) -> subprocess.Popen[bytes]:
+def start_service(settings: BrokerSettings, tmp: Path, planner: str
+                  ) -> subprocess.Popen[bytes]:
     log = (tmp / "serve.log").open("w")
     return subprocess.Popen(
         [sys.executable, "-m", "delegation", "serve", "--broker", settings.host, "--port",
          str(settings.port), "--prefix", PREFIX, "--name", NAME, "--state",
-         str(tmp / "state.sqlite")],
+         str(tmp / "state.sqlite"), "--planner", planner],
         stdout=log, stderr=subprocess.STDOUT)
 
 
@@ -205,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--idle", type=float, default=3.0,
                     help="seconds of the idle service measured before the burst")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--planner", choices=("process", "thread"), default="thread",
+                    help="serve --planner: plans on a thread (default) or in a child process")
     ap.add_argument("--profile", metavar="OUT", help="py-spy raw profile of the service")
     ap.add_argument("--profile-until", choices=("answers", "end"), default="end",
                     help="profile the burst up to the last answer, or to the end of the run")
@@ -228,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         system = LocalSystem(units, settings=settings, config=config, service=False,
                              speedup=args.speedup, rates={u.name: 2.0 for u in units})
         system.start()
-        proc = start_service(settings, tmp)
+        proc = start_service(settings, tmp, args.planner)
         spy: subprocess.Popen[bytes] | None = None
         try:
             if not watch.wait(lambda: watch.beats >= 3, 30):

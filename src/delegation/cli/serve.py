@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import argparse
 import threading
+from collections.abc import Callable
 from contextlib import ExitStack
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from delegation.cli.connect import add_broker_args, client_settings
 from delegation.cli.inputs import read_profiles
@@ -14,6 +15,9 @@ from delegation.cli.options import fraction, positive_float
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
 from delegation.cli.ui import add_http_args
 from delegation.topics import AGENT_TYPES, ROLES
+
+if TYPE_CHECKING:
+    from delegation.service.jobs import Job, JobResult
 
 
 def register(subparsers: Any) -> None:
@@ -87,9 +91,24 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--min-battery", type=fraction, default=0.2, metavar="FRACTION",
                    help="units with a battery below this (0..1) are not planned for")
+    p.add_argument("--planner", default="thread", choices=("process", "thread"),
+                   help="plan on a thread of the service's process (thread, the default), or "
+                   "in a child process beside it, on another core (process): a crashed or "
+                   "hung plan is then ended without the service")
     p.add_argument("--commitments", default="wait", choices=("wait", "exclude", "share"),
                    help="a unit busy in another mission: planned from when and where it is free "
                    "(wait), left out (exclude), or ignored (share)")
+
+
+def _planner(kind: str) -> Callable[[Job], JobResult]:
+    """The planner `serve` runs its jobs with (`--planner`)."""
+    if kind == "thread":
+        from delegation.service.jobs import run_job
+
+        return run_job
+    from delegation.service.planner_process import PlannerProcess
+
+    return PlannerProcess()
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -139,7 +158,8 @@ def _serve(args: argparse.Namespace) -> int:
         # when it gives up: the lock on a shared store lost, or the store failing too long.
         code = run_active(settings, config, store, threading.Event(), retention=args.retention,
                           store_bound=args.store_bound,
-                          announce=lambda text: print(text, flush=True))
+                          announce=lambda text: print(text, flush=True),
+                          planner=_planner(args.planner))
     finally:
         page.close()
         store.close()

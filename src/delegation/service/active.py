@@ -25,6 +25,7 @@ from delegation.errors import DelegationError
 from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.service.config import ServiceConfig
+from delegation.service.jobs import Job, JobResult, run_job
 from delegation.service.outage import DEFAULT_BOUND
 from delegation.service.store import SqliteStore, Store, StoreError
 from delegation.service.unit import DEFAULT_RETENTION, DelegationService
@@ -93,6 +94,7 @@ def run_active(
     poll: float = STANDBY_POLL,
     probe: float = PROBE_SECONDS,
     announce: Callable[[str], None] = log.info,
+    planner: Callable[[Job], JobResult] = run_job,
 ) -> int:
     """Become the active instance (or stand by until it can), then serve until ``stop``; 0 after
     ``stop``, 1 if it gave up: the lock was lost, or the store failed for ``store_bound`` s (the
@@ -120,8 +122,8 @@ def run_active(
                 f"{settings.describe()}: heartbeat on {other}; two instances would answer every "
                 f"command twice: stop it or use another --name")
     began = time.monotonic()
-    service = DelegationService(settings, config, store=store, retention=retention,
-                                store_bound=store_bound)
+    service = DelegationService(settings, config, planner=planner, store=store,
+                                retention=retention, store_bound=store_bound)
     service.core.identity = config.identity(agent_uuid)
     service.start()
     announce(f"{config.name}: active ({len(service.core.book)} open missions from "

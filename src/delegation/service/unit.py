@@ -139,6 +139,14 @@ class DelegationService(CoreUnit[ServiceCore]):
         log.info("%s serving on %s (engine %s)", self.name, self.config.base_topic,
                  self.config.engine)
 
+    def on_stop(self) -> None:
+        """The plan running gets its 10 s (`CoreUnit.on_stop`); a planner process then ends,
+        with it a plan still running."""
+        super().on_stop()
+        close = getattr(self._worker, "close", None)
+        if close is not None:
+            close()
+
     # ---- persistence
 
     def apply(self, effects: Effects) -> None:
