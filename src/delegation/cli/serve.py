@@ -39,6 +39,15 @@ def register(subparsers: Any) -> None:
         help="ended missions leave memory after this long (they stay in the store; default 600)",
     )
     serve.add_argument(
+        "--store-bound",
+        type=positive_float,
+        default=60.0,
+        metavar="SECONDS",
+        help="a state store that keeps failing this long (disk full, database gone) makes this "
+        "instance leave the broker, release its lock and exit 1, so a standby or a restart takes "
+        "over; until then what is not stored waits and is retried (default 60)",
+    )
+    serve.add_argument(
         "--operator",
         action="append",
         default=[],
@@ -163,8 +172,9 @@ def _serve(args: argparse.Namespace) -> int:
     )
     try:
         # Serves until SIGINT/SIGTERM (`cli.options.Stopped` is raised in the wait), or exits 1
-        # when the lock on a shared store is lost.
+        # when it gives up: the lock on a shared store lost, or the store failing too long.
         code = run_active(settings, config, store, threading.Event(), retention=args.retention,
+                          store_bound=args.store_bound,
                           announce=lambda text: print(text, flush=True),
                           planner=_planner(args.planner))
     finally:

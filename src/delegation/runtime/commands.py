@@ -191,13 +191,17 @@ class CommandLog:
             self.dirty.add(key)
         return True
 
+    def _kept(self, key: CommandKey) -> bool:
+        return self._entries[key].state is CommandState.PENDING or key in self.dirty
+
     def _trim(self) -> None:
         while len(self._entries) > self.capacity:
             oldest_key = next(iter(self._entries))
-            if self._entries[oldest_key].state is CommandState.PENDING:
-                # Never forget a command still being worked on; move it to the back.
+            if self._kept(oldest_key):
+                # Never forget a command still being worked on, nor an answer not yet stored (a
+                # store outage): move it to the back.
                 self._entries.move_to_end(oldest_key)
-                if all(e.state is CommandState.PENDING for e in self._entries.values()):
+                if all(self._kept(k) for k in self._entries):
                     return
                 continue
             del self._entries[oldest_key]

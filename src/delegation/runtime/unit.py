@@ -28,6 +28,7 @@ from typing import Any, Generic, TypeVar
 from pydantic import BaseModel
 
 from delegation.runtime.core import Core, Effects, JobCore, JobDone, Outgoing
+from delegation.runtime.inbox import DEFAULT_LIMIT, Arrival, Inbox
 from delegation.runtime.mqtt import Message, MqttConnectError, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.transport import make_client
@@ -63,6 +64,10 @@ class MqttUnit:
     `tick(now)` (every ``tick_interval`` seconds of ``clock``), `on_start()`/`on_stop()`.
     Every hook runs on the unit's thread, so a subclass needs no locks of its own for state it
     touches only there.
+
+    Time is when things arrived (`delegation.runtime.inbox`): while `handle` or `handle_event`
+    runs, ``self.arrived`` is when that item arrived, and `tick` is given the arrival time of the
+    oldest item still queued (the clock when none is), so a backlog never looks like silence.
     """
 
     def __init__(
@@ -73,12 +78,15 @@ class MqttUnit:
         tick_interval: float | None = 1.0,
         clock: Callable[[], float] = time.monotonic,
         client_id: str | None = None,
+        inbox_limit: int = DEFAULT_LIMIT,
     ) -> None:
         self.settings = settings
         self.name = name
         self.tick_interval = tick_interval
         self.clock = clock
-        self._inbox: queue.Queue[object] = queue.Queue()
+        self._inbox = Inbox(clock, inbox_limit, name)
+        #: When the item being handled arrived (``clock`` time): what a hook takes as ``now``.
+        self.arrived = 0.0
         # The transport seam: MQTT or ROS 2, as ``settings.transport`` says.
         self.client = make_client(
             settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put,
@@ -112,7 +120,8 @@ class MqttUnit:
         log.warning("%s: unexpected inbox item %r", self.name, type(event).__name__)
 
     def tick(self, now: float) -> None:
-        """Periodic work (on the unit's thread)."""
+        """Periodic work (on the unit's thread); ``now`` is the inbox's frontier (everything
+        that arrived before it has been handled)."""
 
     def on_start(self) -> None:
         """Called on the unit's thread before the first message or tick."""
@@ -123,6 +132,10 @@ class MqttUnit:
     def end_batch(self) -> None:
         """Called on the unit's thread after a batch of queued messages (and after a tick): a
         unit that defers its output to this point sends it here."""
+
+    def between(self) -> None:
+        """Called on the unit's thread after each item of a batch: work that must not wait for
+        the batch to end (a batch of slow steps can take seconds)."""
 
     # ---- lifecycle
 
@@ -232,37 +245,39 @@ class MqttUnit:
             if self.tick_interval is not None:
                 now = self.clock()
                 if now >= next_tick:
-                    self._guard(lambda n=now: self.tick(n))  # type: ignore[misc]
+                    seen = self._inbox.frontier()
+                    self._guard(lambda n=seen: self.tick(n))  # type: ignore[misc]
                     self._guard(self.end_batch)
                     next_tick = max(next_tick + self.tick_interval, now)
                 wait = max(0.0, next_tick - self.clock())
-            try:
-                item = self._inbox.get(timeout=wait)
-            except queue.Empty:
+            entry = self._inbox.get(timeout=wait)
+            if entry is None:
                 continue
-            if isinstance(item, _Stop) or self._batch(item):
+            if isinstance(entry.item, _Stop) or self._batch(entry):
                 break
         self._guard(self.on_stop)
         self._stopped.set()
 
-    def _batch(self, item: object) -> bool:
-        """Take ``item`` and whatever else is already queued (at most ``BATCH_MAX``), then end
+    def _batch(self, entry: Arrival) -> bool:
+        """Take ``entry`` and whatever else is already queued (at most ``BATCH_MAX``), then end
         the batch (`end_batch`: one commit and the batch's messages, for a unit that stores);
         True when a stop was among them (it ends the loop after this batch)."""
         stop, handled = False, 0
         while True:
+            item, self.arrived = entry.item, entry.arrived
             if isinstance(item, Message):
                 self._guard(lambda m=item: self.handle(m))  # type: ignore[misc]
             else:
                 self._guard(lambda e=item: self.handle_event(e))  # type: ignore[misc]
             handled += 1
+            self._guard(self.between)
             if handled >= BATCH_MAX:
                 break  # the rest opens the next batch (a tick may run first)
-            try:
-                item = self._inbox.get_nowait()
-            except queue.Empty:
+            next_entry = self._inbox.get_nowait()
+            if next_entry is None:
                 break
-            if isinstance(item, _Stop):
+            entry = next_entry
+            if isinstance(entry.item, _Stop):
                 stop = True
                 break
         self._guard(self.end_batch)
@@ -287,9 +302,11 @@ class CoreUnit(MqttUnit, Generic[C]):
     """Runs a pure core on a broker: messages, ticks and finished jobs go to the core on the
     unit's thread; its `Effects` are published, its jobs run on one worker thread in order.
 
-    ``clock`` gives the core's ``now`` (monotonic by default); ``wall`` gives epoch seconds for
-    the ``stamp`` of status messages. Status goes out as soon as the unit is subscribed (so peers
-    started earlier see it at once) and then every ``core.status_period`` seconds.
+    ``clock`` gives the core's ``now`` (monotonic by default), read when each message or event
+    arrived, and for a tick the arrival of the oldest item still queued (`MqttUnit`); ``wall``
+    gives epoch seconds for the ``stamp`` of status messages. Status goes out as soon as the
+    unit is subscribed (so peers started earlier see it at once) and then every
+    ``core.status_period`` seconds.
     """
 
     def __init__(
@@ -351,26 +368,33 @@ class CoreUnit(MqttUnit, Generic[C]):
             self._worker_thread = None
 
     def handle(self, message: Message) -> None:
-        self._run_core(lambda: self.core.on_message(message.topic, message.payload, self.clock()))
+        self._run_core(lambda: self.core.on_message(message.topic, message.payload, self.arrived))
 
     def handle_event(self, event: object) -> None:
         if isinstance(event, JobDone) and isinstance(self.core, JobCore):
             core = self.core
-            self._run_core(lambda: core.on_job_done(event, self.clock()))
+            self._run_core(lambda: core.on_job_done(event, self.arrived))
         elif isinstance(event, Reconnected | Disconnected):
             # Optional core hooks: ``on_reconnect(now)`` / ``on_disconnect(now)`` -> Effects.
             hook = getattr(self.core, "on_reconnect" if isinstance(event, Reconnected)
                            else "on_disconnect", None)
             if hook is not None:
                 log.info("%s: %s", self.name, type(event).__name__.lower())
-                self._run_core(lambda: hook(self.clock()))
+                self._run_core(lambda: hook(self.arrived))
         else:
             super().handle_event(event)
 
     def tick(self, now: float) -> None:
         self._run_core(lambda: self.core.on_tick(now))
-        if now >= self._next_status:
-            self._publish_status(now)
+        self.between()
+
+    def between(self) -> None:
+        """Status when it is due, also between the items of a long batch (peers must not take a
+        unit busy with a backlog for a lost one). On the clock, not the inbox's frontier: it says
+        the unit is alive now, and its ``now`` pairs with the wall clock's stamp."""
+        real = self.clock()
+        if real >= self._next_status:
+            self._publish_status(real)
 
     # ---- helpers
 

@@ -27,7 +27,8 @@ from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.transport import make_client
 from delegation.service.config import ServiceConfig
 from delegation.service.jobs import Job, JobResult, run_job
-from delegation.service.store import SqliteStore, Store
+from delegation.service.outage import DEFAULT_BOUND
+from delegation.service.store import SqliteStore, Store, StoreError
 from delegation.service.unit import DEFAULT_RETENTION, DelegationService
 
 log = logging.getLogger(__name__)
@@ -73,6 +74,16 @@ def other_instance(
     return found[0] if found else None
 
 
+def _try(store: Store, name: str) -> bool:
+    """One try of the lock by a standby; the database unreachable for now is no reason to stop
+    standing by (logged; tried again at the next poll)."""
+    try:
+        return store.acquire(name)
+    except StoreError as exc:
+        log.warning("%s: standby: cannot try the lock: %s", name, exc)
+        return False
+
+
 def run_active(
     settings: BrokerSettings,
     config: ServiceConfig,
@@ -80,13 +91,16 @@ def run_active(
     stop: threading.Event,
     *,
     retention: float = DEFAULT_RETENTION,
+    store_bound: float = DEFAULT_BOUND,
     poll: float = STANDBY_POLL,
     probe: float = PROBE_SECONDS,
     announce: Callable[[str], None] = log.info,
     planner: Callable[[Job], JobResult] = run_job,
 ) -> int:
     """Become the active instance (or stand by until it can), then serve until ``stop``; 0 after
-    ``stop``, 1 if the lock was lost. `InstanceConflict` when it must not start at all."""
+    ``stop``, 1 if it gave up: the lock was lost, or the store failed for ``store_bound`` s (the
+    service has left the broker by then; the caller closes the store, which releases the lock).
+    `InstanceConflict` when it must not start at all."""
     if not store.acquire(config.name):
         if not store.shared:
             holder = store.holder() if isinstance(store, SqliteStore) else "?"
@@ -96,7 +110,7 @@ def run_active(
                 f"another --state (and --name), or share a PostgreSQL --state to stand by")
         announce(f"{config.name}: standby: another instance is active on {store.where}; "
                  f"taking over when it stops")
-        while not store.acquire(config.name):
+        while not _try(store, config.name):
             if stop.wait(poll):
                 return 0
         announce(f"{config.name}: the active instance stopped; taking over")
@@ -110,14 +124,15 @@ def run_active(
                 f"command twice: stop it or use another --name")
     began = time.monotonic()
     service = DelegationService(settings, config, planner=planner, store=store,
-                                retention=retention)
+                                retention=retention, store_bound=store_bound)
     service.core.identity = config.identity(agent_uuid)
     service.start()
     announce(f"{config.name}: active ({len(service.core.book)} open missions from "
              f"{store.where}, ready in {time.monotonic() - began:.1f} s)")
     try:
         while not stop.wait(0.5):
-            if service.lock_lost.is_set():
+            if service.failed.is_set():
+                announce(f"{config.name}: gave up: {service.failure}")
                 return 1
         return 0
     finally:

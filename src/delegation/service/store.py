@@ -29,6 +29,7 @@ two (``benchmarks/burst.py``), so the stronger promise stays.
 from __future__ import annotations
 
 import base64
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -36,9 +37,9 @@ import logging
 import os
 import sqlite3
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from delegation.errors import DelegationError
 from delegation.runtime.commands import CommandEntry, CommandKey, CommandState
@@ -53,6 +54,7 @@ from delegation.service.missions import (
 )
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: Tables (the same DDL for SQLite and PostgreSQL; times are epoch seconds). A mission is three
 #: JSON parts: ``data`` what never changes (written once: the trees, the plan, the command),
@@ -119,6 +121,29 @@ class StoreError(DelegationError):
     """The state store cannot be opened or used."""
 
 
+class LockLost(StoreError):
+    """The lock that made this instance the active one is gone and another instance holds it:
+    nothing may be written or published any more."""
+
+
+#: Seconds an SQLite write waits for a reader's lock before it fails (and is retried later by
+#: the unit): short, because the unit's thread (ticks, heartbeats) waits with it.
+SQLITE_BUSY_SECONDS = 2.0
+#: PostgreSQL connection settings the service adds to a DSN that does not set them: bounded
+#: connects, TCP keep-alives and a TCP user timeout, so that a dropped connection (a NAT's idle
+#: timeout, a dead server) is noticed in seconds, not at the kernel's ~15 minutes.
+PG_CONNECTION = {
+    "connect_timeout": "3",
+    "keepalives": "1",
+    "keepalives_idle": "5",
+    "keepalives_interval": "2",
+    "keepalives_count": "3",
+    "tcp_user_timeout": "6000",
+}
+#: Milliseconds one PostgreSQL statement may run (a write normally takes a few).
+PG_STATEMENT_TIMEOUT_MS = 3000
+
+
 class Store(Protocol):
     """What the service keeps across restarts (also its `MissionArchive` and
     `CommandArchive`)."""
@@ -134,12 +159,16 @@ class Store(Protocol):
         ...
 
     def holds(self) -> bool:
-        """True while the lock taken by `acquire` is still held (its connection is alive)."""
+        """True while the lock taken by `acquire` is still held; False once it is known lost
+        (another instance took it); `StoreError` when that cannot be told now (the database
+        cannot be reached)."""
         ...
 
     def save(self, missions: Sequence[tuple[Mission, Change]],
              commands: Sequence[CommandEntry]) -> None:
-        """Write what changed of missions, and commands, in one transaction."""
+        """Write what changed of missions, and commands, in one transaction; `StoreError` when
+        it could not (nothing of it is written; the caller retries), `LockLost` when this
+        instance is no longer the active one."""
         ...
 
     def load_mission(self, root_uuid: str) -> Mission | None: ...
@@ -219,15 +248,30 @@ class _SqlStore:
     def _q(self, sql: str) -> str:
         return sql if self.placeholder == "?" else sql.replace("?", self.placeholder)
 
+    def _connection(self) -> Any:
+        """The connection to use now (held under ``_lock``); PostgreSQL reconnects here."""
+        return self._conn
+
+    def _failed(self, conn: Any, exc: Exception) -> None:
+        """After an error on ``conn``: roll back what can be (a broken connection cannot)."""
+        with contextlib.suppress(Exception):
+            conn.rollback()
+
     def _fetch(self, sql: str, args: Sequence[Any] = ()) -> list[Any]:
         with self._lock:
-            cur = self._conn.cursor()
+            conn = self._connection()
+            cur = conn.cursor()
             try:
                 cur.execute(self._q(sql), tuple(args))
                 rows = list(cur.fetchall())
+                conn.commit()
+            except Exception as exc:
+                self._failed(conn, exc)
+                raise StoreError(f"cannot read from {self.where}: "
+                                 f"{type(exc).__name__}: {exc}".strip()) from exc
             finally:
-                cur.close()
-            self._conn.commit()
+                with contextlib.suppress(Exception):
+                    cur.close()
             return rows
 
     def _create(self) -> None:
@@ -281,18 +325,24 @@ class _SqlStore:
         c_rows = [(e.key[0], e.key[1], e.state.value, e.received, _answer_json(e.answer),
                    e.digest, e.caller, e.reply_topic) for e in commands]
         with self._lock:
-            cur = self._conn.cursor()
+            conn = self._connection()
+            cur = conn.cursor()
             try:
                 for sql, rows in writes.items():
                     cur.executemany(self._q(sql), rows)
                 if c_rows:
                     cur.executemany(self._q(_UPSERT_COMMAND), c_rows)
-                self._conn.commit()
+                conn.commit()
+            except Exception as exc:
+                self._failed(conn, exc)
+                raise StoreError(f"cannot write to {self.where}: "
+                                 f"{type(exc).__name__}: {exc}".strip()) from exc
             except BaseException:
-                self._conn.rollback()
+                self._failed(conn, RuntimeError("interrupted"))
                 raise
             finally:
-                cur.close()
+                with contextlib.suppress(Exception):
+                    cur.close()
 
     def load_mission(self, root_uuid: str) -> Mission | None:
         rows = self._fetch(f"SELECT {_MISSION_COLUMNS} FROM missions WHERE root_uuid = ?",
@@ -337,7 +387,8 @@ class SqliteStore(_SqlStore):
         if self.path != ":memory:":
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
         try:
-            conn = sqlite3.connect(self.path, check_same_thread=False, timeout=10.0)
+            conn = sqlite3.connect(self.path, check_same_thread=False,
+                                   timeout=SQLITE_BUSY_SECONDS)
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute("PRAGMA synchronous=FULL")
         except sqlite3.Error as exc:
@@ -380,7 +431,15 @@ class SqliteStore(_SqlStore):
 
 
 class PostgresStore(_SqlStore):
-    """The same tables in PostgreSQL (psycopg 3); the active instance holds an advisory lock."""
+    """The same tables in PostgreSQL (psycopg 3); the active instance holds an advisory lock.
+
+    One connection carries both the lock and the writes, so a write is only ever made by the
+    session that holds the lock: if that session ends (the server restarted, the backend was
+    terminated, the network dropped it), the lock is gone with it, and the next use reconnects
+    and takes the lock again before anything is written; if another instance has taken it
+    meanwhile, `LockLost`. Connections have keep-alives, a TCP user timeout, a connect timeout
+    and a statement timeout (`PG_CONNECTION`, `PG_STATEMENT_TIMEOUT_MS`).
+    """
 
     placeholder = "%s"
     shared = True
@@ -399,42 +458,114 @@ class PostgresStore(_SqlStore):
             raise StoreError(f"bad PostgreSQL DSN: {exc}") from exc
         self.where = (f"postgresql://{info.get('host', '')}:{info.get('port', 5432)}/"
                       f"{info.get('dbname', '')}")
-        try:
-            conn = psycopg.connect(dsn, connect_timeout=10)
-        except psycopg.Error as exc:
-            raise StoreError(f"cannot connect to {self.where}: {exc}") from exc
-        super().__init__(conn)
-        self._lock_conn: Any = None
+        params = {**PG_CONNECTION, **{k: str(v) for k, v in info.items() if v is not None}}
+        self._conninfo = psycopg.conninfo.make_conninfo("", **params)
+        #: The service name whose lock this store took (`acquire`), to take it again.
+        self._lock_name: str | None = None
+        self._lost = False
+        super().__init__(self._connect())
         self._create()
 
-    def acquire(self, name: str) -> bool:
-        """``pg_try_advisory_lock`` on a connection of its own (autocommit), kept open: the
-        server releases the lock when that connection ends, however the process died."""
+    def _connect(self) -> Any:
         psycopg = self._psycopg
-        if self._lock_conn is None:
-            try:
-                self._lock_conn = psycopg.connect(self.dsn, autocommit=True, connect_timeout=10)
-            except psycopg.Error as exc:
-                raise StoreError(f"cannot connect to {self.where}: {exc}") from exc
-        row = self._lock_conn.execute("SELECT pg_try_advisory_lock(%s)",
-                                      (lock_key(name),)).fetchone()
+        try:
+            conn = psycopg.connect(self._conninfo)
+            conn.execute(f"SET statement_timeout = {PG_STATEMENT_TIMEOUT_MS}")
+            conn.commit()
+        except psycopg.Error as exc:
+            raise StoreError(f"cannot connect to {self.where}: {exc}") from exc
+        return conn
+
+    def _try_lock(self, conn: Any, name: str) -> bool:
+        row = conn.execute("SELECT pg_try_advisory_lock(%s)", (lock_key(name),)).fetchone()
+        conn.commit()  # a session-level lock: it outlives the transaction
         return bool(row and row[0])
 
-    def holds(self) -> bool:
-        if self._lock_conn is None:
-            return False
+    def _connection(self) -> Any:
+        """The live connection, reconnected (and the lock taken again) if it was lost."""
+        if self._lost:
+            raise LockLost(f"the lock on {self.where} is held by another instance")
+        if not self._conn.closed and not self._conn.broken:
+            return self._conn
+        with contextlib.suppress(Exception):
+            self._conn.close()
+        conn = self._connect()
+        if self._lock_name is not None:
+            try:
+                took = self._try_lock(conn, self._lock_name)
+            except self._psycopg.Error as exc:
+                conn.close()
+                raise StoreError(f"cannot take the lock on {self.where} again: {exc}") from exc
+            if not took:
+                conn.close()
+                self._lost = True
+                raise LockLost(f"reconnected to {self.where}, but another instance holds the "
+                               f"lock of {self._lock_name!r} now")
+            log.warning("state store: reconnected to %s and took the lock again", self.where)
+        else:
+            log.warning("state store: reconnected to %s", self.where)
+        self._conn = conn
+        return conn
+
+    def acquire(self, name: str) -> bool:
+        """``pg_try_advisory_lock`` on the store's connection, kept open: the server releases
+        the lock when that session ends, however the process died."""
+        with self._lock:
+            conn = self._connection()
+            try:
+                took = self._try_lock(conn, name)
+            except self._psycopg.Error as exc:
+                self._failed(conn, exc)
+                raise StoreError(f"cannot try the lock on {self.where}: {exc}") from exc
+            if took:
+                self._lock_name = name
+            return took
+
+    def save(self, missions: Sequence[tuple[Mission, Change]],
+             commands: Sequence[CommandEntry]) -> None:
+        """As `_SqlStore.save`; a connection found dropped when used (idle, cut by a NAT or the
+        server) is replaced and the write made once more at once (every write is idempotent: an
+        upsert or an update to the whole state)."""
+        self._again_if_dropped(lambda: super(PostgresStore, self).save(missions, commands))
+
+    def _fetch(self, sql: str, args: Sequence[Any] = ()) -> list[Any]:
+        return self._again_if_dropped(lambda: super(PostgresStore, self)._fetch(sql, args))
+
+    def _again_if_dropped(self, call: Callable[[], T]) -> T:
+        """``call()``, and once more if it found the connection dropped (not when it was
+        already known dropped: then ``call`` tried to reconnect, and that failed)."""
+        known_down = self._conn.broken or self._conn.closed
         try:
-            self._lock_conn.execute("SELECT 1").fetchone()
-        except self._psycopg.Error:
+            return call()
+        except LockLost:
+            raise
+        except StoreError:
+            if known_down or not self._conn.broken:
+                raise
+            log.warning("state store: the connection to %s was dropped; reconnecting", self.where)
+            return call()
+
+    def holds(self) -> bool:
+        if self._lock_name is None:
             return False
-        return True
+        with self._lock:
+            for last in (False, True):  # a dropped connection: once more on a new one
+                try:
+                    conn = self._connection()
+                    conn.execute("SELECT 1").fetchone()
+                    conn.commit()
+                    return True
+                except LockLost:
+                    return False
+                except self._psycopg.Error as exc:
+                    self._failed(self._conn, exc)
+                    if last or not self._conn.broken:
+                        raise StoreError(f"cannot reach {self.where}: {exc}") from exc
+        return True  # not reached (the second try returns or raises)
 
     def close(self) -> None:
-        with self._lock:
+        with self._lock, contextlib.suppress(Exception):
             self._conn.close()
-        if self._lock_conn is not None:
-            self._lock_conn.close()
-            self._lock_conn = None
 
 
 def open_store(spec: str) -> SqliteStore | PostgresStore:

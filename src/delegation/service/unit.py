@@ -12,6 +12,14 @@ published, so an answer that went out is stored; at start the missions that had 
 latest answers are loaded, and a command that was still being worked on when the last instance
 died is answered ``failed`` (never run again). Ended missions leave memory ``retention`` seconds
 after they ended; they are read back from the store when asked for.
+
+When the store fails (SQLite busy or its disk full, PostgreSQL gone), the service goes on: ticks,
+heartbeats and liveness never wait for a write; what the batch changed stays noted and the batch's
+messages are held, in order, behind it; both are retried with a back-off (`Outage`; PostgreSQL
+reconnects and takes its lock again first). Past ``store_bound`` seconds of failures, or as soon
+as the lock is held by another instance, the instance is fenced: it publishes nothing more, leaves
+the broker, and `failed` is set (`run_active` then releases the lock and exits non-zero, so a
+standby or a supervisor's restart takes over).
 """
 
 from __future__ import annotations
@@ -21,9 +29,11 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from delegation.runtime.commands import CommandEntry, CommandLog, CommandState
 from delegation.runtime.core import Effects, Outgoing
+from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.unit import CoreUnit
 from delegation.service.config import ServiceConfig
@@ -31,7 +41,9 @@ from delegation.service.core import ServiceCore, Timing
 from delegation.service.faces import failure
 from delegation.service.jobs import Job, JobResult, run_job
 from delegation.service.missions import MissionBook
-from delegation.service.store import Store
+from delegation.service.outage import DEFAULT_BOUND, Outage
+from delegation.service.store import LockLost, Store, StoreError
+from delegation.topics import QOS_PERIODIC
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +73,7 @@ class DelegationService(CoreUnit[ServiceCore]):
         planner: Callable[[Job], JobResult] = run_job,
         store: Store | None = None,
         retention: float = DEFAULT_RETENTION,
+        store_bound: float = DEFAULT_BOUND,
     ) -> None:
         self.config = config or ServiceConfig()
         super().__init__(settings, ServiceCore(self.config), worker=planner, clock=time.monotonic,
@@ -69,9 +82,24 @@ class DelegationService(CoreUnit[ServiceCore]):
         self.retention = retention
         #: Set when the store's lock was lost: this instance must stop acting.
         self.lock_lost = threading.Event()
+        #: Set when this instance gave up (lock lost, or the store failed past ``store_bound``):
+        #: it is fenced (publishes nothing, left the broker); ``failure`` says why.
+        self.failed = threading.Event()
+        self.failure = ""
+        self._fenced = False
         self._next_lock_check = 0.0
+        #: Messages waiting for their batch's state to be stored (in order).
+        self._held: list[Outgoing] = []
+        #: Received messages whose step needed a read the store could not do (queued again when
+        #: the store is tried next).
+        self._unread: list[Message] = []
+        self._writes = Outage(store_bound)
+        self._lock_checks = Outage(store_bound)
+        #: Whether the store's lock was taken (`run_active`): only then can it be lost.
+        self._locked = False
         if store is not None:
             self._load(store)
+            self._locked = store.holds()
 
     def _load(self, store: Store) -> None:
         """Missions that had not ended, the latest answers, and an answer for every command the
@@ -123,24 +151,112 @@ class DelegationService(CoreUnit[ServiceCore]):
 
     def apply(self, effects: Effects) -> None:
         """Store what the batch changed (one commit), then publish its messages (an answer
-        that went out is stored)."""
-        if self.store is not None:
-            self._persist(self.store)
-        super().apply(effects)
+        that went out is stored). While the store fails, the messages wait behind the ones
+        already waiting, and the write is retried (`_flush`)."""
+        if self.store is None:
+            super().apply(effects)
+            return
+        self._held.extend(effects.publish)
+        self._queue(effects.jobs)
+        self._flush(self.store)
 
-    def _persist(self, store: Store) -> None:
+    @property
+    def held(self) -> int:
+        """Messages waiting for the store (for tests and logs)."""
+        return len(self._held)
+
+    def handle(self, message: Message) -> None:
+        """As `CoreUnit.handle`; a step that needed the store (a command seen long ago, a
+        mission no longer in memory) and could not read it changed nothing yet: the message is
+        kept and queued again when the store is tried next (`_flush`)."""
+        try:
+            super().handle(message)
+        except StoreError as exc:
+            if self.store is None:
+                raise
+            self._unread.append(message)
+            self._store_failed(self._writes, self.clock(),
+                               f"a read from {self.store.where} failed", exc)
+
+    def _flush(self, store: Store) -> None:
+        """Write what is noted (when not backing off), then publish what waited for it."""
+        if self._fenced:
+            return
+        now = self.clock()
+        if not self._writes.due(now):
+            return
+        unread, self._unread = self._unread, []
+        for message in unread:  # handled again in the next batch (the store is tried again)
+            self.call_soon(message)
+        try:
+            wrote = self._persist(store)
+        except LockLost as exc:
+            self._give_up(f"lost the lock on {store.where}: {exc}", lock=True)
+            return
+        except Exception as exc:
+            self._store_failed(self._writes, now, f"a write to {store.where} failed", exc)
+            return
+        # Only a write shows that the store works again (a read may still fail: it counts).
+        lasted = self._writes.recovered(now) if wrote else None
+        if lasted is not None:
+            log.warning("%s: the store %s works again after %.1f s; %d held messages go out",
+                        self.name, store.where, lasted, len(self._held))
+        held, self._held = self._held, []
+        for out in held:
+            self.send(out)
+
+    def _persist(self, store: Store) -> bool:
+        """Write what the core changed; False when there was nothing to write."""
         core = self.core
         with self._state:  # only this thread changes the core: it may read it unlocked below
             missions = core.book.drain_dirty()
             commands = core.commands.drain_dirty()
+        if not missions and not commands:
+            return False
         try:
             store.save(missions, commands)
-        except Exception:
-            # Not stored: note them again (the next batch retries) and publish nothing of this one.
+        except BaseException:
+            # Not stored: note them again (the next try writes them) and publish nothing.
             with self._state:
                 core.book.undrain(missions)
                 core.commands.dirty.update(e.key for e in commands)
             raise
+        return True
+
+    def _store_failed(self, outage: Outage, now: float, what: str, exc: Exception) -> None:
+        first = not outage.ongoing
+        past = outage.failed(now)
+        if first:
+            log.error("%s: %s: %s; retrying (messages held until it is stored, giving up after "
+                      "%.0f s)", self.name, what, exc, outage.bound)
+        else:
+            log.warning("%s: %s again (%d tries, %.1f s): %s", self.name, what, outage.failures,
+                        now - (outage.since or now), exc)
+        if past:
+            self._give_up(f"{what} for {now - (outage.since or now):.1f} s "
+                          f"(bound {outage.bound:g} s): {exc}")
+
+    def _give_up(self, why: str, lock: bool = False) -> None:
+        """Fence this instance: publish nothing more, leave the broker at once (before the lock
+        is released, by `run_active`), and say why."""
+        if self._fenced:
+            return
+        self._fenced = True
+        self.failure = why
+        log.critical("%s: %s; leaving the broker (%d messages not sent) and stopping so that "
+                     "another instance takes over", self.name, why, len(self._held))
+        self._held.clear()
+        self.client.disconnect()
+        if lock:
+            self.lock_lost.set()
+        self.failed.set()
+
+    def publish(self, topic: str, payload: bytes | str | Any, qos: int = QOS_PERIODIC,
+                retain: bool = False) -> None:
+        """Nothing once fenced (another instance may be active, or this one's state is not
+        stored)."""
+        if not self._fenced:
+            super().publish(topic, payload, qos, retain)
 
     def tick(self, now: float) -> None:
         super().tick(now)
@@ -151,12 +267,31 @@ class DelegationService(CoreUnit[ServiceCore]):
             gone = self.core.book.forget_ended(self.wall() - self.retention)
         if gone:
             log.debug("%s: %d ended missions left memory", self.name, len(gone))
-        if now >= self._next_lock_check:
-            self._next_lock_check = now + LOCK_CHECK_INTERVAL
-            if not store.holds() and not self.lock_lost.is_set():
-                log.critical("%s: lost the lock on %s: another instance may take over; stopping",
-                             self.name, store.where)
-                self.lock_lost.set()
+        self._check_lock(store)
+
+    def _check_lock(self, store: Store) -> None:
+        """Every `LOCK_CHECK_INTERVAL` s (and every retry while it cannot be told): is this
+        still the active instance? Lost: give up at once; unknown (the store cannot be reached):
+        an outage, given up past the bound."""
+        now = self.clock()  # real time: the tick's ``now`` lags by the queued work
+        if (not self._locked or self._fenced or now < self._next_lock_check
+                or not self._lock_checks.due(now)):
+            return
+        self._next_lock_check = now + LOCK_CHECK_INTERVAL
+        try:
+            holds = store.holds()
+        except Exception as exc:
+            self._store_failed(self._lock_checks, now, f"the lock on {store.where} cannot be "
+                               "checked", exc)
+            return
+        if not holds:
+            self._give_up(f"lost the lock on {store.where}: another instance may be active",
+                          lock=True)
+            return
+        lasted = self._lock_checks.recovered(now)
+        if lasted is not None:
+            log.warning("%s: the lock on %s is still ours after %.1f s unreachable", self.name,
+                        store.where, lasted)
 
     def wait_ready(
         self, units: Iterable[str] = (), timeout: float = 10.0, engine: bool = True
