@@ -159,6 +159,7 @@ _BY_ANNOTATION: dict[str, st.SearchStrategy[Any]] = {
     "int | None": st.none() | st.integers(0, 10**6),
     "bool": st.booleans(),
     "list[str]": st.lists(text, max_size=3),
+    "dict[str, str]": st.dictionaries(text, text, max_size=3),
     "dict[str, Any]": json_objects,
     "dict[str, Any] | None": st.none() | json_objects,
     "list[dict[str, Any]] | None": st.none() | st.lists(json_objects, max_size=3),

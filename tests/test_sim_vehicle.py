@@ -279,7 +279,8 @@ def test_every_task_runs_to_its_end(name: str, params: dict, open_ended: bool) -
 def test_query_status_answers_in_the_seeds_words(how: str, word: str) -> None:
     """Seed 12.1: query-status returns "the status of the task (running, failed, success,
     unknown)", whatever words the feedback used."""
-    v = vehicle(example=how == "enough", battery=0.001 if how == "battery" else None)
+    drains = {"battery": 0.001, "endurance": 3600.0} if how == "battery" else {}
+    v = vehicle(example=how == "enough", **drains)  # a unit of unknown endurance never drains
     north = 10.0 if how == "finished" else 5000.0
     go = {"waypoint": at(0.0, north).to_wire(), "speed": "standard"}
     if how != "never":
