@@ -90,9 +90,15 @@ def test_units_another_delegator_manages_are_not_planned_directly() -> None:
 
 
 def test_our_delegation_info_says_what_our_fleet_can_do_and_whom_we_manage() -> None:
-    core = two_fleets()
-    [info] = [json.loads(o.payload) for o in core.status(101.0, 1e9)
-              if o.topic.endswith("/delegation_info")]
+    def info_of(core: ServiceCore) -> dict[str, Any]:
+        [info] = [json.loads(o.payload) for o in core.status(101.0, 1e9)
+                  if o.topic.endswith("/delegation_info")]
+        return dict(info)
+
+    # Planning for whatever it hears, a service claims nothing (no race to claim first) ...
+    assert info_of(two_fleets())["units-managed"] == []
+    # ... its fleet named (serve --fleet), it claims that fleet's live units.
+    info = info_of(two_fleets(ServiceConfig(prefix=PREFIX, fleet=frozenset({"dji0"}))))
     assert info["tasks-available"] == ["move-to", "search-area"]
     assert info["units-managed"] == ["dji0"]
     # Another service reading it sees a delegator.

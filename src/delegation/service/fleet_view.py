@@ -125,9 +125,13 @@ class FleetView:
         return lambda name: name not in managed
 
     def summary(self, now: float) -> tuple[list[str], list[str]]:
-        """(tasks available, units managed) of the own live fleet, for ``delegation_info``."""
+        """(tasks available, units managed) of the own live fleet, for ``delegation_info``. Only
+        a fleet named with ``--fleet`` is claimed: a service that plans for whatever it hears
+        claims nothing, so a second service on the same broker (a test instance, a service
+        started a moment earlier) does not take every unit from the others by claiming first."""
         live = [u for u in self.units(now) if u.alive]
-        return (sorted({t for u in live for t in u.tasks}), sorted(u.name for u in live))
+        managed = sorted(u.name for u in live) if self.config.fleet else []
+        return sorted({t for u in live for t in u.tasks}), managed
 
     def speed_sources(self, units: Iterable[UnitState]) -> dict[str, str]:
         """Per unit: ``learnt``, ``profile`` or ``default`` (`delegation.learning`)."""
