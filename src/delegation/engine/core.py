@@ -33,6 +33,7 @@ from delegation.messages import (
     NodeStatus,
     Ping,
     QueryStatus,
+    QueryTst,
     SignalTask,
     SignalTstNode,
     SignalTstTree,
@@ -219,8 +220,17 @@ class EngineCore:
         """Run one decoded command: its answer first, then what it set going."""
         if isinstance(command, Ping):
             return self._answer(key, command.com_uuid, "pong")
+        if isinstance(command, QueryTst):
+            nodes = self.executor.tree_status(command.node_uuid)
+            if nodes is None:
+                why = f"no tree {command.node_uuid} is known to {self.name}"
+                return self._answer(key, command.com_uuid, "unknown", fail_reason=why)
+            return self._answer(key, command.com_uuid, "ok", root_uuid=command.node_uuid,
+                                nodes=nodes)
         if isinstance(command, StartTst):
-            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now)
+            root_uuid, actions = self.executor.start_tree(parse_tree(command.tst), now,
+                                                          run=command.com_uuid,
+                                                          resume=bool(command.resume))
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))
@@ -243,11 +253,11 @@ class EngineCore:
         response: str,
         fail_reason: str = "",
         root_uuid: str | None = None,
+        nodes: list[dict[str, str]] | None = None,
     ) -> Effects:
         """The ``tst/response``, remembered for re-sends of the command."""
-        answer = TstResponse(
-            fail_reason=fail_reason, response=response, response_to=com_uuid, root_uuid=root_uuid
-        )
+        answer = TstResponse(fail_reason=fail_reason, response=response, response_to=com_uuid,
+                             root_uuid=root_uuid, nodes=list(nodes) if nodes else None)
         out = Outgoing.of(self.identity.topic("tst/response"), answer, QOS_COMMAND)
         if key is not None:
             self.commands.finish(key, [out])

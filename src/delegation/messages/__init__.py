@@ -70,6 +70,7 @@ from delegation.messages.sensors import (
 from delegation.messages.tst_exec import (
     TERMINAL_NODE_STATUSES,
     NodeStatus,
+    QueryTst,
     SignalTstNode,
     SignalTstTree,
     SignalUnit,
@@ -111,6 +112,7 @@ __all__ = [
     "Ping",
     "QueryMission",
     "QueryStatus",
+    "QueryTst",
     "SensorInfo",
     "SensorReading",
     "SensorValue",

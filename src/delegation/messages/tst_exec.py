@@ -41,6 +41,11 @@ class StartTst(Command):
     command: Literal["start-tst"] = "start-tst"
     receiver: str | None = None
     tst: dict[str, Any]
+    #: Our extension (docs/protocol.md §12.5): the tree is the unfinished part of one an earlier
+    #: instance of the engine executed; its tasks may be running or done on their units already,
+    #: so each is asked ``query-status`` once its re-sent start-task is answered. Other engines
+    #: ignore the field.
+    resume: bool | None = None
 
 
 class SignalTstNode(Command):
@@ -67,6 +72,15 @@ class SignalUnit(Command):
     unit: str
 
 
+class QueryTst(Command):
+    """``query-tst``: our extension of the TST API (docs/protocol.md §12.5): the status of every
+    node of the tree whose root is ``node-uuid``, answered ``ok`` with ``nodes``, or ``unknown``
+    when the engine does not know the tree (never started there, or forgotten: restarted)."""
+
+    command: Literal["query-tst"] = "query-tst"
+    node_uuid: str
+
+
 class TstResponse(Answer):
     """The answer on ``tst/response`` (seed 14.4): ``ok``, ``started`` (with ``root-uuid``),
     ``failed`` (with ``fail-reason``), ``pong``.
@@ -75,6 +89,9 @@ class TstResponse(Answer):
     """
 
     root_uuid: str | None = None
+    #: The answer to ``query-tst``: every node of the tree, parents before children, each
+    #: ``{"node-uuid", "status", "fail-reason"}``.
+    nodes: list[dict[str, Any]] | None = None
 
     def omit_when_empty(self) -> frozenset[str]:
         if self.response in ("ok", "pong"):
