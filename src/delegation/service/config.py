@@ -32,7 +32,7 @@ class ServiceConfig:
     #: Seconds a ``query-tst`` (catching up after a restart or an outage) waits for its answer
     #: before it is asked again, at most ``catch_up_attempts`` times.
     catch_up_timeout: float = 2.0
-    catch_up_attempts: int = 5
+    catch_up_attempts: int = 10
     #: Seconds a ``cancel-mission`` waits for the engine to confirm the abort before it is
     #: answered ``pending`` (the engine's own abort timeout is 15 s).
     cancel_timeout: float = 20.0
