@@ -1,7 +1,8 @@
 """The reference TST engine's core: the seed's TST Execution API (section 14), pure.
 
 `EngineCore` reads ``tst/command`` (``start-tst`` for fully instantiated trees,
-``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``), every unit's heartbeat (to
+``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``, and our ``query-tst``:
+docs/protocol.md §12.5), every unit's heartbeat (to
 learn base topics) and ``exec/response``/``exec/feedback``; it returns ``tst/response``,
 ``tst/feedback`` for every node status change, and ``start-task``/``signal-task`` to the units'
 ``exec/command``. Its status is a ``heartbeat`` (levels ``["tst execution"]``) and a

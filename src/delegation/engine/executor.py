@@ -8,6 +8,10 @@ what arrives (unit responses and feedback, signals, heartbeats) together with ``
 
 Rules (docs/protocol.md §8, §12 and the seed):
 
+* A start-task's ids are derived from the tree's ``run`` (the start-tst's com-uuid), the node and
+  the attempt (docs/protocol.md §12.4), so an engine restarted and given the tree again re-sends
+  the start-tasks a unit already got; a ``resume`` tree asks ``query-status`` once each is
+  answered (§12.5).
 * A start-task is re-sent with the same com-uuid (and task-uuid) every ``resend_after`` s until
   the unit answers, at most ``max_attempts`` times; then the node fails and the unit is sent
   ``$abort`` (it may have got the task and be running it).

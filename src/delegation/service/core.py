@@ -29,8 +29,11 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 
 Faults (docs/protocol.md §11): a unit lost (heartbeat stopped, or a new agent-uuid) or
 answering ``failed`` has its unfinished tasks re-delegated (`delegation.service.redelegation`); an
-engine lost or restarted fails its missions with the reason. ``now`` is monotonic (every timeout);
-mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` + offset).
+engine restarted is given the unfinished part of each tree again, a lost one is waited for
+(``engine_return_timeout``); after its own restart or reconnect the service asks the engine about
+every open mission before judging it (`delegation.service.catch_up`). ``now`` is monotonic (every
+timeout); mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` +
+offset).
 
 Planning is a job (`Effects.jobs`) the unit runs on its worker, in arrival order: a long
 ``optimal`` plan delays the next plan, never a ``ping``, a signal or feedback. The tree and the
@@ -39,7 +42,7 @@ options are validated once on the service's path, so bad input is answered at on
 The core dispatches; each decision lives in one part it composes: reading and answering commands
 (`commands`), the fleet as planned with (`fleet_view`), planning jobs (`planning`), the engine's
 feedback and answers and cancels (`engine_use`), re-delegation and lost engines (`repair`),
-mission status publishing (`lifecycle`).
+catching up after restarts and outages (`catch_up`), mission status publishing (`lifecycle`).
 """
 
 from __future__ import annotations
