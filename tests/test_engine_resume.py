@@ -11,6 +11,8 @@ import json
 from delegation.fleet import make_unit
 from delegation.geo import GeoPoint
 from delegation.messages import ExecFeedback, ExecResponse, encode
+from delegation.runtime.mqtt import MqttClient
+from delegation.runtime.settings import BrokerSettings
 from delegation.sim.core import SimUnitCore
 from test_engine_core import DJI0, FEEDBACK, RESPONSE, ctl, engine, on, send, start_tst, task
 
@@ -112,3 +114,17 @@ def test_a_fresh_tree_asks_no_query_status() -> None:
     done = c.on_message(f"{DJI0}/exec/feedback",
                         encode(ExecFeedback(status="finished", task_uuid=start["task-uuid"])), 3.0)
     assert on(done, FEEDBACK)[-1]["status"] == "succeeded"
+
+
+def test_a_connection_never_up_is_not_reported_lost() -> None:
+    """On amqtt the refused MQTT 5 attempt before the 3.1.1 fallback closes a connection that
+    was never up: reported as a loss, it left a unit offline for good (a restarted service on
+    amqtt judged nobody and caught up on nothing)."""
+    seen: list[tuple[bool, int]] = []
+    client = MqttClient(BrokerSettings(host="127.0.0.1", port=1), "probe", sink=lambda _m: None,
+                        on_connection=lambda up, n: seen.append((up, n)))
+    client._on_disconnect(None, None, None, 0, None)  # paho's callback, the attempt refused
+    assert seen == []
+    client.connected.set()  # up, then lost: that is a loss
+    client._on_disconnect(None, None, None, 0, None)
+    assert seen == [(False, 0)] and not client.connected.is_set()
