@@ -208,3 +208,14 @@ def test_the_start_tst_com_uuid_is_the_same_for_the_same_command_and_new_for_ano
     engine_answers(one, c, "started", 102.0)
     assert on(c, "op0/tst/command")[0]["com-uuid"] != a["com-uuid"]
     assert to_dict(parse_tree(a["tst"]))["common_params"]["node-uuid"] == "root-1"
+
+
+def test_a_cancel_while_the_start_is_being_confirmed_aborts_on_the_engine() -> None:
+    core = ServiceCore(ServiceConfig(prefix="t"))
+    _unanswered_start(core)
+    _only_query(core.on_tick(116.1))
+    cmd = (b'{"com-uuid": "k-1", "command": "cancel-mission", "root-uuid": "root-1", '
+           b'"sender": "test"}')
+    out = core.on_message(f"{BASE}/delegation/command", cmd, 116.5)
+    [abort] = on(out, "op0/tst/command")  # not "cancelled before it started": it may run
+    assert abort["command"] == "signal-tst-tree" and abort["signal"] == "$abort"

@@ -137,8 +137,10 @@ class EngineLink:
         return None
 
     def starting(self, root_uuid: str) -> bool:
-        """True while a ``start-tst`` of this mission waits for the engine."""
-        return any(r.kind == "start" and r.root_uuid == root_uuid for r in self.pending.values())
+        """True while a ``start-tst`` of this mission waits for the engine (or, unanswered, the
+        engine is asked whether it runs the tree)."""
+        return any(r.kind in ("start", "confirm") and r.root_uuid == root_uuid
+                   for r in self.pending.values())
 
     def send(
         self,
