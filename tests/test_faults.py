@@ -2,9 +2,10 @@
 
 Each test runs a private mosquitto, one ``delegation sim`` process per unit (so one unit can be
 killed), the reference engine and the service, then breaks something: a unit killed -9, a unit
-rebooted, the engine killed -9, the broker down for longer than anyone's heartbeat timeout, two
-missions at once. Each asserts the mission's final status and that nothing ran twice: every task
-finished exactly once, counted from the units' own ``exec/feedback``. Every wait has a deadline.
+rebooted, the engine killed -9 (not back: its missions fail; restarted: they go on, nothing started
+twice), the broker down for longer than anyone's heartbeat timeout, two missions at once. Each
+asserts the mission's final status and that nothing ran twice: every task finished exactly once,
+counted from the units' own ``exec/feedback``. Every wait has a deadline.
 
 Time is scaled down, not skipped: the simulated units fly 20 times faster than real time, and the
 service judges a unit lost after 3 heartbeat periods but at least `MIN_TIMEOUT` (2.5 s, not the

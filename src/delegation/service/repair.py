@@ -52,7 +52,8 @@ class Replan:
 
 @dataclass(eq=False)
 class Repair(MissionPart):
-    """Re-delegation of a lost or failing unit's tasks; missions failed with a lost engine."""
+    """Re-delegation of a lost or failing unit's tasks; a lost engine waited for (its missions
+    failed when it does not come back), a returning or restarted one caught up with."""
 
     planning: Planning
     catch_up: CatchUp
