@@ -12,6 +12,7 @@ from delegation.messages import HeartBeat, MissionStatus, TstResponse, encode
 from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore
 from delegation.service.catch_up import unfinished
+from delegation.service.engine_link import start_command_uuid
 from delegation.service.missions import MissionBook
 from delegation.tst.node import parse_tree, to_dict, walk
 from test_service_core import BASE, ENGINE, engine_answers, feed_unit, on, run_jobs, start_tst
@@ -202,7 +203,13 @@ def test_the_start_tst_com_uuid_is_the_same_for_the_same_command_and_new_for_ano
     fleet(two, 100.0)
     a = _two_tasks(one)
     b = _two_tasks(two)
-    assert a["com-uuid"] == b["com-uuid"]  # derived from (face, com-uuid) of the command
+    assert a["com-uuid"] == b["com-uuid"]  # the service, the command and the mission
+    assert a["com-uuid"] == start_command_uuid("delegator0", ("tst", "c-1"), "root-1")
+    # Another service, command or mission: never taken by the engine for a re-send.
+    assert len({start_command_uuid(*args) for args in (
+        ("delegator0", ("tst", "c-1"), "root-1"), ("delegator1", ("tst", "c-1"), "root-1"),
+        ("delegator0", ("delegation", "c-1"), "root-1"), ("delegator0", ("tst", "c-2"), "root-1"),
+        ("delegator0", ("tst", "c-1"), "root-2"))}) == 5
     other = start_tst(_tree("seq", "root-2", _task("m0", "/u2")), com="c-2")
     c = run_jobs(one, one.on_message(f"{BASE}/tst/command", other, 102.0), 102.0)
     engine_answers(one, c, "started", 102.0)

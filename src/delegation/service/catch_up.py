@@ -122,7 +122,7 @@ class CatchUp(MissionPart):
             return self.lifecycle.set_status(mission.root_uuid, MissionStatus.SUCCEEDED, now)
         start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=to_dict(left),
                          resume=True)
-        com = start_command_uuid(first_start_key(mission))
+        com = start_command_uuid(self.config.name, first_start_key(mission), mission.root_uuid)
         try:
             out = self.engine.send("start", (INTERNAL, f"{mission.current_root}#resume"),
                                    "delegation", start, now, mission.root_uuid, com=com)

@@ -52,12 +52,13 @@ INTERNAL = "internal"
 START_NAMESPACE = uuid.UUID("0b6f5c1e-3d47-4c8e-a0f4-6a3c2e9d7b15")
 
 
-def start_command_uuid(key: CommandKey) -> str:
+def start_command_uuid(service: str, key: CommandKey, mission: str) -> str:
     """The com-uuid of the ``start-tst`` that serves the command ``key`` (a caller's command, or
-    the service's own ``(internal, <root>#start)`` of a re-delegated tree): the same for every
-    sending of that tree, so that a restarted engine given it again derives the same start-task
-    ids (docs/protocol.md §12.5)."""
-    return str(uuid.uuid5(START_NAMESPACE, f"{key[0]}/{key[1]}"))
+    the service's own ``(internal, <root>#start)`` of a re-delegated tree) for the mission
+    ``mission`` of the service named ``service``: the same for every sending of that tree, so that
+    a restarted engine given it again derives the same start-task ids (docs/protocol.md §12.5);
+    another service, command or mission never gets it (the engine would take it for a re-send)."""
+    return str(uuid.uuid5(START_NAMESPACE, f"{service}/{key[0]}/{key[1]}/{mission}"))
 
 
 def tree_root(tst: dict[str, Any]) -> str:
@@ -162,7 +163,8 @@ class EngineLink:
         if base is None:
             raise InputError(InputProblem("engine", "", self.problem(now) or "no engine"))
         if isinstance(model, StartTst):
-            model = model.model_copy(update={"com_uuid": com or start_command_uuid(key)})
+            com = com or start_command_uuid(self.config.name, key, root_uuid)
+            model = model.model_copy(update={"com_uuid": com})
             tree = tree or tree_root(model.tst)
         com = getattr(model, "com_uuid", "") or new_com_uuid()
         wait = (self.config.catch_up_timeout if kind == "query" else self.config.engine_timeout)
