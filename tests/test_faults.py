@@ -2,9 +2,10 @@
 
 Each test runs a private mosquitto, one ``delegation sim`` process per unit (so one unit can be
 killed), the reference engine and the service, then breaks something: a unit killed -9, a unit
-rebooted, the engine killed -9, the broker down for longer than anyone's heartbeat timeout, two
-missions at once. Each asserts the mission's final status and that nothing ran twice: every task
-finished exactly once, counted from the units' own ``exec/feedback``. Every wait has a deadline.
+rebooted, the engine killed -9 (not back: its missions fail; restarted: they go on, nothing started
+twice), the broker down for longer than anyone's heartbeat timeout, two missions at once. Each
+asserts the mission's final status and that nothing ran twice: every task finished exactly once,
+counted from the units' own ``exec/feedback``. Every wait has a deadline.
 
 Time is scaled down, not skipped: the simulated units fly 20 times faster than real time, and the
 service judges a unit lost after 3 heartbeat periods but at least `MIN_TIMEOUT` (2.5 s, not the
@@ -49,6 +50,8 @@ MIN_TIMEOUT = 2.5
 #: its judgement while it is off the broker (and give everyone a grace after); shorter than the
 #: third reconnect attempt of the clients' 1, 2, 4 s back-off (7 s after the outage began).
 OUTAGE = 6.0
+#: How long the service waits for a lost engine to come back (its default is 30 s).
+ENGINE_RETURN = 4.0
 HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
 GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840), "near-u0": (57.7627, 16.6808)}
 
@@ -138,10 +141,10 @@ def conc(*children: dict[str, Any]) -> dict[str, Any]:
     return {"name": "conc", "common_params": {}, "children": list(children)}
 
 
-def start_service(settings: BrokerSettings, prefix: str) -> DelegationService:
+def start_service(settings: BrokerSettings, prefix: str, **config: Any) -> DelegationService:
     """The service (started by ``with``), quick to judge a unit lost (`MIN_TIMEOUT`)."""
     return DelegationService(settings, ServiceConfig(prefix=prefix,
-                                                     min_heartbeat_timeout=MIN_TIMEOUT))
+                                                     min_heartbeat_timeout=MIN_TIMEOUT, **config))
 
 
 def watch(settings: BrokerSettings, prefix: str) -> Collector:
@@ -256,12 +259,12 @@ def test_a_rebooted_unit_is_re_delegated_at_once(
             col.stop()
 
 
-def test_an_engine_killed_mid_mission_fails_it_with_the_reason_within_a_bound(
+def test_an_engine_killed_and_not_back_fails_its_missions_with_the_reason_within_a_bound(
         mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
     settings = mosquitto.settings()
-    procs.sim("u0", speedup=SPEEDUP / 2)  # still flying when the engine is found lost
+    procs.sim("u0", speedup=SPEEDUP / 4)  # still flying when the engine is given up
     procs.engine()
-    with start_service(settings, prefix) as service:
+    with start_service(settings, prefix, engine_return_timeout=ENGINE_RETURN) as service:
         ready(service, ["u0"])
         col = watch(settings, prefix)
         try:
@@ -269,14 +272,69 @@ def test_an_engine_killed_mid_mission_fails_it_with_the_reason_within_a_bound(
             wait_running(col, {"u0"})
             procs.kill("op0")
             killed = time.monotonic()
-            end = final_status(col, root, timeout=20.0)
-            assert time.monotonic() - killed < 3.0 + 5.0  # 3 s without a heartbeat + a tick
+            end = final_status(col, root, timeout=30.0)
+            # 3 s without a heartbeat + the wait for its return + a tick.
+            assert time.monotonic() - killed < 3.0 + ENGINE_RETURN + 5.0
             assert end["status"] == "failed" and "engine op0 lost" in end["fail-reason"], end
+            assert f"not back within {ENGINE_RETURN:g} s" in end["fail-reason"], end
             starts = [d for d in col.json_on("+/unit/+/+/+/exec/command")
                       if d.get("command") == "start-task"]
             assert len({d["task-uuid"] for d in starts}) == 1  # started once, never again
         finally:
             col.stop()
+
+
+def test_an_engine_killed_mid_task_and_restarted_finishes_the_mission_starting_nothing_twice(
+        mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
+    """Issue 22 item 2: the restarted engine is given the unfinished part of the tree again;
+    the tasks the units are flying are adopted (their start-task re-sent with the same com-uuid
+    is answered again, not run again), what finished is not redone, the rest runs."""
+    settings = mosquitto.settings()
+    for name in ("u0", "u1"):
+        procs.sim(name, speedup=SPEEDUP / 2)  # 7.5 s of wall time per flight
+    procs.engine()
+    with start_service(settings, prefix) as service:
+        ready(service, ["u0", "u1"])
+        col = watch(settings, prefix)
+        try:
+            tree = {"name": "seq", "common_params": {}, "children": [
+                conc(move_to(GOAL["u0"], "/u0"), move_to(GOAL["u1"], "/u1")),
+                move_to(GOAL["near-u0"], "/u0")]}
+            root = delegate(col, service, tree)
+            wait_running(col, {"u0", "u1"})
+            procs.kill("op0")
+            procs.engine()
+            end = final_status(col, root, timeout=60.0)
+            assert end["status"] == "succeeded", end
+            done = finished_per_goal(col)
+            assert done == {GOAL["u0"]: ["u0"], GOAL["u1"]: ["u1"], GOAL["near-u0"]: ["u0"]}, done
+            assert_each_task_started_once(col)
+            # The tasks flying at the kill were adopted: the restarted engine re-sent their
+            # start-task (same com-uuid), the units answered it again.
+            resent = [d["task"]["params"]["waypoint"]["longitude"]
+                      for d in col.json_on("+/unit/+/+/+/exec/command")
+                      if d.get("command") == "start-task"]
+            assert resent.count(GOAL["u0"][1]) >= 2, resent
+            assert resent.count(GOAL["u1"][1]) >= 2, resent
+            assert not [f for f in col.json_on("+/unit/+/+/+/delegation/feedback")
+                        if f.get("status") in ("failed", "re-delegated")]
+        finally:
+            col.stop()
+
+
+def assert_each_task_started_once(col: Collector) -> None:
+    """Each task (by waypoint) got one start-task com-uuid and one task-uuid (re-sends of the
+    same com-uuid do not count), and each unit ran it once (one ``running`` feedback each)."""
+    coms: dict[tuple[float, float], set[tuple[str, str]]] = {}
+    for d in col.json_on("+/unit/+/+/+/exec/command"):
+        if d.get("command") == "start-task":
+            wp = d["task"]["params"]["waypoint"]
+            goal = (round(wp["latitude"], 6), round(wp["longitude"], 6))
+            coms.setdefault(goal, set()).add((d["com-uuid"], d["task-uuid"]))
+    assert all(len(ids) == 1 for ids in coms.values()), coms
+    running = [d["task-uuid"] for d in col.json_on("+/unit/+/+/+/exec/feedback")
+               if d.get("status") == "running"]
+    assert sorted(running) == sorted({t for ids in coms.values() for _, t in ids}), running
 
 
 def test_the_broker_down_while_a_task_finishes_the_mission_still_ends(

@@ -158,6 +158,7 @@ _BY_ANNOTATION: dict[str, st.SearchStrategy[Any]] = {
     "int": st.integers(1, 1000),
     "int | None": st.none() | st.integers(0, 10**6),
     "bool": st.booleans(),
+    "bool | None": st.none() | st.booleans(),
     "list[str]": st.lists(text, max_size=3),
     "dict[str, str]": st.dictionaries(text, text, max_size=3),
     "dict[str, Any]": json_objects,

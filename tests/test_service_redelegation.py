@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from delegation.messages import HeartBeat, TstFeedback, encode
+from delegation.messages import HeartBeat, MissionStatus, TstFeedback, encode
 from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore
 from delegation.service.redelegation import first_origin, remaining_tree, unfinished_on
@@ -173,25 +173,30 @@ def test_a_failing_task_is_retried_within_its_budget_then_fails_the_mission() ->
 # --------------------------------------------------------------------------- the engine
 
 
-def test_a_lost_engine_fails_its_missions_with_the_reason() -> None:
-    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+def test_a_lost_engine_not_back_in_time_fails_its_missions_with_the_reason() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, engine_return_timeout=8.0))
     fleet(core, 100.0)
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
-    for name in ("u0", "u1", "u2"):
-        feed_unit(core, name, 57.76, 16.68, MOVE, 104.0)
-    gone = core.on_tick(105.0)
+    for now in (105.2, 109.2, 113.1):  # lost at 105.2 (5 s without a heartbeat), waited for
+        for name in ("u0", "u1", "u2"):
+            feed_unit(core, name, 57.76, 16.68, MOVE, now)
+        assert statuses(core.on_tick(now)) == []
+    gone = core.on_tick(113.3)
     assert statuses(gone) == ["failed"]
-    assert "engine op0 lost" in core.book.get("root-1").fail_reason
+    assert "engine op0 lost (no heartbeat) and not back within 8 s" in core.book.get(
+        "root-1").fail_reason
 
 
-def test_a_restarted_engine_fails_its_missions_with_the_reason() -> None:
+def test_a_restarted_engine_does_not_fail_its_missions_it_is_asked_about_them() -> None:
     core = ServiceCore(ServiceConfig(prefix=PREFIX))
     fleet(core, 100.0)
     started_mission(core, _tree("conc", "root-1", _task("n0", "/u0")))
     hb = HeartBeat(agent_type="ground", agent_uuid="engine-2", levels=["tst execution"],
                    name="op0", rate=1.0, stamp=102.0)
-    assert statuses(core.on_message(f"{ENGINE}/heartbeat", encode(hb), 102.0)) == ["failed"]
-    assert "restarted" in core.book.get("root-1").fail_reason
+    assert statuses(core.on_message(f"{ENGINE}/heartbeat", encode(hb), 102.0)) == []
+    [query] = on(core.on_tick(102.1), "op0/tst/command")
+    assert query["command"] == "query-tst" and query["node-uuid"] == "root-1"
+    assert core.book.get("root-1").status is MissionStatus.STARTED
 
 
 def test_cancel_without_a_live_engine_ends_the_mission_at_once() -> None:
@@ -252,10 +257,13 @@ def test_nobody_is_lost_while_the_service_itself_is_off_the_broker() -> None:
     core.on_disconnect(101.0)
     assert core.on_tick(116.0) == Effects()  # 15 s of outage: nobody judged
     core.on_reconnect(116.0)
+    [query] = on(core.on_tick(116.1), "op0/tst/command")  # what happened meanwhile?
+    assert query["command"] == "query-tst"
     # A full timeout (5 s) after the peers' reconnect back-off (reconnect_grace 10 s).
-    assert core.on_tick(130.9) == Effects()
+    assert statuses(core.on_tick(130.9)) == []
     feed_unit(core, "u0", 57.76, 16.68, MOVE, 130.0)
-    gone = core.on_tick(131.0)  # the engine did not come back
+    assert statuses(core.on_tick(131.0)) == []  # the engine did not come back: waited for
+    gone = core.on_tick(161.1)  # engine_return_timeout (30 s)
     assert statuses(gone) == ["failed"] and "engine op0 lost" in core.book.get(
         "root-1").fail_reason
 

@@ -1,6 +1,6 @@
 """Repair alone (`delegation.service.repair`): a lost unit's tasks re-planned as a job, its plan
 started in place of the old tree, failures ending the mission; a lost engine failing its
-missions."""
+missions waiting for it, then failed."""
 
 from __future__ import annotations
 
@@ -63,9 +63,9 @@ def test_a_replan_that_fails_ends_the_mission_naming_why() -> None:
         failed["fail-reason"]
 
 
-def test_a_lost_engine_fails_its_running_missions() -> None:
+def test_a_restarted_engine_leaves_its_missions_running_and_to_be_caught_up_with() -> None:
     core = _started()
     out = core.repair.engine_gone(FleetEvent(FleetEventKind.REBOOTED, "op0", 103.0), 103.0)
-    [failed] = on(out, "delegation/feedback")
-    assert failed["status"] == "failed" and "restarted" in failed["fail-reason"]
-    assert core.book.get("r").status is MissionStatus.FAILED
+    assert on(out, "delegation/feedback") == []
+    assert core.catch_up.due == {"r"}
+    assert core.book.get("r").status is MissionStatus.STARTED

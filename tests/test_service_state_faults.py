@@ -208,20 +208,21 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
     config = ServiceConfig(prefix=prefix, name=name)
     base = config.base_topic
     watch = collector(f"{base}/#", f"{prefix}/unit/+/+/op0/tst/command",
+                      f"{prefix}/unit/+/+/op0/tst/feedback",
                       f"{prefix}/unit/+/+/+/exec/command", f"{prefix}/unit/+/+/+/heartbeat",
                       f"{prefix}/unit/+/+/+/sensor/position")
     units = [make_unit("dji0", "air", FRAME.geopoint(0, 0, 30), ["move-to"],
                        speeds={"slow": 4.0, "standard": 8.0, "fast": 14.0})]
-    # 1200 m at 8 m/s = 150 s of mission time; x10: about 15 s of wall time, the kill early on, so
-    # that the restart ends before the mission does (catching up on an end missed while no service
-    # was up is issue 22).
+    # 200 m at 8 m/s = 25 s of mission time; x10: 2.5 s of wall time. The service is killed as
+    # the mission runs and started again only once the tree has ended: the new instance learns
+    # it from the engine (issue 22 item 1), it never heard the end.
     with LocalSystem(units, settings=mqtt_settings, config=config, service=False,
                      speedup=10.0, rates={"dji0": 5.0}):
         first = serves(name, state)
         first_uuid = _wait_new_heartbeat(watch, base, set(), timeout=30)
         for topic in ("op0/heartbeat", "dji0/heartbeat", "dji0/sensor/position"):
             _wait_seen_after_start(watch, base, f"{prefix}/unit/+/+/{topic}", first_uuid)
-        tree = {"name": "move-to", "params": {"waypoint": FRAME.geopoint(1200, 0, 30).to_wire()}}
+        tree = {"name": "move-to", "params": {"waypoint": FRAME.geopoint(200, 0, 30).to_wire()}}
         command = {"command": "delegate", "start": True, "tst": tree, "sender": "test"}
         started = _request(watch, base, dict(command, **{"com-uuid": "c-1"}), timeout=30)
         assert started["response"] == "started", started
@@ -231,22 +232,29 @@ def test_kill_9_and_restart_keeps_missions_and_answers(
                         timeout=20, what="the mission running")
 
         first.kill()
+        watch.wait_json(f"{prefix}/unit/+/+/op0/tst/feedback",
+                        lambda d: d.get("node-uuid") == root and d.get("status") == "succeeded",
+                        timeout=30, what="the tree ended while no service was up")
         second = serves(name, state)
         _wait_new_heartbeat(watch, base, {first_uuid}, timeout=30)
+        back = time.monotonic()
+        # Reported final within 10 s of the new instance's first heartbeat.
+        watch.wait_json(f"{base}/delegation/feedback",
+                        lambda d: d.get("root-uuid") == root and d.get("status") == "succeeded",
+                        timeout=10, what="the end missed while down, reported")
+        logging.getLogger(__name__).info("the missed end reported %.2f s after the restart",
+                                         time.monotonic() - back)
 
         known = _request(watch, base, {"command": "query-mission", "root-uuid": root,
                                        "sender": "test"})  # the owner (restored from the store)
         assert known["response"] == "ok", known
-        assert known["mission"]["status"] in ("running", "succeeded"), known
+        assert known["mission"]["status"] == "succeeded", known
         resent = _request(watch, base, dict(command, **{"com-uuid": "c-1"}), nth=2)
         assert resent == started
         raw = _raw_answers(watch, base, "c-1")
         assert len(raw) == 2 and raw[0] == raw[1]  # the identical bytes
 
-        # Followed to the end by the new instance, and nothing ran twice.
-        watch.wait_json(f"{base}/delegation/feedback",
-                        lambda d: d.get("root-uuid") == root and d.get("status") == "succeeded",
-                        timeout=40, what="the mission succeeded")
+        # Nothing ran twice.
         done = _request(watch, base, {"command": "query-mission", "root-uuid": root,
                                       "sender": "test"})
         assert done["mission"]["status"] == "succeeded"

@@ -1,7 +1,8 @@
 """The reference TST engine's core: the seed's TST Execution API (section 14), pure.
 
 `EngineCore` reads ``tst/command`` (``start-tst`` for fully instantiated trees,
-``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``), every unit's heartbeat (to
+``signal-tst-node``, ``signal-tst-tree``, ``signal-unit``, ``ping``, and our ``query-tst``:
+docs/protocol.md §12.5), every unit's heartbeat (to
 learn base topics) and ``exec/response``/``exec/feedback``; it returns ``tst/response``,
 ``tst/feedback`` for every node status change, and ``start-task``/``signal-task`` to the units'
 ``exec/command``. Its status is a ``heartbeat`` (levels ``["tst execution"]``) and a
@@ -34,6 +35,7 @@ from delegation.messages import (
     NodeStatus,
     Ping,
     QueryStatus,
+    QueryTst,
     RebindTstNodes,
     SignalTask,
     SignalTstNode,
@@ -252,10 +254,19 @@ class EngineCore:
         """Run one decoded command: its answer first, then what it set going."""
         if isinstance(command, Ping):
             return self._answer(key, command.com_uuid, "pong")
+        if isinstance(command, QueryTst):
+            nodes = self.executor.tree_status(command.node_uuid)
+            if nodes is None:
+                why = f"no tree {command.node_uuid} is known to {self.name}"
+                return self._answer(key, command.com_uuid, "unknown", fail_reason=why)
+            return self._answer(key, command.com_uuid, "ok", root_uuid=command.node_uuid,
+                                nodes=nodes)
         if isinstance(command, StartTst):
             tree = parse_tree(command.tst)
             self._refuse_own_tasks(tree)
-            root_uuid, actions = self.executor.start_tree(self.delegated.fold(tree, now), now)
+            root_uuid, actions = self.executor.start_tree(self.delegated.fold(tree, now), now,
+                                                          run=command.com_uuid,
+                                                          resume=bool(command.resume))
             log.info("%s: executing tree %s", self.name, root_uuid)
             answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
             return answer.extend(self._carry_out(actions))
@@ -295,11 +306,11 @@ class EngineCore:
         response: str,
         fail_reason: str = "",
         root_uuid: str | None = None,
+        nodes: list[dict[str, str]] | None = None,
     ) -> Effects:
         """The ``tst/response``, remembered for re-sends of the command."""
-        answer = TstResponse(
-            fail_reason=fail_reason, response=response, response_to=com_uuid, root_uuid=root_uuid
-        )
+        answer = TstResponse(fail_reason=fail_reason, response=response, response_to=com_uuid,
+                             root_uuid=root_uuid, nodes=list(nodes) if nodes else None)
         out = Outgoing.of(self.identity.topic("tst/response"), answer, QOS_COMMAND)
         if key is not None:
             self.commands.finish(key, [out])

@@ -8,6 +8,10 @@ what arrives (unit responses and feedback, signals, heartbeats) together with ``
 
 Rules (docs/protocol.md §8, §12 and the seed):
 
+* A start-task's ids are derived from the tree's ``run`` (the start-tst's com-uuid), the node and
+  the attempt (docs/protocol.md §12.4), so an engine restarted and given the tree again re-sends
+  the start-tasks a unit already got; a ``resume`` tree asks ``query-status`` once each is
+  answered (§12.5).
 * A start-task is re-sent with the same com-uuid (and task-uuid) every ``resend_after`` s until
   the unit answers, at most ``max_attempts`` times; then the node fails and the unit is sent
   ``$abort`` (it may have got the task and be running it).
@@ -95,6 +99,8 @@ FEEDBACK_STATUS: dict[str, NodeStatus] = {
 }
 #: The example agent's answer when a unit is busy.
 BUSY_REASON = "A task is already running"
+#: The uuid5 namespace of reproducible start-task ids (`TreeExecutor._start_ids`).
+RUN_NAMESPACE = uuid_module.UUID("5d0c5a52-8a3e-4f55-9d3b-3f0f2f6b9a11")
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,8 +217,13 @@ class TreeExecutor:
 
     # ---- starting
 
-    def start_tree(self, root: TstNode, now: float) -> tuple[str, list[Action]]:
-        """Start executing a parsed tree; raises `InputError` naming the nodes it cannot run."""
+    def start_tree(
+        self, root: TstNode, now: float, run: str = "", resume: bool = False
+    ) -> tuple[str, list[Action]]:
+        """Start executing a parsed tree; raises `InputError` naming the nodes it cannot run.
+
+        ``run`` (the start-tst's com-uuid) makes the start-task ids reproducible (`Tree.run`);
+        ``resume`` asks each task's unit for its status once its start-task is answered."""
         root = with_uuids(root, self.new_uuid)
         problems = check_instantiated(root)
         for path, node in walk(root):
@@ -230,7 +241,7 @@ class TreeExecutor:
                 )
         if problems:
             raise InputError(problems)
-        tree = build_tree(root, now)
+        tree = build_tree(root, now, run, resume)
         self._prune()
         self.trees[tree.root_uuid] = tree
         for uid in tree.nodes:
@@ -412,14 +423,25 @@ class TreeExecutor:
             if waiting and node.uuid in waiting:
                 waiting.remove(node.uuid)
         node.retry_at = None
-        task_uuid = self.new_uuid()
-        node.attempt = TaskAttempt(task_uuid, self.new_uuid(), sends=1, sent_at=now)
+        task_uuid, com_uuid = self._start_ids(tree, node)
+        node.attempt = TaskAttempt(task_uuid, com_uuid, sends=1, sent_at=now)
         node.known_uuids.add(task_uuid)
         node.known_coms.add(node.attempt.com_uuid)
         self._task_node[task_uuid] = node.uuid
         self._com_node[node.attempt.com_uuid] = node.uuid
         self._set(tree, node, NodeStatus.ACTIVE, actions)
         actions.append(self._start_action(node))
+
+    def _start_ids(self, tree: Tree, node: TaskNode) -> tuple[str, str]:
+        """The task-uuid and com-uuid of the node's next start-task: derived from the tree's
+        ``run``, the node and the attempt's number where the tree has a run (an engine restarted
+        and given the tree again re-sends the very start-task a unit already got: answered
+        again, not run again, seed 12), else fresh."""
+        if not tree.run:
+            return self.new_uuid(), self.new_uuid()
+        attempt = f"{tree.run}/{node.uuid}/{len(node.known_uuids) + 1}"
+        return (str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/task")),
+                str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/start")))
 
     @staticmethod
     def _start_action(node: TaskNode) -> SendStartTask:
@@ -746,6 +768,10 @@ class TreeExecutor:
                 self._finish(tree, node, NodeStatus.SUCCEEDED, now, actions)
             else:
                 self._deliver_pending(node, now, actions)
+                if tree.resume and len(node.known_uuids) == 1:
+                    # Maybe the answer to a start-task an earlier engine sent: the task may have
+                    # ended since, its feedback heard by nobody. The unit knows.
+                    actions.append(self._ask(node))
             self._drain(now, actions)
             return actions
         reason = fail_reason or f"{response}"
@@ -835,13 +861,26 @@ class TreeExecutor:
                     continue
                 if unit is not None and node.unit != unit:
                     continue
-                com = self.new_uuid()
-                self._queries[com] = node.attempt.task_uuid
-                actions.append(SendQuery(node.unit, com, node.attempt.task_uuid))
+                actions.append(self._ask(node))
         if len(self._queries) > 10_000:  # unanswered queries (example agents never answer)
             for com in list(self._queries)[: len(self._queries) - 10_000]:
                 del self._queries[com]
         return actions
+
+    def _ask(self, node: TaskNode) -> SendQuery:
+        """``query-status`` for the node's current task, its answer awaited."""
+        com = self.new_uuid()
+        self._queries[com] = node.attempt.task_uuid
+        return SendQuery(node.unit, com, node.attempt.task_uuid)
+
+    def tree_status(self, root_uuid: str) -> list[dict[str, str]] | None:
+        """``query-tst``: every node of the tree ``root_uuid`` (parents first) with its status
+        and fail-reason; None when no such tree is known (never started here, or forgotten)."""
+        tree = self.trees.get(root_uuid)
+        if tree is None:
+            return None
+        return [{"node-uuid": n.uuid, "status": n.status.value, "fail-reason": n.fail_reason}
+                for n in tree.nodes.values()]
 
     def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
         """A unit's answer to ``query-status`` in the seed's words (running, failed, success,
@@ -864,7 +903,7 @@ class TreeExecutor:
         self._drain(now, actions)
         return actions
 
-    # ---- re-binding tasks to other units (the service's repairs, docs/protocol.md §12.5)
+    # ---- re-binding tasks to other units (the service's repairs, docs/protocol.md §12.6)
 
     def rebind(self, execunits: dict[str, str], now: float) -> list[Action]:
         """``rebind-tst-nodes``: each task node (uuid -> ``/unit``) runs on another unit from now

@@ -128,6 +128,13 @@ class Tree:
     root_uuid: str
     nodes: dict[str, ExecNode]
     started_at: float
+    run: str = ""
+    """What makes this execution's start-task ids (the start-tst's com-uuid): the same tree sent
+    again with the same com-uuid to a restarted engine re-sends the same start-tasks, which a
+    unit answers again instead of running them again (seed 12). ``""``: random ids."""
+    resume: bool = False
+    """The unfinished part of a tree an earlier engine ran: each task is asked ``query-status``
+    once its start-task is answered (it may have ended while no engine listened)."""
 
     @property
     def root(self) -> ExecNode:
@@ -202,7 +209,7 @@ def check_instantiated(root: TstNode) -> list[InputProblem]:
     return problems
 
 
-def build_tree(root: TstNode, now: float) -> Tree:
+def build_tree(root: TstNode, now: float, run: str = "", resume: bool = False) -> Tree:
     """The executing state of a checked tree (every node has a uuid, every task a unit)."""
     nodes: dict[str, ExecNode] = {}
     parents: dict[int, str] = {}
@@ -223,4 +230,4 @@ def build_tree(root: TstNode, now: float) -> Tree:
             nodes[uid] = TaskNode(**shared, unit=unit, vehicle=is_vehicle_task(node.name))
         for child in node.children:
             parents[id(child)] = uid
-    return Tree(root.node_uuid or "", nodes, now)
+    return Tree(root.node_uuid or "", nodes, now, run, resume)

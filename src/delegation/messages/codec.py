@@ -33,7 +33,7 @@ EXEC_COMMANDS = _by_command(
 )
 TST_COMMANDS = _by_command(
     direct.Ping, tst_exec.StartTst, tst_exec.SignalTstNode, tst_exec.SignalTstTree,
-    tst_exec.SignalUnit, tst_exec.RebindTstNodes,
+    tst_exec.SignalUnit, tst_exec.RebindTstNodes, tst_exec.QueryTst,
 )
 DELEGATION_COMMANDS = _by_command(
     delegation_api.DelegationPing,

@@ -46,6 +46,11 @@ class StartTst(Command):
     command: Literal["start-tst"] = "start-tst"
     receiver: str | None = None
     tst: dict[str, Any]
+    #: Our extension (docs/protocol.md §12.5): the tree is the unfinished part of one an earlier
+    #: instance of the engine executed; its tasks may be running or done on their units already,
+    #: so each is asked ``query-status`` once its re-sent start-task is answered. Other engines
+    #: ignore the field.
+    resume: bool | None = None
 
 
 class SignalTstNode(Command):
@@ -73,12 +78,21 @@ class SignalUnit(Command):
 
 
 class RebindTstNodes(Command):
-    """``rebind-tst-nodes`` (ours, not the seed's; docs/protocol.md §12.5): task nodes of an
+    """``rebind-tst-nodes`` (ours, not the seed's; docs/protocol.md §12.6): task nodes of an
     executing tree run on other units from now on (``execunits``: node uuid -> ``/unit``), the
     rest of the tree untouched. How the delegation service moves a lost unit's tasks."""
 
     command: Literal["rebind-tst-nodes"] = "rebind-tst-nodes"
     execunits: dict[str, str]
+
+
+class QueryTst(Command):
+    """``query-tst``: our extension of the TST API (docs/protocol.md §12.5): the status of every
+    node of the tree whose root is ``node-uuid``, answered ``ok`` with ``nodes``, or ``unknown``
+    when the engine does not know the tree (never started there, or forgotten: restarted)."""
+
+    command: Literal["query-tst"] = "query-tst"
+    node_uuid: str
 
 
 class TstResponse(Answer):
@@ -89,6 +103,9 @@ class TstResponse(Answer):
     """
 
     root_uuid: str | None = None
+    #: The answer to ``query-tst``: every node of the tree, parents before children, each
+    #: ``{"node-uuid", "status", "fail-reason"}``.
+    nodes: list[dict[str, Any]] | None = None
 
     def omit_when_empty(self) -> frozenset[str]:
         if self.response in ("ok", "pong"):

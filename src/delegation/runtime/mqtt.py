@@ -364,9 +364,12 @@ class MqttClient:
     def _on_disconnect(
         self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any
     ) -> None:
+        was_up = self.connected.is_set()
         self.connected.clear()
         log.debug("%s disconnected: %s", self.client_id, reason)
-        if self._on_connection is not None:
+        # Only a connection that was up is lost: the refused MQTT 5 attempt before falling back to
+        # 3.1.1 (amqtt) closes too, and told as a loss it left the unit offline for good.
+        if self._on_connection is not None and was_up:
             try:
                 self._on_connection(False, self.connect_count)
             except Exception as exc:

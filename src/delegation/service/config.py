@@ -26,6 +26,13 @@ class ServiceConfig:
     max_time_limit: float = 60.0
     #: Seconds to wait for the engine's answer before a command is answered ``failed``.
     engine_timeout: float = 15.0
+    #: Seconds the service waits for a lost engine to come back before its missions fail (a
+    #: restarted engine is given the unfinished part of each tree again, docs/protocol.md §11).
+    engine_return_timeout: float = 30.0
+    #: Seconds a ``query-tst`` (catching up after a restart or an outage) waits for its answer
+    #: before it is asked again, at most ``catch_up_attempts`` times.
+    catch_up_timeout: float = 2.0
+    catch_up_attempts: int = 10
     #: Seconds a ``cancel-mission`` waits for the engine to confirm the abort before it is
     #: answered ``pending`` (the engine's own abort timeout is 15 s).
     cancel_timeout: float = 20.0

@@ -29,8 +29,11 @@ Payloads of ``delegation/response`` (besides ``com-uuid``, ``response-to``, ``re
 
 Faults (docs/protocol.md §11): a unit lost (heartbeat stopped, or a new agent-uuid) or
 answering ``failed`` has its unfinished tasks re-delegated (`delegation.service.redelegation`); an
-engine lost or restarted fails its missions with the reason. ``now`` is monotonic (every timeout);
-mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` + offset).
+engine restarted is given the unfinished part of each tree again, a lost one is waited for
+(``engine_return_timeout``); after its own restart or reconnect the service asks the engine about
+every open mission before judging it (`delegation.service.catch_up`). ``now`` is monotonic (every
+timeout); mission records are stamped in epoch seconds from the ``stamp`` of `status` (``now`` +
+offset).
 
 Planning is a job (`Effects.jobs`) the unit runs on its worker, in arrival order: a long
 ``optimal`` plan delays the next plan, never a ``ping``, a signal or feedback. The tree and the
@@ -39,7 +42,7 @@ options are validated once on the service's path, so bad input is answered at on
 The core dispatches; each decision lives in one part it composes: reading and answering commands
 (`commands`), the fleet as planned with (`fleet_view`), planning jobs (`planning`), the engine's
 feedback and answers and cancels (`engine_use`), re-delegation and lost engines (`repair`),
-mission status publishing (`lifecycle`).
+catching up after restarts and outages (`catch_up`), mission status publishing (`lifecycle`).
 """
 
 from __future__ import annotations
@@ -75,6 +78,7 @@ from delegation.runtime.commands import CommandKey, CommandLog
 from delegation.runtime.core import Effects, JobDone, Outgoing
 from delegation.service.access import client_of
 from delegation.service.cancels import Cancels
+from delegation.service.catch_up import CatchUp
 from delegation.service.commands import CommandDesk, Topics
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineLink
@@ -125,8 +129,9 @@ class ServiceCore:
         shared = (c, book, self.desk, self.view, self.engine, self.lifecycle)
         self.offers = OfferDesk(c, self.fleet)
         self.planning = Planning(*shared, offers=self.offers)
-        self.repair = Repair(*shared, planning=self.planning)
-        self.engine_use = EngineUse(*shared, repair=self.repair)
+        self.catch_up = CatchUp(*shared)
+        self.repair = Repair(*shared, planning=self.planning, catch_up=self.catch_up)
+        self.engine_use = EngineUse(*shared, repair=self.repair, catch_up=self.catch_up)
 
     @property
     def name(self) -> str:
@@ -147,7 +152,8 @@ class ServiceCore:
 
     @book.setter
     def book(self, book: MissionBook) -> None:
-        for part in (self.view, self.lifecycle, self.planning, self.repair, self.engine_use):
+        for part in (self.view, self.lifecycle, self.planning, self.catch_up, self.repair,
+                     self.engine_use):
             part.book = book
 
     @property
@@ -221,10 +227,16 @@ class ServiceCore:
             *self.offers.subscriptions(),
         ]
 
-    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
-        """One message from the broker (a command on a shared or a per-client command topic)."""
+    def _listening(self, now: float) -> None:
+        """The first message or tick: the missions the store gave this instance (it restarted)
+        are caught up with before they are judged (`CatchUp`)."""
         if self._listening_since is None:
             self._listening_since = now
+            self.catch_up.want_open()
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        """One message from the broker (a command on a shared or a per-client command topic)."""
+        self._listening(now)
         effects = self._message(topic, payload, now)
         return effects.extend(self._release_held(now)) if self._held else effects
 
@@ -251,13 +263,16 @@ class ServiceCore:
         return self._fleet_events(now)
 
     def on_tick(self, now: float) -> Effects:
-        """Answer ``failed`` the engine commands that were never answered."""
-        if self._listening_since is None:
-            self._listening_since = now
+        """Engine commands never answered, catching up, the lost engine waited for, cancels'
+        deadlines, units lost."""
+        self._listening(now)
         self.view.log_silent(now)
         effects = self._release_held(now) if self._held else Effects()
         for got in self.engine.expire(now):
             effects.extend(self.engine_use.answer(got, now))
+        if self._offline_since is None:
+            effects.extend(self.repair.engine_wait(now))
+            effects.extend(self.catch_up.queries(now))
         effects.extend(self.lifecycle.cancel_deadlines(now))
         effects.jobs.extend(self.offers.expire(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
@@ -271,9 +286,11 @@ class ServiceCore:
 
     def on_reconnect(self, now: float) -> Effects:
         """Back on the broker: every unit and the engine get a full timeout from now to be heard
-        again (they reconnect too); whoever is not is lost then."""
+        again (they reconnect too); whoever is not is lost then. What the engine published
+        meanwhile never arrives (clean sessions): every open mission is asked about."""
         self._offline_since = None
         self.fleet.grace(now, self.config.reconnect_grace)
+        self.catch_up.want_open()
         return Effects()
 
     def status(self, now: float, stamp: float) -> list[Outgoing]:

@@ -1,15 +1,23 @@
 """The service's side of its conversation with the TST engine (pure: ``now`` is passed in).
 
 The service sends the engine three kinds of command for a caller: a ``start-tst`` with the
-instantiated tree, a forwarded signal, and the ``$abort`` of a cancelled mission. Each waits here,
-by the engine command's com-uuid, until the engine answers or ``engine_timeout`` passes. What the
-answer (or the silence) means for the caller comes back as an `EngineAnswer`; the core publishes
-it and moves the mission on, since the mission book and the command log are the core's.
+instantiated tree, a forwarded signal, and the ``$abort`` of a cancelled mission; and for itself
+``query-tst`` (docs/protocol.md §12.5): catching up on a tree after a restart or an outage
+(``query``), or finding out whether a ``start-tst`` whose answer never came started the tree after
+all (``confirm``). Each waits here, by the engine command's com-uuid, until the engine answers or
+its timeout passes. What the answer (or the silence) means for the caller comes back as an
+`EngineAnswer`; the core publishes it and moves the mission on, since the mission book and the
+command log are the core's.
+
+The com-uuid of a ``start-tst`` is derived from the command it serves (`start_command_uuid`):
+the unfinished part of a tree sent again to a restarted engine carries the same com-uuid, so the
+engine derives the same start-task ids and units answer again what they already run.
 """
 
 from __future__ import annotations
 
 import logging
+import uuid
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -19,6 +27,7 @@ from delegation.fleet import FleetRegistry
 from delegation.messages import (
     DelegationResponse,
     MissionStatus,
+    StartTst,
     TstFeedback,
     TstResponse,
     WireModel,
@@ -32,10 +41,31 @@ from delegation.service.faces import Face, failure
 
 log = logging.getLogger(__name__)
 
-RequestKind = Literal["start", "signal", "cancel", "rebind"]
+RequestKind = Literal["start", "signal", "cancel", "rebind", "query", "confirm"]
 
 #: How many trees' engine topics are remembered (feedback for older ones is ignored).
 MAX_TREES = 10_000
+#: The `CommandKey` face of the service's own engine commands (re-delegation, catching up):
+#: never answered to anyone.
+INTERNAL = "internal"
+#: The uuid5 namespace of ``start-tst`` com-uuids (`start_command_uuid`).
+START_NAMESPACE = uuid.UUID("0b6f5c1e-3d47-4c8e-a0f4-6a3c2e9d7b15")
+
+
+def start_command_uuid(service: str, key: CommandKey, mission: str) -> str:
+    """The com-uuid of the ``start-tst`` that serves the command ``key`` (a caller's command, or
+    the service's own ``(internal, <root>#start)`` of a re-delegated tree) for the mission
+    ``mission`` of the service named ``service``: the same for every sending of that tree, so that
+    a restarted engine given it again derives the same start-task ids (docs/protocol.md §12.5);
+    another service, command or mission never gets it (the engine would take it for a re-send)."""
+    return str(uuid.uuid5(START_NAMESPACE, f"{service}/{key[0]}/{key[1]}/{mission}"))
+
+
+def tree_root(tst: dict[str, Any]) -> str:
+    """The root node uuid of a tree as JSON (either spelling of ``common_params``)."""
+    common = tst.get("common_params") or tst.get("common-params") or {}
+    uid = common.get("node-uuid") if isinstance(common, dict) else None
+    return uid if isinstance(uid, str) else ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +80,8 @@ class EngineRequest:
     plan: dict[str, Any] | None = None
     #: The engine base topic the command went to: only an answer from there counts.
     base: str = ""
+    #: The root uuid of the tree a ``start-tst`` sent (or a ``query-tst`` asks about).
+    tree: str = ""
 
     @property
     def caller_com_uuid(self) -> str:
@@ -63,9 +95,16 @@ class EngineAnswer:
     new status (set before the answer goes out) if it changes."""
 
     request: EngineRequest
-    answer: WireModel
+    #: The caller's answer (None: nobody to answer yet, see ``confirm``, or a query).
+    answer: WireModel | None
     mission_status: MissionStatus | None = None
     fail_reason: str = ""
+    #: The engine's own answer (a ``query-tst``'s ``nodes``); None when it did not answer.
+    response: TstResponse | None = None
+    #: A ``start-tst`` went unanswered: ask the engine whether it runs the tree (``confirm``).
+    confirm: bool = False
+    #: The tree may run on the engine although the mission failed: ``$abort`` it.
+    abort: bool = False
 
 
 class EngineLink:
@@ -99,8 +138,10 @@ class EngineLink:
         return None
 
     def starting(self, root_uuid: str) -> bool:
-        """True while a ``start-tst`` of this mission waits for the engine."""
-        return any(r.kind == "start" and r.root_uuid == root_uuid for r in self.pending.values())
+        """True while a ``start-tst`` of this mission waits for the engine (or, unanswered, the
+        engine is asked whether it runs the tree)."""
+        return any(r.kind in ("start", "confirm") and r.root_uuid == root_uuid
+                   for r in self.pending.values())
 
     def send(
         self,
@@ -111,14 +152,24 @@ class EngineLink:
         now: float,
         root_uuid: str = "",
         plan: dict[str, Any] | None = None,
+        tree: str = "",
+        com: str = "",
     ) -> Outgoing:
-        """The command to publish; its answer is awaited. ``InputError`` if no engine is live."""
+        """The command to publish; its answer is awaited. ``InputError`` if no engine is live.
+
+        A ``start-tst`` gets the com-uuid `start_command_uuid` derives from ``key`` (or ``com``:
+        the unfinished part of a tree re-sent under its first com-uuid)."""
         base = self.base(now)
         if base is None:
             raise InputError(InputProblem("engine", "", self.problem(now) or "no engine"))
+        if isinstance(model, StartTst):
+            com = com or start_command_uuid(self.config.name, key, root_uuid)
+            model = model.model_copy(update={"com_uuid": com})
+            tree = tree or tree_root(model.tst)
         com = getattr(model, "com_uuid", "") or new_com_uuid()
-        self.pending[com] = EngineRequest(kind, key, face, now + self.config.engine_timeout,
-                                          root_uuid, plan, base)
+        wait = (self.config.catch_up_timeout if kind == "query" else self.config.engine_timeout)
+        self.pending[com] = EngineRequest(kind, key, face, now + wait, root_uuid, plan, base,
+                                          tree)
         if kind == "start" and root_uuid:
             self.sent_to[root_uuid] = base
             self.sent_to.move_to_end(root_uuid)
@@ -164,23 +215,30 @@ class EngineLink:
             if now < req.deadline:
                 continue
             del self.pending[com]
-            status = MissionStatus.FAILED if req.kind == "start" else None
-            expired.append(EngineAnswer(req, failure(req.face, req.caller_com_uuid, reason),
-                                        status, reason))
+            if req.kind == "query":  # asked again by the catch-up, or given up there
+                expired.append(EngineAnswer(req, None))
+            elif req.kind == "start" and req.tree:  # ask rather than assume it did not start
+                expired.append(EngineAnswer(req, None, confirm=True))
+            elif req.kind == "confirm":
+                why = (f"{reason}, nor said whether it runs the tree {req.tree}: "
+                       "$abort sent to it in case it does")
+                expired.append(EngineAnswer(req, failure(req.face, req.caller_com_uuid, why),
+                                            MissionStatus.FAILED, why, abort=True))
+            else:
+                status = MissionStatus.FAILED if req.kind == "start" else None
+                expired.append(EngineAnswer(req, failure(req.face, req.caller_com_uuid, reason),
+                                            status, reason))
         return expired
 
     def _answer(self, req: EngineRequest, resp: TstResponse) -> EngineAnswer:
         engine, caller = self.config.engine, req.caller_com_uuid
+        if req.kind == "query":
+            return EngineAnswer(req, None, response=resp)
+        if req.kind == "confirm":
+            return self._confirmed(req, resp)
         if req.kind == "start":
             if resp.response == "started":
-                answer: WireModel
-                if req.face == "tst":
-                    answer = TstResponse(response="started", response_to=caller,
-                                         root_uuid=req.root_uuid)
-                else:
-                    answer = DelegationResponse(response="started", response_to=caller,
-                                                plan=req.plan)
-                return EngineAnswer(req, answer, MissionStatus.STARTED)
+                return EngineAnswer(req, self._started(req), MissionStatus.STARTED)
             reason = f"engine {engine} refused the tree: {resp.fail_reason or resp.response}"
             return EngineAnswer(req, failure(req.face, caller, reason), MissionStatus.FAILED,
                                 reason)
@@ -189,7 +247,35 @@ class EngineLink:
                 return EngineAnswer(req, DelegationResponse(response="ok", response_to=caller))
             reason = f"engine {engine} did not abort: {resp.fail_reason or resp.response}"
             return EngineAnswer(req, failure(req.face, caller, reason))
-        # a forwarded signal: pass the engine's answer on
+        return self._passed_on(req, resp)
+
+    def _started(self, req: EngineRequest) -> WireModel:
+        """The caller's answer to a mission started."""
+        if req.face == "tst":
+            return TstResponse(response="started", response_to=req.caller_com_uuid,
+                               root_uuid=req.root_uuid)
+        return DelegationResponse(response="started", response_to=req.caller_com_uuid,
+                                  plan=req.plan)
+
+    def _confirmed(self, req: EngineRequest, resp: TstResponse) -> EngineAnswer:
+        """The engine's answer to ``query-tst`` about a tree whose ``start-tst`` went unanswered:
+        it runs the tree (the mission started, its statuses are applied), it does not know it
+        (not started: the mission fails), or it cannot say (the mission fails, ``$abort``)."""
+        engine, caller = self.config.engine, req.caller_com_uuid
+        silent = f"engine {engine} did not answer start-tst within {self.config.engine_timeout:g} s"
+        if resp.response == "ok":
+            return EngineAnswer(req, self._started(req), MissionStatus.STARTED, response=resp)
+        if resp.response == "unknown":
+            why = f"{silent}, and does not know the tree: it was not started"
+            return EngineAnswer(req, failure(req.face, caller, why), MissionStatus.FAILED, why)
+        why = (f"{silent}, nor said whether it runs the tree ({resp.fail_reason or resp.response})"
+               ": $abort sent to it in case it does")
+        return EngineAnswer(req, failure(req.face, caller, why), MissionStatus.FAILED, why,
+                            abort=True)
+
+    def _passed_on(self, req: EngineRequest, resp: TstResponse) -> EngineAnswer:
+        """A forwarded signal: the engine's answer passed on."""
+        engine, caller = self.config.engine, req.caller_com_uuid
         if resp.response == "failed":
             return EngineAnswer(req, failure(req.face, caller, f"engine {engine}: "
                                                                f"{resp.fail_reason}"))

@@ -21,6 +21,7 @@ from delegation.messages import (
     CancelMission,
     DelegationResponse,
     MissionStatus,
+    QueryTst,
     SignalTstNode,
     SignalTstTree,
     SignalUnit,
@@ -29,11 +30,12 @@ from delegation.messages import (
 )
 from delegation.runtime.commands import CommandKey
 from delegation.runtime.core import Effects
-from delegation.service.engine_link import EngineAnswer
+from delegation.service.catch_up import CatchUp
+from delegation.service.engine_link import INTERNAL, EngineAnswer
 from delegation.service.missions import Mission
 from delegation.service.planning import MissionPart
 from delegation.service.redelegation import current_node, first_origin
-from delegation.service.repair import INTERNAL, Repair
+from delegation.service.repair import Repair
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +54,7 @@ class EngineUse(MissionPart):
     """The engine's feedback and answers, applied; ``cancel-mission`` sent to it."""
 
     repair: Repair
+    catch_up: CatchUp
     #: Callers' signals sent as several, by the caller's command key.
     fanout: dict[CommandKey, _Fanout] = field(default_factory=dict)
 
@@ -214,6 +217,10 @@ class EngineUse(MissionPart):
     def answer(self, got: EngineAnswer, now: float) -> Effects:
         """The mission moves on (if it does), then the caller gets its answer."""
         req = got.request
+        if req.kind == "query":
+            return self._caught_up(req.root_uuid, got, now)
+        if got.confirm:
+            return self._confirm(got, now)
         effects = Effects()
         if got.mission_status is not None:
             effects.extend(self.lifecycle.set_status(req.root_uuid, got.mission_status, now,
@@ -223,6 +230,12 @@ class EngineUse(MissionPart):
             return effects.extend(self.repair.rebind_answered(
                 req.root_uuid, getattr(answer, "response", "") == "ok",
                 getattr(answer, "fail_reason", "") or "no answer", now))
+        if got.response is not None:  # a confirmed start: what the tree did meanwhile
+            effects.extend(self._caught_up(req.root_uuid, got, now))
+        if got.abort:
+            effects.extend(self.repair.abort_tree(req.tree, now))
+        if got.answer is None:
+            return effects
         if req.key[0] == INTERNAL:
             return effects  # the service's own command (re-delegation): nobody to answer
         fan = self.fanout.get(req.key)
@@ -245,6 +258,38 @@ class EngineUse(MissionPart):
             self.lifecycle.wait_cancel(req.root_uuid, req.key, now)
             return effects
         return effects.extend(self.desk.respond(req.face, req.key, got.answer))
+
+    def _caught_up(self, root: str, got: EngineAnswer, now: float) -> Effects:
+        """The engine's answer to ``query-tst`` (`CatchUp.answered`): missed feedback applied as
+        if it had just arrived, or the tree sent again; no answer: asked again."""
+        if got.response is None:
+            self.catch_up.unanswered(root)
+            return Effects()
+        missed, effects = self.catch_up.answered(root, got.response, now)
+        if missed:
+            log.info("mission %s: caught up on %d node status(es) missed", root, len(missed))
+        for fb in missed:
+            effects.extend(self.feedback(fb, now))
+        return effects
+
+    def _confirm(self, got: EngineAnswer, now: float) -> Effects:
+        """A ``start-tst`` went unanswered: ask the engine whether it runs the tree before the
+        mission is judged (``confirm``); with no engine to ask, it fails as before."""
+        req = got.request
+        query = QueryTst(node_uuid=req.tree, sender=self.config.name)
+        try:
+            out = self.engine.send("confirm", req.key, req.face, query, now, req.root_uuid,
+                                   req.plan, tree=req.tree)
+        except InputError as exc:
+            why = (f"engine {self.config.engine} did not answer within "
+                   f"{self.config.engine_timeout:g} s ({exc.fail_reason})")
+            effects = self.lifecycle.set_status(req.root_uuid, MissionStatus.FAILED, now, why)
+            if req.key[0] == INTERNAL:
+                return effects
+            return effects.extend(self.desk.fail(req.face, req.key, req.caller_com_uuid, why))
+        log.info("mission %s: no answer to start-tst from %s: asking whether it runs tree %s",
+                 req.root_uuid, self.config.engine, req.tree)
+        return Effects(publish=[out])
 
     def cancel(self, cmd: CancelMission, key: CommandKey, now: float) -> Effects:
         """``cancel-mission``: aborted at once when no engine runs its tree, else the engine

@@ -8,7 +8,10 @@ A lost unit's tasks move within the running tree (``rebind-tst-nodes``): the oth
 go on untouched. A failed task (its branch already stopped by the engine), or a rebind the engine
 refuses, replaces the tree: the old one is aborted and the remaining one started. A task
 re-delegated ``max_retries`` times, or one nobody can take, fails the mission naming it. An engine
-lost or restarted fails its missions with the reason: the trees it executed are gone with it.
+lost or restarted does not fail its missions: they are caught up with
+(`delegation.service.catch_up`), which gives a restarted engine the unfinished part of each tree
+again; a lost engine is waited for, at most ``engine_return_timeout``, then its missions fail
+saying so.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from delegation.messages import (
     StartTst,
 )
 from delegation.runtime.core import Effects
+from delegation.service.catch_up import CatchUp
+from delegation.service.engine_link import INTERNAL as INTERNAL  # re-exported: tests, older callers
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.missions import Mission, node_infos
 from delegation.service.planning import MissionPart, Planning
@@ -45,8 +50,6 @@ from delegation.tst.validate import validate_tree
 
 log = logging.getLogger(__name__)
 
-#: The `CommandKey` face of the service's own engine commands (re-delegation): never answered.
-INTERNAL = "internal"
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,13 +78,17 @@ class Rebinding:
 
 @dataclass(eq=False)
 class Repair(MissionPart):
-    """Re-delegation of a lost or failing unit's tasks; missions failed with a lost engine."""
+    """Re-delegation of a lost or failing unit's tasks; a lost engine waited for (its missions
+    failed when it does not come back), a returning or restarted one caught up with."""
 
     planning: Planning
+    catch_up: CatchUp
     #: Missions whose re-delegation is being planned, by root uuid.
     replans: dict[str, Replan] = field(default_factory=dict)
     #: Missions whose ``rebind-tst-nodes`` waits for the engine's answer, by root uuid.
     rebinds: dict[str, Rebinding] = field(default_factory=dict)
+    #: Since when the engine is lost (its missions wait for it), or None.
+    engine_away: float | None = None
 
     def forget(self, root_uuid: str, now: float) -> Effects:
         """The mission ends while re-delegating (cancelled): abort its old tree, still running
@@ -93,13 +100,39 @@ class Repair(MissionPart):
         return self.abort_tree(replan.old_root, now)
 
     def engine_gone(self, event: FleetEvent, now: float) -> Effects:
-        """The engine's heartbeat stopped, or it came back with a new agent-uuid: the trees it
-        executed are gone with it, so its missions end ``failed`` saying so (never a wait)."""
+        """The engine's heartbeat stopped, or it came back with a new agent-uuid. Its missions
+        are not failed for that: a restarted engine is asked about each tree, does not know it,
+        and is given its unfinished part again (`CatchUp`); a lost one is waited for, at most
+        ``engine_return_timeout`` (`engine_wait`)."""
         engine = self.config.engine
         if event.kind is FleetEventKind.LOST:
-            why = f"engine {engine} lost (no heartbeat): the trees it executed are gone"
-        else:
-            why = f"engine {engine} restarted (new agent-uuid): the trees it executed are gone"
+            if self.engine_away is None:
+                self.engine_away = now
+            log.warning("engine %s lost (no heartbeat): its missions wait for it at most %g s",
+                        engine, self.config.engine_return_timeout)
+            return Effects()
+        log.warning("engine %s restarted (new agent-uuid): its missions' trees are sent again "
+                    "where it does not know them", engine)
+        self.engine_away = None
+        self.catch_up.want_open()
+        return Effects()
+
+    def engine_wait(self, now: float) -> Effects:
+        """While the engine is lost: back (heard again), its missions are brought up to date;
+        not back within ``engine_return_timeout``, they end ``failed`` saying so."""
+        away = self.engine_away
+        if away is None:
+            return Effects()
+        if self.engine.base(now) is not None:
+            self.engine_away = None
+            log.info("engine %s is back: catching up on its missions", self.config.engine)
+            self.catch_up.want_open()
+            return Effects()
+        if now - away < self.config.engine_return_timeout:
+            return Effects()
+        self.engine_away = None
+        why = (f"engine {self.config.engine} lost (no heartbeat) and not back within "
+               f"{self.config.engine_return_timeout:g} s: the trees it executed are gone")
         effects = Effects()
         for m in self.book:
             if m.ended or m.status is MissionStatus.PLANNED:
