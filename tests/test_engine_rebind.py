@@ -1,4 +1,4 @@
-"""``rebind-tst-nodes`` at the engine's core (issue 22 item 3, docs/protocol.md §12.5): task nodes
+"""``rebind-tst-nodes`` at the engine's core (issue 22 item 3, docs/protocol.md §12.6): task nodes
 of an executing tree move to other units, and nothing else of the tree is touched: a healthy
 unit's running task gets no signal and no second start-task.
 

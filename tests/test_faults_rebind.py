@@ -1,5 +1,5 @@
 """A repair that moves only what must move, with real processes (issue 22 item 3, docs/protocol.md
-§11 and §12.5): three units busy in one mission, one killed -9 mid-task; its task moves to another
+§11 and §12.6): three units busy in one mission, one killed -9 mid-task; its task moves to another
 unit within the running tree, and the two healthy units' running tasks are never signalled nor
 started again (counted on the wire: their ``exec/command`` carries one start-task each and no
 signal-task). The mission succeeds and every task finished exactly once.
