@@ -31,7 +31,9 @@ def test_optimal_searches_mixed_trees_within_its_time_limit_and_beats_the_auctio
     tree, units = scenario.tree(), scenario.units()
     auction = plan_mission(tree, units, strategy="auction")
     plan = plan_mission(tree, units, strategy="optimal", time_limit=2.0)
-    assert plan.solve_time <= 2.0 * 1.1  # the search stops at 90 % of the limit
+    # The search stops at 90 % of the limit; the slack is for a loaded machine (this bounds a
+    # runaway search, it does not time the planner: benchmarks do that).
+    assert plan.solve_time <= 2.0 * 1.5
     assert check_invariants(plan, tree, units) == []
     assert any(note.startswith("large neighbourhood search:") for note in plan.notes)
     assert plan.makespan < auction.makespan  # measured: 1828 s -> ~1300 s in 2 s
@@ -56,7 +58,7 @@ def test_the_search_runs_on_both_cores_within_its_time_limit(second_core: None) 
     tree, units = _mixed(10, 30)
     auction = plan_mission(tree, units, strategy="auction")
     plan = plan_mission(tree, units, strategy="optimal", time_limit=3.0)
-    assert plan.solve_time <= 3.0 * 1.1
+    assert plan.solve_time <= 3.0 * 1.5  # a runaway bound, with slack for a loaded machine
     assert check_invariants(plan, tree, units) == []
     notes = " ".join(plan.notes)
     assert "large neighbourhood search on the second core (another seed): " in notes
@@ -69,7 +71,8 @@ def test_the_helper_search_answers_a_valid_schedule_no_worse_than_its_start(
     tree, units = _mixed(10, 30)
     problem = build_problem(with_defaults(with_uuids(tree)), units)
     start = auction_schedule(problem, Objective.MAKESPAN)
-    helper = HelperLns.start(problem, Objective.MAKESPAN, start, 1.5, seed=3)
+    # 4 s: the helper must get past its own start (imports) and search even on a loaded machine
+    helper = HelperLns.start(problem, Objective.MAKESPAN, start, 4.0, seed=3)
     assert helper is not None
     answer = helper.result(30)
     assert isinstance(answer, LnsAnswer), answer

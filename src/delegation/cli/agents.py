@@ -55,7 +55,9 @@ def _agents(args: argparse.Namespace) -> int:
         "sensor/battery_state",
     ):
         client.subscribe(f"{args.prefix}/unit/+/+/+/{rest}")
-    client.connect(timeout=max(args.wait, 1.0))  # --wait bounds the connect too
+    # --wait bounds the connect too, but never below 3 s: a loaded broker (amqtt refusing MQTT 5
+    # first, then 3.1.1) may take more than a second to answer a CONNECT
+    client.connect(timeout=max(args.wait, 3.0))
     try:
         threading.Event().wait(args.wait)
     finally:
