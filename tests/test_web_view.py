@@ -192,6 +192,32 @@ def test_re_delegated_nodes_report_on_the_operators_node() -> None:
     assert view.state(3.0)["missions"][0]["units"] == ["dji0", "dji1"]
 
 
+def test_a_task_that_ended_runs_again_after_a_re_delegation_and_its_new_end_shows() -> None:
+    """The operator's uuids are kept through a re-delegation (docs/protocol.md §4): a task that
+    failed (or was aborted) before it may run again and succeed; an end after it stays."""
+    view = LiveView()
+    plan = plan_json()
+    view.mission_planned("r1", plan, plan["tst"], "", 1.0)
+
+    def status() -> str:
+        tree = view.node_tree("r1")
+        assert tree is not None
+        return str(tree["children"][0]["status"])
+
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 2.0)
+    view.node_feedback({"node-uuid": "t1", "status": "failed"}, 3.0)
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 3.5)
+    assert status() == "failed"  # no re-delegation: an end is kept
+    view.mission_feedback({"root-uuid": "r1", "status": "re-delegated", "fail-reason": "lost",
+                           "tasks": [{"node-uuid": "t1", "replaces": "t1", "name": "move-to",
+                                      "unit": "/dji1"}]}, 4.0)
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 5.0)
+    assert status() == "running"
+    view.node_feedback({"node-uuid": "t1", "status": "succeeded"}, 6.0)
+    view.node_feedback({"node-uuid": "t1", "status": "running"}, 7.0)
+    assert status() == "succeeded"  # ended after the re-delegation: kept
+
+
 def test_hidden_missions_never_show() -> None:
     view = LiveView()
     view.hide("dry")

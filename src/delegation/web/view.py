@@ -182,6 +182,9 @@ class MissionRecord:
     detailed: bool = False
     #: The operator's task uuid -> the unit a re-delegation moved it to.
     reassigned: dict[str, str] = field(default_factory=dict)
+    #: When the service last said the mission was re-delegated: a node that had ended before
+    #: may run again under the operator's uuid (docs/protocol.md §4).
+    redelegated_at: float | None = None
     #: Mission seconds per wall second (the demo's simulation speed-up; 1 in the field).
     scale: float = 1.0
 
@@ -488,6 +491,7 @@ class LiveView:
         m = self._mission(root, now)
         reason = str(data.get("fail-reason") or "")
         if status == "re-delegated":
+            m.redelegated_at = now
             moved = []
             for t in data.get("tasks") or []:
                 if not isinstance(t, dict):
@@ -533,8 +537,15 @@ class LiveView:
         self._apply_node(self.missions[root], uid, status, now)
 
     def _apply_node(self, m: MissionRecord, uid: str, status: str, now: float) -> None:
-        if m.node_status.get(uid) in NODE_FINAL:
-            return
+        previous = m.node_status.get(uid)
+        if previous in NODE_FINAL:
+            # A node's end is kept, unless the mission was re-delegated after it: the task then
+            # runs again (on another unit, under the operator's uuid) and ends again.
+            ended = m.node_end.get(uid, now)
+            if status == previous or m.redelegated_at is None or ended > m.redelegated_at:
+                return
+            m.node_end.pop(uid, None)
+            m.node_start.pop(uid, None)
         m.node_status[uid] = status
         if status in ("running", "active") and uid not in m.node_start:
             m.node_start[uid] = now
