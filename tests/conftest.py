@@ -60,6 +60,20 @@ def broker(request: pytest.FixtureRequest) -> Iterator[LocalBroker]:
         started.stop()
 
 
+@pytest.fixture(scope="module")
+def mosquitto() -> Iterator[PrivateMosquitto]:
+    """A private mosquitto of the module's own, for tests that start real processes against it
+    (skipped, saying why, where the binary is missing)."""
+    if mosquitto_binary() is None:
+        pytest.skip("no mosquitto binary (apt-get install mosquitto)")
+    started = PrivateMosquitto()
+    started.start()
+    try:
+        yield started
+    finally:
+        started.stop()
+
+
 @pytest.fixture
 def mqtt_settings(broker: LocalBroker) -> BrokerSettings:
     """Client settings for the session's broker."""

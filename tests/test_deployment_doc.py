@@ -11,7 +11,6 @@ import re
 import shlex
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -63,16 +62,6 @@ def script(commands: list[tuple[str, int]]) -> str:
             "exit 1; fi",
         ]
     return "\n".join(lines) + "\n"
-
-
-@pytest.fixture(scope="module")
-def mosquitto() -> Iterator[PrivateMosquitto]:
-    broker = PrivateMosquitto()
-    broker.start()
-    try:
-        yield broker
-    finally:
-        broker.stop()
 
 
 def test_the_doc_has_commands_to_check() -> None:

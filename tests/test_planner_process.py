@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
+from delegation.runtime.broker import PrivateMosquitto
 from delegation.service import ServiceConfig, ServiceCore, run_job
 from delegation.service.jobs import Job, JobFailed, PlanDone
 from delegation.service.planner_process import PlannerProcess
@@ -76,18 +76,6 @@ def test_close_ends_the_child() -> None:
     own.close()
     assert not _alive(pid)
     assert isinstance(own(_job()), JobFailed)  # after close: answered, never hangs
-
-
-@pytest.fixture(scope="module")
-def mosquitto() -> Iterator[PrivateMosquitto]:
-    if mosquitto_binary() is None:
-        pytest.skip("no mosquitto binary (apt-get install mosquitto)")
-    broker = PrivateMosquitto()
-    broker.start()
-    try:
-        yield broker
-    finally:
-        broker.stop()
 
 
 def _children(pid: int) -> list[int]:
