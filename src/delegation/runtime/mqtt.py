@@ -28,6 +28,9 @@ from delegation.topics import QOS_COMMAND, QOS_PERIODIC, Wildcard
 
 log = logging.getLogger(__name__)
 
+#: Seconds a disconnect waits for paho's network thread to stop.
+SHUTDOWN_TIMEOUT = 5.0
+
 __all__ = [
     "QOS_COMMAND",
     "QOS_PERIODIC",
@@ -266,12 +269,27 @@ class MqttClient:
         return text
 
     def _shutdown_client(self) -> None:
+        """Disconnect and stop paho's network thread, waiting at most `SHUTDOWN_TIMEOUT`: a stop
+        must not hang on paho (a command stopped by SIGTERM while paho's thread is busy, or one
+        of its locks taken when the signal unwound the main thread); its thread is a daemon."""
         client, self._client = self._client, None
         if client is None:
             return
-        with contextlib.suppress(Exception):
-            client.disconnect()
-        client.loop_stop()
+
+        def stop() -> None:
+            with contextlib.suppress(Exception):
+                client.disconnect()
+            client.loop_stop()
+
+        if threading.current_thread() is getattr(client, "_thread", None):
+            stop()  # from paho's own thread: loop_stop does not join it
+            return
+        stopper = threading.Thread(target=stop, name=f"{self.client_id}-stop", daemon=True)
+        stopper.start()
+        stopper.join(SHUTDOWN_TIMEOUT)
+        if stopper.is_alive():
+            log.warning("%s: paho's network thread did not stop within %.0f s; left behind",
+                        self.client_id, SHUTDOWN_TIMEOUT)
 
     @property
     def loop_alive(self) -> bool:
