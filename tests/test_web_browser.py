@@ -29,6 +29,7 @@ from delegation.fleet import FleetRegistry
 from delegation.local import LocalSystem
 from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
 from delegation.scenario import load_scenario, scenario_from_dict
+from delegation.service import ServiceConfig
 from delegation.sim import SimFleet
 
 playwright_api = pytest.importorskip("playwright.sync_api")
@@ -80,8 +81,12 @@ def served() -> Iterator[Served]:
     prefix = f"ui-{uuid.uuid4().hex[:8]}"
     with PrivateMosquitto() as broker:
         settings = broker.settings()
+        # The page is under test here, not fault handling: units and the engine get 15 s
+        # before the service judges them lost, so a worker starved of CPU by the rest of the
+        # suite (4 workers, 2 cores, Chromium) does not re-delegate the mission mid-test.
+        config = ServiceConfig(min_heartbeat_timeout=15.0)
         with LocalSystem.from_scenario(load_scenario(DEMO), settings=settings, prefix=prefix,
-                                       speedup=SPEEDUP) as system:
+                                       speedup=SPEEDUP, config=config) as system:
             bridge = Bridge(settings, prefix=prefix, service=system.config.name,
                             sender="ui-tester", time_scale=SPEEDUP).start()
             bridge.view.timeout = FleetRegistry(min_timeout=LOST_AFTER).timeout
@@ -253,7 +258,18 @@ def test_a_submitted_mission_shows_its_plan_and_succeeds(page: Any, served: Serv
     # look-at-position is open-ended: once the five other tasks are done, the operator says
     # $enough, as `delegation submit --enough` would
     tasks = page.locator("#gantt g[data-node-uuid]")
-    expect(page.locator("#gantt g[data-status='succeeded']")).to_have_count(5, timeout=90_000)
+    try:
+        expect(page.locator("#gantt g[data-status='succeeded']")).to_have_count(5,
+                                                                               timeout=90_000)
+    except AssertionError:  # say what each side knows, to find where a status stopped
+        service = served.system.service
+        known = service.inspect(lambda core: (lambda m: {
+            "status": m.status.value, "nodes": dict(m.node_status),
+            "redelegations": m.redelegations, "fail-reason": m.fail_reason})(
+                core.book.get(mission_id))) if service is not None else {}
+        page_nodes = page.evaluate("fetch('/api/state').then((r) => r.json())")
+        raise AssertionError(f"not every task succeeded: service {known}; page missions "
+                             f"{page_nodes.get('missions')}") from None
     expect(page.locator("#tree li[data-status='running'] > .node-name").filter(
         has_text="look-at-position")).to_have_count(1)
     page.click("#btn-enough")
