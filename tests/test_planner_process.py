@@ -5,6 +5,7 @@ even one killed with ``kill -9``."""
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -101,11 +102,20 @@ def test_no_planner_outlives_a_service_killed_with_kill_9(mosquitto: PrivateMosq
                 break
         children = _children(serve.pid)
         assert children, "serve started no planner process"
-        serve.kill()
-        serve.wait(10)
-        deadline = time.monotonic() + 15.0
-        while any(_alive(c) for c in children) and time.monotonic() < deadline:
-            time.sleep(0.05)  # polling the process table: there is no event for another's exit
+        exits = [os.pidfd_open(c) for c in children]  # readable once that process has exited
+        try:
+            serve.kill()
+            serve.wait(10)
+            deadline = time.monotonic() + 15.0
+            waiting = list(exits)
+            while waiting:
+                left = deadline - time.monotonic()
+                assert left > 0, "a planner process outlived the killed service"
+                ready, _, _ = select.select(waiting, [], [], left)
+                waiting = [fd for fd in waiting if fd not in ready]
+        finally:
+            for fd in exits:
+                os.close(fd)
         assert not [c for c in children if _alive(c)]
     finally:
         if serve.poll() is None:
