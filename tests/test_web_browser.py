@@ -340,6 +340,41 @@ def test_start_runs_the_previewed_plan_the_operator_picks(page: Any, served: Ser
                                                                timeout=30_000)
 
 
+def _timed(plan: dict[str, Any]) -> list[tuple[str, str, float, float]]:
+    return sorted((a["node-uuid"], a["execunit"], a["start"], a["end"])
+                  for a in plan["assignments"])
+
+
+def test_start_starts_the_optimal_plan_previewed_not_a_new_one(page: Any, served: Served) -> None:
+    """Issue 22: ``optimal`` within a time limit may plan differently each time; Start starts the
+    plan the operator compared (its tree, units and times), and the page says it did."""
+    page.fill("#mission-text", DEMO.read_text())
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "optimal":
+            box.uncheck()
+    page.fill("#time-limit", "0.5")
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    expect(page.locator("#btn-start")).to_have_text("Start optimal")
+    previewed = page.evaluate("window.delegationUI.store.submit.plans.optimal")
+    assert previewed["preview-id"], previewed
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    expect(result).to_contain_text("with optimal (the plan previewed)")
+    mission_id = str(result.get_attribute("data-mission-id"))
+    assert mission_id == previewed["tst"]["common_params"]["node-uuid"], "the previewed tree"
+    detail = page.evaluate(f"fetch('/api/missions/{mission_id}').then((r) => r.json())")
+    assert detail["plan"]["from-preview"] == {"id": previewed["preview-id"], "started": True}
+    assert _timed(detail["plan"]) == _timed(previewed), "the previewed units and times"
+    assert detail["plan"]["makespan"] == previewed["makespan"]
+    # the page shows the operator's tree with the previewed plan's times
+    expect(page.locator("#gantt g[data-node-uuid] rect.plan")).to_have_count(6, timeout=15_000)
+    page.click("#btn-cancel")
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
+                                                               timeout=30_000)
+
+
 def _plan(makespan: float | None, total: float | None, distance: float = 100.0,
           **more: Any) -> dict[str, Any]:
     return {"makespan": makespan, "total-time": total, "total-distance": distance, **more}
