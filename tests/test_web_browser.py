@@ -375,6 +375,65 @@ def test_start_starts_the_optimal_plan_previewed_not_a_new_one(page: Any, served
                                                                timeout=30_000)
 
 
+#: About 430 m x 300 m north of the demo's units: `auction` shares it between the two drones.
+SHARED_SEARCH = {
+    "name": "search-area",
+    "common_params": {"execunit": "*"},
+    "params": {"speed": "standard", "area": [
+        {"latitude": lat, "longitude": lon, "altitude": 40.0}
+        for lat, lon in ((57.7620, 16.6800), (57.7620, 16.6872), (57.7647, 16.6872),
+                         (57.7647, 16.6800))]},
+}
+
+
+def test_a_shared_search_shows_its_parts_per_unit_and_one_tree_node(page: Any) -> None:
+    """Issue 21 on the page: the preview and the mission draw each part of a shared search in
+    its unit's colour, the timeline puts each part in its unit's lane (with its actual interval
+    once flown), and the tree keeps the operator's one search node."""
+    page.fill("#mission-text", json.dumps(SHARED_SEARCH, indent=1))
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "auction":
+            box.uncheck()
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    previewed = page.evaluate("window.delegationUI.store.submit.plans.auction")
+    (search,) = previewed["shared-searches"]
+    units = {p["execunit"].strip("/") for p in search["parts"]}
+    assert len(units) >= 2, search
+    parts = drawn(page)["parts"]["preview"]
+    assert {p["unit"] for p in parts} == units
+    assert len({p["color"] for p in parts}) == len(units), "each unit's part in its colour"
+    shot(page, "shared-preview.png")
+
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    mission_id = str(result.get_attribute("data-mission-id"))
+    lanes = page.locator(f"#gantt g[data-part-of='{search['node-uuid']}']")
+    expect(lanes).to_have_count(len(search["parts"]), timeout=15_000)
+    assert {str(lanes.nth(i).get_attribute("data-unit")) for i in range(lanes.count())} == units
+    ys = {lanes.nth(i).locator("rect.plan").get_attribute("y") for i in range(lanes.count())}
+    assert len(ys) == len(units), "one lane per unit"
+    tree_nodes = page.locator("#tree li[data-node-uuid]")
+    expect(tree_nodes).to_have_count(1)  # the operator's one search node, no part
+    node = page.locator(f"#tree li[data-node-uuid='{search['node-uuid']}']")
+    expect(node).to_have_attribute("data-parts", str(len(search["parts"])))
+    for unit in units:
+        expect(node.locator(".node-unit")).to_contain_text(unit)
+    page.wait_for_function(f"(window.delegationUI.describe().parts['{mission_id}'] || [])"
+                           f".length === {len(search['parts'])}")
+    # flown: each part's actual interval, from what its unit says it executes
+    expect(lanes.locator("rect.actual")).to_have_count(len(search["parts"]), timeout=60_000)
+    shot(page, "shared.png")  # mid-flight: the parts' tracks beside them
+    if SHOTS:  # simulated time runs slow for pictures: no need to wait for the end
+        page.click("#btn-cancel")
+        return
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "succeeded",
+                                                               timeout=60_000)
+    statuses = {lanes.nth(i).get_attribute("data-status") for i in range(lanes.count())}
+    assert statuses == {"succeeded"}, statuses  # the engine's feedback for each part
+
+
 def _plan(makespan: float | None, total: float | None, distance: float = 100.0,
           **more: Any) -> dict[str, Any]:
     return {"makespan": makespan, "total-time": total, "total-distance": distance, **more}

@@ -29,7 +29,7 @@ from delegation.messages.errors import json_value
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
 from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
-from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
+from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, QOS_PERIODIC
 from delegation.tst import without_node_uuids
 from delegation.web.geometry import plan_geometry
 from delegation.web.mission_input import with_node_uuids
@@ -235,6 +235,8 @@ class Bridge:
                 view.execution_info(base, name, kind, data, now)
             elif rest == "delegation_info":
                 view.delegation_info(base, name, data)
+            elif rest == "tst/feedback":  # an engine's: for shared searches' parts alone
+                view.engine_feedback(name, data, now)
 
     def _feedback(self, msg: Message, *, node: bool) -> None:
         data = _decode(msg.payload)
@@ -249,12 +251,24 @@ class Bridge:
             wanted = self.view.drain_fetch()
         for root in wanted:
             self._fetch.put(root)
+        self._listen_engines()
         self.wake()
 
     # ------------------------------------------------------------------ background threads
 
+    def _listen_engines(self) -> None:
+        """Listen to the feedback of engines running missions with shared searches (the parts'
+        statuses: the service relays none, DESIGN 3.4); their other feedback is ignored."""
+        with self.lock:
+            engines = self.view.drain_engines()
+        for engine in engines:
+            if engine != self.service:
+                self.client.client.subscribe(f"{self.prefix}/unit/+/+/{engine}/tst/feedback",
+                                             QOS_COMMAND)
+
     def _ticker(self) -> None:
         while not self._stop.wait(1.0):
+            self._listen_engines()
             self._revive()
             with self.lock:
                 lost = self.view.tick(self.clock())
@@ -321,6 +335,7 @@ class Bridge:
         for root in wanted:
             if root not in ended:
                 self._fetch.put(root)
+        self._listen_engines()
 
     def _query(self, root: str) -> None:
         answer = self.client.request({"command": "query-mission", "root-uuid": root},
@@ -328,6 +343,7 @@ class Bridge:
         if answer.get("response") == "ok" and isinstance(answer.get("mission"), dict):
             with self.lock:
                 self.view.mission_answer(answer["mission"], self.clock())
+            self._listen_engines()
 
     # ------------------------------------------------------------------ waking SSE streams
 
@@ -456,6 +472,7 @@ class Bridge:
             else tree
         with self.lock:
             self.view.mission_planned(root, plan, shown, sender, self.clock())
+        self._listen_engines()
         self.wake()
         return {"id": root, "plan": plan}
 
@@ -511,6 +528,7 @@ class Bridge:
             tree = view.node_tree(root)
             plan = dict(rec.plan) if rec is not None and rec.plan is not None else None
             starts = dict(rec.starts) if rec is not None else {}
+        self._listen_engines()
         routes, tasks = plan_geometry(plan, starts) if plan is not None else ({}, [])
         if plan is not None:
             plan.setdefault("notes", list(mission.get("notes") or []))
