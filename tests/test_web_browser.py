@@ -6,7 +6,7 @@ plan per strategy, starts, and reaches ``succeeded`` on the page (after ``$enoug
 open-ended look-at-position); Cancel aborts a running mission (dropped on the page as a file);
 a unit whose heartbeat stops is shown as lost. The page loads nothing from outside the server.
 
-``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png and mission.png there (the
+``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png, mission.png and shared.png there (the
 README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs it);
 Playwright's own browser download is never used.
 """
@@ -403,7 +403,6 @@ def test_a_shared_search_shows_its_parts_per_unit_and_one_tree_node(page: Any) -
     parts = drawn(page)["parts"]["preview"]
     assert {p["unit"] for p in parts} == units
     assert len({p["color"] for p in parts}) == len(units), "each unit's part in its colour"
-    shot(page, "shared-preview.png")
 
     page.click("#btn-start")
     result = page.locator("#submit-result")
@@ -424,8 +423,10 @@ def test_a_shared_search_shows_its_parts_per_unit_and_one_tree_node(page: Any) -
                            f".length === {len(search['parts'])}")
     # flown: each part's actual interval, from what its unit says it executes
     expect(lanes.locator("rect.actual")).to_have_count(len(search["parts"]), timeout=60_000)
-    shot(page, "shared.png")  # mid-flight: the parts' tracks beside them
-    if SHOTS:  # simulated time runs slow for pictures: no need to wait for the end
+    if SHOTS:  # mid-flight, the parts' tracks beside them (simulated time runs slow here)
+        page.wait_for_function("Object.values(window.delegationUI.describe().units)"
+                               ".filter((u) => u.trackPoints > 40).length >= 2", timeout=120_000)
+        shot(page, "shared.png")
         page.click("#btn-cancel")
         return
     expect(page.locator("#mission-detail")).to_have_attribute("data-status", "succeeded",
