@@ -6,9 +6,9 @@ plan per strategy, starts, and reaches ``succeeded`` on the page (after ``$enoug
 open-ended look-at-position); Cancel aborts a running mission (dropped on the page as a file);
 a unit whose heartbeat stops is shown as lost. The page loads nothing from outside the server.
 
-``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png, mission.png and shared.png there (the
-README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs it);
-Playwright's own browser download is never used.
+``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png, mission.png and shared.png
+there (the README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs
+it); Playwright's own browser download is never used.
 """
 
 from __future__ import annotations
