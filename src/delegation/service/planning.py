@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from delegation.allocation import Plan
 from delegation.errors import InputError, InputProblem
+from delegation.fleet import UnitState
 from delegation.learning import input_warnings
 from delegation.messages import DelegationResponse, MissionStatus, StartTst
 from delegation.runtime.commands import CommandKey
@@ -38,7 +39,7 @@ from delegation.service.offers import OfferDesk
 from delegation.service.operator_view import OperatorView
 from delegation.service.previews import Preview, Previews, stale_reason
 from delegation.tst.node import to_dict, without_node_uuids
-from delegation.tst.validate import validate_tree
+from delegation.tst.validate import ValidatedTree, validate_tree
 
 log = logging.getLogger(__name__)
 
@@ -130,16 +131,12 @@ class Planning(MissionPart):
         view = self.view
         units, notes = view.plannable(now) if kind == "plan" else (view.units(now), ())
         if preview_id is not None:
-            preview, why = self.previews.take(self.desk.caller(key), preview_id, now)
-            if preview is not None and not why:
-                why = stale_reason(preview, to_dict(tree.root), units)
-            if preview is not None and not why:
+            preview = self._previewed(key, preview_id, tree, units, now)
+            if isinstance(preview, Preview):
                 return self._start_preview(preview, key, now)
-            options = preview.job.options if preview is not None else options
-            notes = (f"preview {preview_id} not started, planned again: {why}", *notes)
-            self._unpreviewed[key] = (preview_id, why)
-            while len(self._unpreviewed) > 1000:
-                self._unpreviewed.popitem(last=False)
+            options = preview or options
+            notes = (f"preview {preview_id} not started, planned again: "
+                     f"{self._unpreviewed[key][1]}", *notes)
         job_id = self.next_id()
         warnings = tuple(input_warnings(tree.root, units, view.fleet.names())) if kind == "plan" \
             else ()
@@ -183,6 +180,10 @@ class Planning(MissionPart):
             units, notes = self.view.plannable(now)
             return Effects(jobs=[replace(job, id=job_id, units=units, notes=notes)])
         self._replanned.pop(job.key, None)
+        unpreviewed = self._unpreviewed.pop(job.key, None)
+        if unpreviewed is not None:  # a start naming a preview that no longer held: say so
+            plan_json["from-preview"] = {"id": unpreviewed[0], "started": False,
+                                         "reason": unpreviewed[1]}
         log.info("mission %s planned: %s/%s, %s, makespan %.0f s, units %s", plan.tst.node_uuid,
                  plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
                  plan.makespan or 0.0,
@@ -202,15 +203,25 @@ class Planning(MissionPart):
                                        plan_json, now, without_node_uuids(to_dict(job.tree.root))))
             return self.desk.respond("delegation", job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, plan=plan_json))
-        unpreviewed = self._unpreviewed.pop(job.key, None)
-        if unpreviewed is not None:
-            plan_json["from-preview"] = {"id": unpreviewed[0], "started": False,
-                                         "reason": unpreviewed[1]}
         conflicts = self.book.conflicts(plan.tst)
         if conflicts:  # a twin command with the same tree was planned meanwhile
             return self.desk.fail(job.face, job.key, job.com_uuid,
                                   InputError(conflicts).fail_reason)
         return self._record(job, plan, plan_json, now, seconds)
+
+    def _previewed(self, key: CommandKey, preview_id: str, tree: ValidatedTree,
+                   units: tuple[UnitState, ...], now: float) -> Preview | PlanOptions | None:
+        """The caller's preview when it still holds; else (remembering why, for the answer)
+        the options it was planned with, or None when it is not known."""
+        preview, why = self.previews.take(self.desk.caller(key), preview_id, now)
+        if preview is not None:
+            why = stale_reason(preview, to_dict(tree.root), units)
+            if not why:
+                return preview
+        self._unpreviewed[key] = (preview_id, why)
+        while len(self._unpreviewed) > 1000:
+            self._unpreviewed.popitem(last=False)
+        return preview.job.options if preview is not None else None
 
     def _start_preview(self, preview: Preview, key: CommandKey, now: float) -> Effects:
         """Start the previewed plan itself (its tree, uuids, assignment and times)."""
