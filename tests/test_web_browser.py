@@ -375,6 +375,34 @@ def test_start_starts_the_optimal_plan_previewed_not_a_new_one(page: Any, served
                                                                timeout=30_000)
 
 
+def test_a_preview_that_no_longer_holds_is_planned_again_and_the_page_says_so(
+        page: Any, served: Served) -> None:
+    """Never silently: a start whose preview the service no longer holds (here: expired) is
+    planned again, and the page's result says so with the service's reason."""
+    from delegation.service.previews import MAX_AGE
+
+    service = served.system.service
+    assert service is not None
+    page.fill("#mission-text", json.dumps(FAR_MOVE, indent=1))
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "auction":
+            box.uncheck()
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    service.inspect(lambda core: setattr(core.planning.previews, "max_age", 0.0))
+    try:
+        page.click("#btn-start")
+        result = page.locator("#submit-result")
+        expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    finally:
+        service.inspect(lambda core: setattr(core.planning.previews, "max_age", MAX_AGE))
+    expect(result).to_contain_text("with auction, planned again: preview")
+    expect(result).to_have_attribute("data-replanned", re.compile("is not known"))
+    page.click("#btn-cancel")
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
+                                                               timeout=30_000)
+
+
 #: About 430 m x 300 m north of the demo's units: `auction` shares it between the two drones.
 SHARED_SEARCH = {
     "name": "search-area",
