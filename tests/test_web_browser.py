@@ -6,9 +6,9 @@ plan per strategy, starts, and reaches ``succeeded`` on the page (after ``$enoug
 open-ended look-at-position); Cancel aborts a running mission (dropped on the page as a file);
 a unit whose heartbeat stops is shown as lost. The page loads nothing from outside the server.
 
-``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png and mission.png there (the
-README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs it);
-Playwright's own browser download is never used.
+``DELEGATION_UI_SCREENSHOTS=docs/ui`` saves overview.png, preview.png, mission.png and shared.png
+there (the README's pictures). Chromium: /usr/bin/chromium or ``$CHROMIUM`` (``.ci/run`` installs
+it); Playwright's own browser download is never used.
 """
 
 from __future__ import annotations
@@ -338,6 +338,129 @@ def test_start_runs_the_previewed_plan_the_operator_picks(page: Any, served: Ser
     page.click("#btn-cancel")
     expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
                                                                timeout=30_000)
+
+
+def _timed(plan: dict[str, Any]) -> list[tuple[str, str, float, float]]:
+    return sorted((a["node-uuid"], a["execunit"], a["start"], a["end"])
+                  for a in plan["assignments"])
+
+
+def test_start_starts_the_optimal_plan_previewed_not_a_new_one(page: Any, served: Served) -> None:
+    """Issue 22: ``optimal`` within a time limit may plan differently each time; Start starts the
+    plan the operator compared (its tree, units and times), and the page says it did."""
+    page.fill("#mission-text", DEMO.read_text())
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "optimal":
+            box.uncheck()
+    page.fill("#time-limit", "0.5")
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    expect(page.locator("#btn-start")).to_have_text("Start optimal")
+    previewed = page.evaluate("window.delegationUI.store.submit.plans.optimal")
+    assert previewed["preview-id"], previewed
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    expect(result).to_contain_text("with optimal (the plan previewed)")
+    mission_id = str(result.get_attribute("data-mission-id"))
+    assert mission_id == previewed["tst"]["common_params"]["node-uuid"], "the previewed tree"
+    detail = page.evaluate(f"fetch('/api/missions/{mission_id}').then((r) => r.json())")
+    assert detail["plan"]["from-preview"] == {"id": previewed["preview-id"], "started": True}
+    assert _timed(detail["plan"]) == _timed(previewed), "the previewed units and times"
+    assert detail["plan"]["makespan"] == previewed["makespan"]
+    # the page shows the operator's tree with the previewed plan's times
+    expect(page.locator("#gantt g[data-node-uuid] rect.plan")).to_have_count(6, timeout=15_000)
+    page.click("#btn-cancel")
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
+                                                               timeout=30_000)
+
+
+def test_a_preview_that_no_longer_holds_is_planned_again_and_the_page_says_so(
+        page: Any, served: Served) -> None:
+    """Never silently: a start whose preview the service no longer holds (here: expired) is
+    planned again, and the page's result says so with the service's reason."""
+    from delegation.service.previews import MAX_AGE
+
+    service = served.system.service
+    assert service is not None
+    page.fill("#mission-text", json.dumps(FAR_MOVE, indent=1))
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "auction":
+            box.uncheck()
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    service.inspect(lambda core: setattr(core.planning.previews, "max_age", 0.0))
+    try:
+        page.click("#btn-start")
+        result = page.locator("#submit-result")
+        expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    finally:
+        service.inspect(lambda core: setattr(core.planning.previews, "max_age", MAX_AGE))
+    expect(result).to_contain_text("with auction, planned again: preview")
+    expect(result).to_have_attribute("data-replanned", re.compile("is not known"))
+    page.click("#btn-cancel")
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "aborted",
+                                                               timeout=30_000)
+
+
+#: About 430 m x 300 m north of the demo's units: `auction` shares it between the two drones.
+SHARED_SEARCH = {
+    "name": "search-area",
+    "common_params": {"execunit": "*"},
+    "params": {"speed": "standard", "area": [
+        {"latitude": lat, "longitude": lon, "altitude": 40.0}
+        for lat, lon in ((57.7620, 16.6800), (57.7620, 16.6872), (57.7647, 16.6872),
+                         (57.7647, 16.6800))]},
+}
+
+
+def test_a_shared_search_shows_its_parts_per_unit_and_one_tree_node(page: Any) -> None:
+    """Issue 21 on the page: the preview and the mission draw each part of a shared search in
+    its unit's colour, the timeline puts each part in its unit's lane (with its actual interval
+    once flown), and the tree keeps the operator's one search node."""
+    page.fill("#mission-text", json.dumps(SHARED_SEARCH, indent=1))
+    for box in page.locator("#strategy-choices input").all():
+        if box.get_attribute("value") != "auction":
+            box.uncheck()
+    page.click("#btn-preview")
+    expect(page.locator("#preview tbody tr")).to_have_count(1, timeout=60_000)
+    previewed = page.evaluate("window.delegationUI.store.submit.plans.auction")
+    (search,) = previewed["shared-searches"]
+    units = {p["execunit"].strip("/") for p in search["parts"]}
+    assert len(units) >= 2, search
+    parts = drawn(page)["parts"]["preview"]
+    assert {p["unit"] for p in parts} == units
+    assert len({p["color"] for p in parts}) == len(units), "each unit's part in its colour"
+
+    page.click("#btn-start")
+    result = page.locator("#submit-result")
+    expect(result).to_have_attribute("data-mission-id", re.compile(r".+"), timeout=30_000)
+    mission_id = str(result.get_attribute("data-mission-id"))
+    lanes = page.locator(f"#gantt g[data-part-of='{search['node-uuid']}']")
+    expect(lanes).to_have_count(len(search["parts"]), timeout=15_000)
+    assert {str(lanes.nth(i).get_attribute("data-unit")) for i in range(lanes.count())} == units
+    ys = {lanes.nth(i).locator("rect.plan").get_attribute("y") for i in range(lanes.count())}
+    assert len(ys) == len(units), "one lane per unit"
+    tree_nodes = page.locator("#tree li[data-node-uuid]")
+    expect(tree_nodes).to_have_count(1)  # the operator's one search node, no part
+    node = page.locator(f"#tree li[data-node-uuid='{search['node-uuid']}']")
+    expect(node).to_have_attribute("data-parts", str(len(search["parts"])))
+    for unit in units:
+        expect(node.locator(".node-unit")).to_contain_text(unit)
+    page.wait_for_function(f"(window.delegationUI.describe().parts['{mission_id}'] || [])"
+                           f".length === {len(search['parts'])}")
+    # flown: each part's actual interval, from what its unit says it executes
+    expect(lanes.locator("rect.actual")).to_have_count(len(search["parts"]), timeout=60_000)
+    if SHOTS:  # mid-flight, the parts' tracks beside them (simulated time runs slow here)
+        page.wait_for_function("Object.values(window.delegationUI.describe().units)"
+                               ".filter((u) => u.trackPoints > 40).length >= 2", timeout=120_000)
+        shot(page, "shared.png")
+        page.click("#btn-cancel")
+        return
+    expect(page.locator("#mission-detail")).to_have_attribute("data-status", "succeeded",
+                                                               timeout=60_000)
+    statuses = {lanes.nth(i).get_attribute("data-status") for i in range(lanes.count())}
+    assert statuses == {"succeeded"}, statuses  # the engine's feedback for each part
 
 
 def _plan(makespan: float | None, total: float | None, distance: float = 100.0,

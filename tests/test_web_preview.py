@@ -98,3 +98,11 @@ def test_one_preview_in_flight_per_user(held: tuple[HeldBridge, str]) -> None:
     assert [who for who, _ in bridge.asked] == ["alice", "bob"]
     after = _post(url, "alice-token-1", {"mission": MISSION, "strategies": ["nearest"]})
     assert after.status_code == 200, after.text  # free again once the first one ended
+
+
+def test_a_start_names_a_preview_by_its_id_or_is_refused(held: tuple[HeldBridge, str]) -> None:
+    _, url = held
+    for bad in (5, "", "x" * 129, ["p-1"]):
+        answer = httpx.post(f"{url}/api/missions", json={"mission": MISSION, "preview": bad},
+                            timeout=30.0, headers={"Authorization": "Bearer alice-token-1"})
+        assert answer.status_code == 400 and "preview" in answer.json()["fail-reason"], bad

@@ -345,3 +345,91 @@ def test_cross_site_refusal(method: str, host: str, origin: str | None, loopback
     from delegation.web.auth import cross_site_refusal
 
     assert (cross_site_refusal(method, host, origin, loopback_only) is not None) == refused
+
+
+def _shared_plan() -> tuple[dict[str, Any], dict[str, Any]]:
+    """(plan JSON, the operator's tree) of a real plan sharing one search among units (the
+    team-search tests' concave comb, four drones and a boat, two move-tos beside it)."""
+    from delegation.allocation import plan_mission
+    from delegation.tst.node import to_dict
+    from test_team_search import _conc_tree, fleet
+
+    plan = plan_mission(_conc_tree(), fleet(), strategy="auction")
+    assert plan.shared and plan.source is not None
+    return plan.to_json(), to_dict(plan.source)
+
+
+def _flat(node: dict[str, Any]) -> list[dict[str, Any]]:
+    return [node, *(n for c in node["children"] for n in _flat(c))]
+
+
+def test_a_shared_search_is_one_tree_node_carrying_its_parts_per_unit() -> None:
+    """Issue 21: the operator's tree keeps their one search node; its parts (never tree nodes)
+    hang off it with their unit and planned times, the node spans them, and the map draws each
+    part as an area of its unit naming the search."""
+    plan, tree = _shared_plan()
+    (search,) = plan["shared-searches"]
+    view = LiveView()
+    root = str(node_uuid_of(plan["tst"]))
+    view.mission_planned(root, plan, tree, "alice", 1.0)
+    shown = view.node_tree(root)
+    assert shown is not None
+    nodes = {n["uuid"]: n for n in _flat(shown)}
+    part_ids = [p["node-uuid"] for p in search["parts"]]
+    assert not set(part_ids) & set(nodes), "parts are not tree nodes"
+    node = nodes[search["node-uuid"]]
+    assigned = {a["node-uuid"]: a for a in plan["assignments"]}
+    parts = node["parts"]
+    assert [p["uuid"] for p in parts] == part_ids and len({p["unit"] for p in parts}) >= 2
+    for i, p in enumerate(parts):
+        a = assigned[p["uuid"]]
+        assert p["unit"] == a["execunit"].strip("/") and p["part"] == f"{i + 1}/{len(parts)}"
+        assert (p["plan-start"], p["plan-end"]) == (a["start"], a["end"])
+        assert p["area"] > 0 and p["status"] is None
+    assert node["plan-start"] == min(p["plan-start"] for p in parts)
+    assert node["plan-end"] == max(p["plan-end"] for p in parts) == search["end"]
+    others = [n for n in nodes.values() if n["name"] == "move-to"]
+    assert others and all("parts" not in n and n["plan-end"] for n in others)
+
+    _, tasks = plan_geometry(plan, {})
+    drawn = {t["uuid"]: t for t in tasks if t.get("part-of") == search["node-uuid"]}
+    assert set(drawn) == set(part_ids)
+    for p in parts:
+        t = drawn[p["uuid"]]
+        assert t["kind"] == "area" and t["unit"] == p["unit"] and t["part"] == p["part"]
+    assert all("part-of" not in t for t in tasks if t["name"] == "move-to")
+
+
+def test_a_parts_status_and_times_come_from_its_engines_feedback() -> None:
+    """The service relays no feedback for parts (DESIGN 3.4): the page takes the feedback of the
+    engine that runs the mission (the plan's root execunit) for the parts, and nobody else's."""
+    plan, tree = _shared_plan()
+    plan["tst"]["common_params"]["execunit"] = "/op0"
+    (search,) = plan["shared-searches"]
+    first = search["parts"][0]["node-uuid"]
+    view = LiveView()
+    root = str(node_uuid_of(plan["tst"]))
+    view.mission_planned(root, plan, tree, "alice", 1.0)
+    assert view.drain_engines() == ["op0"] and view.drain_engines() == []
+    view.node_feedback({"node-uuid": root, "status": "running"}, 10.0)  # the mission starts
+
+    def part() -> dict[str, Any]:
+        shown = view.node_tree(root)
+        assert shown is not None
+        (node,) = [n for n in _flat(shown) if n["uuid"] == search["node-uuid"]]
+        return dict(node["parts"][0])
+
+    view.engine_feedback("op1", {"node-uuid": first, "status": "running"}, 11.0)  # not its engine
+    assert part()["status"] is None
+    seq = view.seq
+    view.engine_feedback("op0", {"node-uuid": first, "status": "running"}, 12.0)
+    assert (part()["status"], part()["actual-start"], part()["actual-end"]) == (
+        "running", pytest.approx(2.0), None)
+    assert any(kind == "node" and d["uuid"] == first
+               for _, kind, d in view.items_since(seq) or [])
+    view.engine_feedback("op0", {"node-uuid": first, "status": "succeeded"}, 50.0)
+    assert (part()["status"], part()["actual-end"]) == ("succeeded", pytest.approx(40.0))
+    # the engine's feedback on anything else (the instantiated tree's own nodes) is not taken
+    view.engine_feedback("op0", {"node-uuid": root, "status": "failed"}, 51.0)
+    shown = view.node_tree(root)
+    assert shown is not None and shown["status"] == "running"

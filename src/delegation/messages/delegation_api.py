@@ -49,6 +49,9 @@ class Delegate(Command):
     #: mission (nothing to cancel, nothing in ``list-missions``), never started (``start``
     #: ignored).
     preview: StrictBool = False
+    #: With ``start``: start the plan this caller's preview answered (its plan's ``preview-id``)
+    #: when it still holds, else plan again and say why (docs/protocol.md, "Starting a preview").
+    preview_id: str | None = Field(default=None, min_length=1, max_length=128, strict=True)
     #: ``false``: no search is shared among units (DESIGN 3.11); the planner's choice otherwise.
     split: StrictBool = True
 

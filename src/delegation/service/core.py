@@ -385,7 +385,8 @@ class ServiceCore:
                                             cmd.split)
             return self.planning.job("delegation", key, cmd.tst, now, options,
                                      start=cmd.start and not cmd.preview,
-                                     source="preview" if cmd.preview else "delegate")
+                                     source="preview" if cmd.preview else "delegate",
+                                     preview_id=cmd.preview_id)
         if isinstance(cmd, GetBids):
             return self.planning.job("delegation", key, cmd.tst, now,
                                      self.planning.options(None, None, None),

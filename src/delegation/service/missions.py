@@ -161,6 +161,8 @@ class Mission:
             "nodes": nodes,
             "assignments": list(self.plan.get("assignments", [])),
             "unassigned": list(self.plan.get("unassigned", [])),
+            # Searches shared among units and their parts (DESIGN 3.11; the page draws them).
+            "shared-searches": list(self.plan.get("shared-searches", [])),
             "makespan": self.plan.get("makespan"),
             "strategy": self.plan.get("strategy"),
             # The strategy whose plan this is when the strategy fell back to it (docs/plan.md §1).

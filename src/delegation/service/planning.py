@@ -4,18 +4,20 @@ The tree and the options are validated here, once on the service's path, so bad 
 answered at once; the planner receives the `ValidatedTree` and does not check it again. A
 finished plan is answered (``ok``, ``failed`` naming the nodes nobody can take), recorded as a
 mission, and with ``start`` sent to the engine. A start plan that used a unit which got busy in a
-mission started meanwhile is planned again around it (at most ``MAX_REPLANS`` times).
+mission started meanwhile is planned again around it (at most ``MAX_REPLANS`` times). A preview's
+plan is kept (`previews`), and a start naming it starts that plan while it still holds.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from delegation.allocation import Plan
 from delegation.errors import InputError, InputProblem
+from delegation.fleet import UnitState
 from delegation.learning import input_warnings
 from delegation.messages import DelegationResponse, MissionStatus, StartTst
 from delegation.runtime.commands import CommandKey
@@ -35,8 +37,9 @@ from delegation.service.lifecycle import Lifecycle
 from delegation.service.missions import LifecycleEvent, Mission, MissionBook, node_infos
 from delegation.service.offers import OfferDesk
 from delegation.service.operator_view import OperatorView
-from delegation.tst.node import to_dict
-from delegation.tst.validate import validate_tree
+from delegation.service.previews import Preview, Previews, stale_reason
+from delegation.tst.node import to_dict, without_node_uuids
+from delegation.tst.validate import ValidatedTree, validate_tree
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +80,11 @@ class Planning(MissionPart):
     _job_ids: int = field(default=0, init=False)
     #: Start plans made again around a unit that got busy meanwhile, by command.
     _replanned: dict[CommandKey, int] = field(default_factory=dict, init=False)
+    #: Each caller's recent previews, so that a start naming one starts that plan.
+    previews: Previews = field(default_factory=Previews, init=False)
+    #: Starts naming a preview that are planned again: (preview id, why), said in the answer.
+    _unpreviewed: OrderedDict[CommandKey, tuple[str, str]] = field(
+        default_factory=OrderedDict, init=False)
 
     def next_id(self) -> int:
         """A new job id (jobs run in arrival order)."""
@@ -104,10 +112,14 @@ class Planning(MissionPart):
         start: bool,
         source: str,
         kind: Literal["plan", "bids"] = "plan",
+        preview_id: str | None = None,
     ) -> Effects:
         """Validate the tree (once, here: a bad one is answered at once) and hand it to the
-        planner as a job."""
+        planner as a job; a start naming a preview starts the previewed plan if it holds."""
         self._trusted(key, now)
+        if preview_id is not None and (not start or source != "delegate"):
+            raise InputError(InputProblem("command", "preview-id",
+                                          "only a start (start: true, no preview) names one"))
         tree = validate_tree(raw_tree, self.config.limits).with_uuids()
         if kind == "plan":
             conflicts = self.book.conflicts(tree.root)
@@ -116,9 +128,16 @@ class Planning(MissionPart):
             problem = self.engine.problem(now) if start else None
             if problem:
                 raise InputError(InputProblem("engine", "", problem))
-        job_id = self.next_id()
         view = self.view
         units, notes = view.plannable(now) if kind == "plan" else (view.units(now), ())
+        if preview_id is not None:
+            preview = self._previewed(key, preview_id, tree, units, now)
+            if isinstance(preview, Preview):
+                return self._start_preview(preview, key, now)
+            options = preview or options
+            notes = (f"preview {preview_id} not started, planned again: "
+                     f"{self._unpreviewed[key][1]}", *notes)
+        job_id = self.next_id()
         warnings = tuple(input_warnings(tree.root, units, view.fleet.names())) if kind == "plan" \
             else ()
         for w in warnings:
@@ -161,6 +180,10 @@ class Planning(MissionPart):
             units, notes = self.view.plannable(now)
             return Effects(jobs=[replace(job, id=job_id, units=units, notes=notes)])
         self._replanned.pop(job.key, None)
+        unpreviewed = self._unpreviewed.pop(job.key, None)
+        if unpreviewed is not None:  # a start naming a preview that no longer held: say so
+            plan_json["from-preview"] = {"id": unpreviewed[0], "started": False,
+                                         "reason": unpreviewed[1]}
         log.info("mission %s planned: %s/%s, %s, makespan %.0f s, units %s", plan.tst.node_uuid,
                  plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
                  plan.makespan or 0.0,
@@ -174,7 +197,10 @@ class Planning(MissionPart):
                 return self.desk.fail("tst", job.key, job.com_uuid, reason)
             return self.desk.respond("delegation", job.key, DelegationResponse(
                 response="failed", response_to=job.com_uuid, fail_reason=reason, plan=plan_json))
-        if job.source == "preview":  # answered, never stored as a mission
+        if job.source == "preview":  # answered and kept for a start, never stored as a mission
+            plan_json["preview-id"] = job.com_uuid
+            self.previews.keep(Preview(job.com_uuid, self.desk.caller(job.key), job, plan,
+                                       plan_json, now, without_node_uuids(to_dict(job.tree.root))))
             return self.desk.respond("delegation", job.key, DelegationResponse(
                 response="ok", response_to=job.com_uuid, plan=plan_json))
         conflicts = self.book.conflicts(plan.tst)
@@ -182,6 +208,33 @@ class Planning(MissionPart):
             return self.desk.fail(job.face, job.key, job.com_uuid,
                                   InputError(conflicts).fail_reason)
         return self._record(job, plan, plan_json, now, seconds)
+
+    def _previewed(self, key: CommandKey, preview_id: str, tree: ValidatedTree,
+                   units: tuple[UnitState, ...], now: float) -> Preview | PlanOptions | None:
+        """The caller's preview when it still holds; else (remembering why, for the answer)
+        the options it was planned with, or None when it is not known."""
+        preview, why = self.previews.take(self.desk.caller(key), preview_id, now)
+        if preview is not None:
+            why = stale_reason(preview, to_dict(tree.root), units)
+            if not why:
+                return preview
+        self._unpreviewed[key] = (preview_id, why)
+        while len(self._unpreviewed) > 1000:
+            self._unpreviewed.popitem(last=False)
+        return preview.job.options if preview is not None else None
+
+    def _start_preview(self, preview: Preview, key: CommandKey, now: float) -> Effects:
+        """Start the previewed plan itself (its tree, uuids, assignment and times)."""
+        conflicts = self.book.conflicts(preview.plan.tst)
+        if conflicts:  # started already under another preview id
+            raise InputError(conflicts)
+        job = replace(preview.job, id=self.next_id(), key=key, start=True, source="delegate",
+                      received=self.desk.received(key, now))
+        plan_json = {k: v for k, v in preview.plan_json.items() if k != "preview-id"}
+        plan_json["from-preview"] = {"id": preview.preview_id, "started": True}
+        log.info("mission %s: the plan of preview %s started as previewed",
+                 preview.plan.tst.node_uuid, preview.preview_id)
+        return self._record(job, preview.plan, plan_json, now, 0.0)
 
     def _record(self, job: Job, plan: Plan, plan_json: dict[str, Any], now: float,
                 seconds: float) -> Effects:

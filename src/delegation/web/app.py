@@ -314,8 +314,11 @@ class Page:
         tree = mission_tree(body.get("mission"))
         strategy = self._strategy(body["strategy"]) if body.get("strategy") else None
         objective, limit = self._options(body)
+        preview = body.get("preview")
+        if preview is not None and (not isinstance(preview, str) or not 0 < len(preview) <= 128):
+            raise ApiError(400, "preview: must be the preview-id of a previewed plan")
         return JSONResponse(await run_in_threadpool(self.bridge.start_mission, tree, strategy,
-                                                    objective, limit, user))
+                                                    objective, limit, user, preview))
 
     async def signal(self, request: Request, user: str) -> Response:
         body = await self._body(request)

@@ -19,6 +19,7 @@ import logging
 import queue
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -28,7 +29,7 @@ from delegation.messages.errors import json_value
 from delegation.runtime.client import ServiceClient, ServiceUnavailable
 from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
-from delegation.topics import DEFAULT_PREFIX, QOS_PERIODIC
+from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, QOS_PERIODIC
 from delegation.tst import without_node_uuids
 from delegation.web.geometry import plan_geometry
 from delegation.web.mission_input import with_node_uuids
@@ -37,6 +38,8 @@ from delegation.web.view import SIGNALS, LiveView, node_uuid_of
 log = logging.getLogger(__name__)
 
 STRATEGIES = ("nearest", "auction", "optimal")
+#: Previewed trees kept (with their node uuids) so that Start sends the very tree previewed.
+PREVIEWED = 256
 OBJECTIVES = ("makespan", "total")
 _BATTERY = ("battery_state", "battery", "battery_level")
 
@@ -139,6 +142,9 @@ class Bridge:
         self._wakers: dict[int, tuple[asyncio.AbstractEventLoop, asyncio.Event]] = {}
         self._wake_lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ui-cmd")
+        #: (sender, preview-id) -> the tree previewed, node uuids and all (oldest first).
+        self._previewed: OrderedDict[tuple[str, str], dict[str, Any]] = OrderedDict()
+        self._previewed_lock = threading.Lock()
         self.messages = 0
         #: Messages the view could not take (see `_take`).
         self.dropped = 0
@@ -229,6 +235,8 @@ class Bridge:
                 view.execution_info(base, name, kind, data, now)
             elif rest == "delegation_info":
                 view.delegation_info(base, name, data)
+            elif rest == "tst/feedback":  # an engine's: for shared searches' parts alone
+                view.engine_feedback(name, data, now)
 
     def _feedback(self, msg: Message, *, node: bool) -> None:
         data = _decode(msg.payload)
@@ -243,12 +251,24 @@ class Bridge:
             wanted = self.view.drain_fetch()
         for root in wanted:
             self._fetch.put(root)
+        self._listen_engines()
         self.wake()
 
     # ------------------------------------------------------------------ background threads
 
+    def _listen_engines(self) -> None:
+        """Listen to the feedback of engines running missions with shared searches (the parts'
+        statuses: the service relays none, DESIGN 3.4); their other feedback is ignored."""
+        with self.lock:
+            engines = self.view.drain_engines()
+        for engine in engines:
+            if engine != self.service:
+                self.client.client.subscribe(f"{self.prefix}/unit/+/+/{engine}/tst/feedback",
+                                             QOS_COMMAND)
+
     def _ticker(self) -> None:
         while not self._stop.wait(1.0):
+            self._listen_engines()
             self._revive()
             with self.lock:
                 lost = self.view.tick(self.clock())
@@ -315,6 +335,7 @@ class Bridge:
         for root in wanted:
             if root not in ended:
                 self._fetch.put(root)
+        self._listen_engines()
 
     def _query(self, root: str) -> None:
         answer = self.client.request({"command": "query-mission", "root-uuid": root},
@@ -322,6 +343,7 @@ class Bridge:
         if answer.get("response") == "ok" and isinstance(answer.get("mission"), dict):
             with self.lock:
                 self.view.mission_answer(answer["mission"], self.clock())
+            self._listen_engines()
 
     # ------------------------------------------------------------------ waking SSE streams
 
@@ -387,6 +409,12 @@ class Bridge:
             if isinstance(plan, dict):
                 out["plan"] = plan
             return out
+        preview_id = plan.get("preview-id")
+        if isinstance(preview_id, str):
+            with self._previewed_lock:
+                self._previewed[(sender, preview_id)] = fresh
+                while len(self._previewed) > PREVIEWED:
+                    self._previewed.popitem(last=False)
         with self.lock:
             starts = self.view.unit_positions()
         routes, tasks = plan_geometry(plan, starts)
@@ -407,11 +435,26 @@ class Bridge:
                 out[s] = {"fail-reason": exc.reason}
         return out
 
+    def _previewed_tree(self, tree: dict[str, Any], sender: str,
+                        preview_id: str) -> dict[str, Any] | None:
+        """The tree ``sender`` previewed as ``preview_id`` (its node uuids: those of the plan
+        the service keeps), when ``tree`` is that mission; else None."""
+        with self._previewed_lock:
+            previewed = self._previewed.get((sender, preview_id))
+        if previewed is None or without_node_uuids(previewed) != without_node_uuids(tree):
+            return None
+        return previewed
+
     def start_mission(self, tree: dict[str, Any], strategy: str | None, objective: str | None,
-                      time_limit: float | None, sender: str) -> dict[str, Any]:
-        """POST /api/missions: start a mission; {"id", "plan"}."""
-        tree = with_node_uuids(tree)
+                      time_limit: float | None, sender: str,
+                      preview_id: str | None = None) -> dict[str, Any]:
+        """POST /api/missions: start a mission; {"id", "plan"}. With ``preview_id`` the service
+        starts that previewed plan (or plans again and says why in ``plan["from-preview"]``)."""
+        previewed = self._previewed_tree(tree, sender, preview_id) if preview_id else None
+        tree = previewed or with_node_uuids(tree)
         command: dict[str, Any] = {"command": "delegate", "tst": tree, "start": True}
+        if preview_id:
+            command["preview-id"] = preview_id
         for key, value in (("strategy", strategy), ("objective", objective),
                            ("time-limit", time_limit)):
             if value:
@@ -422,8 +465,14 @@ class Bridge:
             raise ApiError(_status_of(reason), reason)
         plan = dict(answer.get("plan") or {})
         root = node_uuid_of(plan.get("tst") or {}) or ""
+        said = plan.get("from-preview")
+        # The service started a previewed tree this page did not keep (other node uuids): the
+        # operator's tree is read back with query-mission instead.
+        shown = None if isinstance(said, dict) and said.get("started") and previewed is None \
+            else tree
         with self.lock:
-            self.view.mission_planned(root, plan, tree, sender, self.clock())
+            self.view.mission_planned(root, plan, shown, sender, self.clock())
+        self._listen_engines()
         self.wake()
         return {"id": root, "plan": plan}
 
@@ -479,6 +528,7 @@ class Bridge:
             tree = view.node_tree(root)
             plan = dict(rec.plan) if rec is not None and rec.plan is not None else None
             starts = dict(rec.starts) if rec is not None else {}
+        self._listen_engines()
         routes, tasks = plan_geometry(plan, starts) if plan is not None else ({}, [])
         if plan is not None:
             plan.setdefault("notes", list(mission.get("notes") or []))

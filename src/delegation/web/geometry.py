@@ -2,9 +2,12 @@
 
 A task is a ``point`` (move-to, observe-position, land, look-at-position), a ``path`` (move-path,
 navigate, take-off's path) or an ``area`` (search-area, each polygon of search-areas, and the
-circle of search-around-position as a 24-gon). A unit's planned route is where it was when the
-plan was made, then the points of its vehicle tasks in the plan's order (an area's vertices; the
-sweep itself is the unit's business). Look-at tasks move only the camera: drawn, not routed.
+circle of search-around-position as a 24-gon). A part of a search shared among units (the plan's
+``shared-searches``, DESIGN 3.11) is a task of its own, in its unit's colour, that names the
+operator's search (``part-of``) and says which part it is (``part``: "2/3"). A unit's planned
+route is where it was when the plan was made, then the points of its vehicle tasks in the plan's
+order (an area's vertices; the sweep itself is the unit's business). Look-at tasks move only
+the camera: drawn, not routed.
 """
 
 from __future__ import annotations
@@ -73,6 +76,20 @@ def task_shapes(name: str, params: Mapping[str, Any]) -> list[tuple[str, list[Po
     return []
 
 
+def shared_parts(plan: Mapping[str, Any]) -> dict[str, tuple[str, int, int]]:
+    """Each shared search's part uuid -> (the operator's search uuid, its number from 1, of how
+    many), from the plan's ``shared-searches``."""
+    out: dict[str, tuple[str, int, int]] = {}
+    for search in plan.get("shared-searches") or []:
+        if not isinstance(search, dict) or not isinstance(search.get("node-uuid"), str):
+            continue
+        parts = [p for p in search.get("parts") or [] if isinstance(p, dict)
+                 and isinstance(p.get("node-uuid"), str)]
+        for i, part in enumerate(parts):
+            out[part["node-uuid"]] = (search["node-uuid"], i + 1, len(parts))
+    return out
+
+
 def plan_geometry(
     plan: Mapping[str, Any], starts: Mapping[str, Point]
 ) -> tuple[dict[str, list[Point]], list[dict[str, Any]]]:
@@ -95,6 +112,7 @@ def plan_geometry(
                           a["node-uuid"], unit))
     shapes: dict[str, list[tuple[str, list[Point]]]] = {}
     tasks: list[dict[str, Any]] = []
+    parts = shared_parts(plan)
     for _, node in walk(root):
         uid = node.node_uuid
         if node.is_control or uid is None:
@@ -103,9 +121,13 @@ def plan_geometry(
         shapes[uid] = found
         owner: str | None = assigned.get(uid) or (
             str(node.execunit).strip("/") if isinstance(node.execunit, str) else None)
+        part = parts.get(uid)
         for kind, coords in found:
-            tasks.append({"uuid": uid, "name": node.name, "unit": owner, "kind": kind,
-                          "coordinates": coords})
+            task = {"uuid": uid, "name": node.name, "unit": owner, "kind": kind,
+                    "coordinates": coords}
+            if part is not None:
+                task["part-of"], task["part"] = part[0], f"{part[1]}/{part[2]}"
+            tasks.append(task)
     names = {node.node_uuid: node.name for _, node in walk(root) if node.node_uuid}
     routes: dict[str, list[Point]] = {}
     for _, uid, unit in sorted(order):

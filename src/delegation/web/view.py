@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from delegation.fleet import FleetRegistry
+from delegation.web.parts import engine_of, part_uuids, search_parts, span
 
 #: Flown track: points closer than this (m) to the last kept one are not kept.
 TRACK_STEP_M = 2.0
@@ -281,6 +282,10 @@ class LiveView:
         self._node_mission: dict[str, str] = {}
         self._alias: dict[str, str] = {}  # a re-delegated task's new node -> the operator's node
         self._pending: OrderedDict[str, list[tuple[str, float]]] = OrderedDict()
+        #: A shared search's part uuid -> its mission (its engine's feedback is read for it).
+        self._part_mission: dict[str, str] = {}
+        self._engines: set[str] = set()
+        self._engines_told: set[str] = set()
         self._to_fetch: set[str] = set()
 
     # ------------------------------------------------------------------ units
@@ -364,6 +369,23 @@ class LiveView:
             rec.tasks_available, rec.executing = available, executing
             self._touch(rec)
 
+    def engine_feedback(self, engine: str, data: Mapping[str, Any], now: float) -> None:
+        """A TST engine's ``tst/feedback``: taken only for the parts of a shared search (the
+        service relays none for them, DESIGN 3.4) of a mission that engine runs."""
+        uid, status = data.get("node-uuid"), data.get("status")
+        if not isinstance(uid, str) or not isinstance(status, str):
+            return
+        m = self.missions.get(self._part_mission.get(uid, ""))
+        if m is not None and engine_of(m.plan) == engine:
+            self._apply_node(m, uid, status, now)
+
+    def drain_engines(self) -> list[str]:
+        """Engines running missions with shared searches, not asked for before: the bridge
+        listens to their feedback (for the parts)."""
+        new = sorted(self._engines - self._engines_told)
+        self._engines_told.update(new)
+        return new
+
     def position(self, base: str, name: str, agent_type: str, data: Any, now: float) -> None:
         """``sensor/position`` (a GeoPoint object)."""
         if not isinstance(data, dict):
@@ -445,6 +467,8 @@ class LiveView:
             gone = self.missions.pop(victim)
             for uid in tree_uuids(gone.tree or {}):
                 self._node_mission.pop(uid, None)
+            for uid in part_uuids(gone.plan):
+                self._part_mission.pop(uid, None)
             self._node_mission.pop(victim, None)
 
     def hide(self, root: str) -> None:
@@ -569,6 +593,12 @@ class LiveView:
         uids.update(tree_uuids((m.plan or {}).get("tst") or {}))
         for uid in uids:
             self._node_mission[uid] = m.id
+        parts = part_uuids(m.plan)
+        for uid in parts:
+            self._part_mission[uid] = m.id
+        engine = engine_of(m.plan) if parts else None
+        if engine and len(self._engines) < 64:
+            self._engines.add(engine)
         for uid in uids:
             for status, at in self._pending.pop(uid, []):
                 self._apply_node(m, uid, status, at)
@@ -637,8 +667,8 @@ class LiveView:
         m = self._mission(root, now)
         self._summary_fields(m, mission)
         if m.plan is None or not m.detailed:
-            plan = {k: mission.get(k) for k in ("strategy", "fallback", "makespan",
-                                                "assignments", "unassigned", "notes", "tst")}
+            plan = {k: mission.get(k) for k in ("strategy", "fallback", "makespan", "assignments",
+                                                "unassigned", "notes", "tst", "shared-searches")}
             if mission.get("objective"):
                 plan["objective"] = mission["objective"]
             self._take_plan(m, plan)
@@ -685,7 +715,9 @@ class LiveView:
                   for a in (m.plan or {}).get("assignments") or [] if isinstance(a, dict))
                  if isinstance(uid, str)}
         units.update(m.reassigned)
-        return _node_json(m.tree, m, planned, units)
+        parts = search_parts(m.plan, lambda uid: (m.node_status.get(uid), m.rel(
+            m.node_start.get(uid)), m.rel(m.node_end.get(uid))))
+        return _node_json(m.tree, m, planned, units, parts)
 
     # ------------------------------------------------------------------ log and reads
 
@@ -737,14 +769,18 @@ def _metres(p: list[float], lat: float, lon: float) -> float:
 
 def _node_json(tree: Mapping[str, Any], m: MissionRecord,
                planned: Mapping[str, tuple[float | None, float | None]],
-               units: Mapping[str, str]) -> dict[str, Any]:
-    """NODE JSON of a tree (recursive on children; trees are bounded by the service's limits)."""
+               units: Mapping[str, str],
+               parts: Mapping[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """NODE JSON of a tree (recursive on children; trees are bounded by the service's limits);
+    a search shared among units carries its ``parts`` and spans their planned times."""
 
     def build(node: Mapping[str, Any], depth: int) -> dict[str, Any]:
         uid = node_uuid_of(node) or ""
         kids = node.get("children") if depth < 64 else None
-        plan = planned.get(uid, (None, None))
-        return {
+        shared = parts.get(uid)
+        plan = span(shared) if shared else planned.get(uid, (None, None))
+        extra = {"parts": shared} if shared else {}
+        return {**extra,
             "uuid": uid,
             "name": str(node.get("name", "")),
             "execunit": units.get(uid) or _node_execunit(node),

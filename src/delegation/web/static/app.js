@@ -223,6 +223,7 @@ function stripDetail(d) {
 
 function findNode(node, uuid) {
   if (node.uuid === uuid) return node;
+  for (const p of node.parts || []) if (p.uuid === uuid) return p; // a shared search's part
   for (const c of node.children || []) {
     const f = findNode(c, uuid);
     if (f) return f;

@@ -1,5 +1,6 @@
 // The Gantt timeline of one mission: per unit, each task's planned interval (outline) above its
 // actual one (filled; still open ones run to "now"), in seconds from the mission's start. SVG.
+// A search shared among units shows each part in its unit's lane (the tree keeps one node).
 
 import { STATUS_COLORS, unitColor } from "./colors.js";
 
@@ -15,11 +16,14 @@ function el(name, attrs, text) {
   return e;
 }
 
-/** Every task node of a tree (nodes with an execunit or plan times), depth first. */
+/** Every task node of a tree (nodes with an execunit or plan times), depth first; a shared
+ * search's parts instead of its node (each on its unit, `partOf` naming the search). */
 export function taskNodes(node, out = []) {
   if (!node) return out;
   const children = node.children || [];
-  if (children.length === 0 || node.execunit) out.push(node);
+  if (node.parts && node.parts.length) {
+    for (const p of node.parts) out.push(Object.assign({}, p, { execunit: p.unit, name: `${node.name} ${p.part}`, partOf: node.uuid }));
+  } else if (children.length === 0 || node.execunit) out.push(node);
   for (const c of children) taskNodes(c, out);
   return out;
 }
@@ -56,6 +60,8 @@ export function renderGantt(container, tree, elapsed) {
       const ps = t["plan-start"];
       const pe = t["plan-end"];
       const g = el("g", { "data-node-uuid": t.uuid, "data-status": t.status || "" });
+      g.setAttribute("data-unit", u);
+      if (t.partOf) g.setAttribute("data-part-of", t.partOf);
       const title = el("title", {}, `${t.name} on ${u}: plan ${fmt(ps)}–${fmt(pe)} s, actual ${fmt(t["actual-start"])}–${fmt(t["actual-end"])} s, ${t.status || "not started"}`);
       g.append(title);
       if (ps !== null && ps !== undefined && pe !== null && pe !== undefined) {

@@ -257,7 +257,18 @@ export class MapView {
     const count = (g) => (g ? g.getLayers().length : 0);
     const missions = {};
     for (const [id, g] of this.missionLayers) missions[id] = count(g);
-    return { units, missions, preview: count(this.previewLayer) };
+    // the parts of shared searches drawn (mission id or "preview" -> [{part, unit, color}])
+    const parts = {};
+    const partsOf = (key, g) => {
+      for (const layer of g.getLayers()) {
+        if (layer.task && layer.task["part-of"]) {
+          (parts[key] = parts[key] || []).push({ part: layer.task.part, unit: layer.task.unit, color: layer.options.color });
+        }
+      }
+    };
+    for (const [id, g] of this.missionLayers) partsOf(id, g);
+    partsOf("preview", this.previewLayer);
+    return { units, missions, preview: count(this.previewLayer), parts };
   }
 }
 
@@ -284,7 +295,9 @@ function drawPlan(group, tasks, routes, renderer, opacity, kind) {
   }
   for (const t of tasks) {
     const color = t.unit ? unitColor(t.unit) : "#555";
-    const tip = `${esc(t.name)} → ${esc(t.unit || "unassigned")}`;
+    // a shared search's part: which part of the operator's search, on which unit
+    const part = t.part ? ` (part ${esc(t.part)} of a shared search)` : "";
+    const tip = `${esc(t.name)}${part} → ${esc(t.unit || "unassigned")}`;
     let layer;
     if (t.kind === "area" && t.coordinates.length >= 3) {
       layer = L.polygon(t.coordinates, { renderer, color, weight: 1.5, opacity, fillOpacity: 0.12 * opacity });
@@ -301,6 +314,9 @@ function drawPlan(group, tasks, routes, renderer, opacity, kind) {
         fillOpacity: 0.8 * opacity,
       });
     }
-    if (layer) layer.bindTooltip(tip).addTo(group).bringToBack(); // under the unit markers
+    if (layer) {
+      layer.task = t;
+      layer.bindTooltip(tip).addTo(group).bringToBack(); // under the unit markers
+    }
   }
 }

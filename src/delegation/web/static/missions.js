@@ -85,12 +85,16 @@ export class MissionsPanel {
 }
 
 function treeItem(node) {
-  const unit = node.execunit ? node.execunit.replace(/^\//, "") : null;
+  const parts = node.parts || [];
+  // a search shared among units: one node, naming its units (its parts are on the timeline)
+  const unit = parts.length
+    ? [...new Set(parts.map((p) => p.unit))].join(", ")
+    : node.execunit ? node.execunit.replace(/^\//, "") : null;
   const li = h(
     "li",
-    { "data-node-uuid": node.uuid, "data-status": node.status || "" },
+    { "data-node-uuid": node.uuid, "data-status": node.status || "", "data-parts": parts.length || null },
     h("span", { class: "node-name" }, node.name),
-    unit ? h("span", { class: "node-unit" }, ` @ ${unit}`) : null,
+    unit ? h("span", { class: "node-unit", title: parts.length ? `shared: ${parts.length} parts` : "" }, ` @ ${unit}`) : null,
     " ",
     badge(node.status),
   );

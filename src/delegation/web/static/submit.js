@@ -1,6 +1,8 @@
 // The submit panel: paste or drop a mission file, preview its plan with each strategy (a dry run,
 // POST /api/plan), suggest the best by the chosen objective, draw the plan the operator picks (a
-// click on its row), start that strategy (POST /api/missions; the Start button names it).
+// click on its row), start that very plan (POST /api/missions naming its preview-id; the Start
+// button names its strategy). The service starts the plan previewed, or plans again if it no
+// longer holds (a unit lost or moved) and says why: shown beside the started mission's id.
 
 import * as api from "./api.js";
 import { h, say, secs } from "./dom.js";
@@ -73,8 +75,8 @@ export class SubmitPanel {
       if (f) this.load(f);
     });
     this.text.addEventListener("input", () => this.forget());
-    // Start plans again with the picked strategy and the objective and time limit in the form:
-    // changing either after a preview would start another plan than the one compared.
+    // Start starts the previewed plan (planned with the objective and time limit in the form):
+    // changing either after a preview means the operator no longer compares that plan.
     this.objective.addEventListener("change", () => this.forget());
     this.timeLimit.addEventListener("input", () => this.forget());
     this.startButton = document.getElementById("btn-start");
@@ -179,8 +181,19 @@ export class SubmitPanel {
   start() {
     return this.run("start", async () => {
       const strategy = this.chosen; // none previewed: the service's default strategy
-      const res = await api.start(this.request(strategy ? { strategy } : {}));
-      say(this.result, `started ${res.id}${strategy ? ` with ${strategy}` : ""}`);
+      const previewId = strategy ? (this.plans[strategy] || {})["preview-id"] : undefined;
+      const extra = strategy ? { strategy } : {};
+      if (previewId) extra.preview = previewId;
+      const res = await api.start(this.request(extra));
+      const said = (res.plan || {})["from-preview"];
+      let text = `started ${res.id}${strategy ? ` with ${strategy}` : ""}`;
+      delete this.result.dataset.replanned;
+      if (said && said.started) text += " (the plan previewed)";
+      else if (said) {
+        text += `, planned again: ${said.reason}`;
+        this.result.dataset.replanned = said.reason;
+      }
+      say(this.result, text);
       this.result.dataset.missionId = res.id;
       this.forget();
       this.store.select(res.id);
