@@ -23,11 +23,20 @@ import pytest
 
 from delegation.fleet import make_unit
 from delegation.local import LocalSystem
+from delegation.runtime.broker import PrivateMosquitto
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import ServiceConfig
 from test_e2e_service import AIR_TASKS, FRAME, move_to
 
 pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
+
+
+@pytest.fixture
+def mqtt_settings(mosquitto: PrivateMosquitto) -> BrokerSettings:
+    """This module's own mosquitto only: what is tested is the store and the round, not the
+    broker (both brokers are covered by tests/test_federation_mqtt.py), and every run here
+    starts two service processes."""
+    return mosquitto.settings()
 
 
 @pytest.fixture
