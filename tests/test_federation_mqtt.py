@@ -185,7 +185,8 @@ def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds
     watch = collector(f"{prefix}/unit/+/+/delegator-a/#", f"{prefix}/unit/+/+/delegator-b/#",
                       f"{prefix}/unit/+/+/+/delegation_info")
     root, far = str(uuid.uuid4()), f"far-{uuid.uuid4().hex[:8]}"
-    near_a, far_b = move_to(100, 0), move_to(SITE_B + 4000, 0)  # b0: 500 s (5 s here)
+    # b0: 300 s (3 s here: still flying when delegator-b is stopped); a0 then 540 s (5.4 s)
+    near_a, far_b = move_to(100, 0), move_to(SITE_B + 2400, 0)
     near_a["common_params"]["node-uuid"], far_b["common_params"]["node-uuid"] = \
         f"a-{far}", far
     tree = {"name": "conc", "common_params": {"node-uuid": root}, "children": [near_a, far_b]}
@@ -227,8 +228,9 @@ def test_a_lost_partners_part_goes_to_another_partner_whose_own_part_runs_on(
     root, b_part, c_part = (f"{x}-{uuid.uuid4().hex[:8]}" for x in ("root", "b", "c"))
     near_a = move_to(-13900, 0)
     near_a["common_params"]["node-uuid"] = f"a-{root}"
-    at_b = move_to(SITE_B, 4000, **{"node-uuid": b_part})  # b0: 500 s (5 s here)
-    at_c = move_to(SITE_B + 600.0, 8000, **{"node-uuid": c_part})  # c0: 1000 s (10 s here)
+    # b0: 7 km (9 s here); c0: 8 km (10 s here), ending 1.2 km from b's task (1.5 s more).
+    at_b = move_to(SITE_B, 7000, **{"node-uuid": b_part})
+    at_c = move_to(SITE_B + 600.0, 8000, **{"node-uuid": c_part})
     tree = {"name": "conc", "common_params": {"node-uuid": root},
             "children": [near_a, at_b, at_c]}
     with ExitStack() as stack:
