@@ -520,6 +520,8 @@ def test_a_lost_partners_part_goes_whole_to_another_partner_and_nothing_restarts
     assert [(t["node-uuid"], t["replaces"], t["unit"]) for t in event["tasks"]] == [
         ("near-b", "near-b", "/delegator-c")]
     assert not [m for m in on(done, "op0/tst/command")]  # no abort, no new tree
+    book = a.book.find("root-f")
+    assert book is not None and book.retries == {"near-b": 1}  # the budget counts per task
     mission = _delegation(a, {"command": "query-mission", "root-uuid": "root-f"}, 116.5)
     nodes = {n["node-uuid"]: n for n in on(mission, "delegation/response")[0]["mission"]["nodes"]}
     assert nodes["near-b"]["execunit"] == "/delegator-c"

@@ -349,7 +349,7 @@ class Repair(MissionPart):
             return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
                                    rebind=False)
         self.book.rebind(mission, sent.book or sent.execunits)
-        for uid in sent.execunits:
+        for uid in {t["node-uuid"] for t in sent.tasks}:  # the retry budget counts per task
             first = first_origin(mission.origin, uid)
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = Effects()
