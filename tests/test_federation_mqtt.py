@@ -185,7 +185,8 @@ def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds
     watch = collector(f"{prefix}/unit/+/+/delegator-a/#", f"{prefix}/unit/+/+/delegator-b/#",
                       f"{prefix}/unit/+/+/+/delegation_info")
     root, far = str(uuid.uuid4()), f"far-{uuid.uuid4().hex[:8]}"
-    near_a, far_b = move_to(100, 0), move_to(SITE_B + 4000, 0)  # b0: 500 s (5 s here)
+    # b0: 300 s (3 s here: still flying when delegator-b is stopped); a0 then 540 s (5.4 s)
+    near_a, far_b = move_to(100, 0), move_to(SITE_B + 2400, 0)
     near_a["common_params"]["node-uuid"], far_b["common_params"]["node-uuid"] = \
         f"a-{far}", far
     tree = {"name": "conc", "common_params": {"node-uuid": root}, "children": [near_a, far_b]}
@@ -209,3 +210,60 @@ def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds
         assert [(t["replaces"], t["unit"]) for t in moved["tasks"]] == [(far, "/a0")]
         watch.wait_json(events, lambda d: d.get("root-uuid") == root
                         and d["status"] == "succeeded", timeout=60.0, what="the mission's end")
+
+
+def test_a_lost_partners_part_goes_to_another_partner_whose_own_part_runs_on(
+        mqtt_settings: BrokerSettings, prefix: str, collector: Callable[..., Any]) -> None:
+    """Three partners: a0 16 km west, b0 and c0 600 m apart; a task near b0 goes to delegator-b, a
+    long one near c0 to delegator-c. delegator-b dies mid-task: its task is offered to delegator-c
+    (c0, once free, is nearer than a0) and moves there within the running tree, same uuid;
+    delegator-c's own part is neither aborted nor started again, and the mission succeeds."""
+    trusting = {"partners": frozenset({"delegator-a", "op-a"})}
+    a_cfg, a0 = site("delegator-a", "op-a", "a0", -14000.0, prefix)
+    b_cfg, b0 = site("delegator-b", "op-b", "b0", SITE_B, prefix, **trusting)
+    c_cfg, c0 = site("delegator-c", "op-c", "c0", SITE_B + 600.0, prefix, **trusting)
+    watch = collector(*(f"{prefix}/unit/+/+/{n}/#" for n in ("delegator-a", "delegator-b",
+                                                              "delegator-c")),
+                      f"{prefix}/unit/+/+/+/delegation_info")
+    root, b_part, c_part = (f"{x}-{uuid.uuid4().hex[:8]}" for x in ("root", "b", "c"))
+    near_a = move_to(-13900, 0)
+    near_a["common_params"]["node-uuid"] = f"a-{root}"
+    # b0: 7 km (9 s here); c0: 8 km (10 s here), ending 1.2 km from b's task (1.5 s more).
+    at_b = move_to(SITE_B, 7000, **{"node-uuid": b_part})
+    at_c = move_to(SITE_B + 600.0, 8000, **{"node-uuid": c_part})
+    tree = {"name": "conc", "common_params": {"node-uuid": root},
+            "children": [near_a, at_b, at_c]}
+    with ExitStack() as stack:
+        b_system = start_site(stack, mqtt_settings, b_cfg, b0)
+        start_site(stack, mqtt_settings, c_cfg, c0)
+        start_site(stack, mqtt_settings, a_cfg, a0)
+        wait_delegator(watch, a_cfg.base_topic, "delegator-b")
+        wait_delegator(watch, a_cfg.base_topic, "delegator-c")
+        answer = ask(watch, a_cfg.base_topic, {"command": "delegate", "tst": tree,
+                                               "start": True}, timeout=30.0)
+        assert answer["response"] == "started", answer
+        units = {x["node-uuid"]: x["execunit"] for x in answer["plan"]["assignments"]}
+        assert units == {f"a-{root}": "/a0", b_part: "/delegator-b", c_part: "/delegator-c"}
+        feedback = f"{a_cfg.base_topic}/tst/feedback"
+        watch.wait_json(feedback, lambda d: d.get("node-uuid") == b_part
+                        and d["status"] == "running", timeout=30.0, what="b's part running")
+        assert b_system.service is not None
+        b_system.service.stop()  # delegator-b dies (its engine and b0 fly on, unheard of)
+        events = f"{a_cfg.base_topic}/delegation/feedback"
+        moved = watch.wait_json(events, lambda d: d.get("root-uuid") == root
+                                and d["status"] == "re-delegated", timeout=30.0,
+                                what="the re-delegation")
+        assert "/delegator-b lost" in moved["fail-reason"]
+        assert [(t["node-uuid"], t["replaces"], t["unit"]) for t in moved["tasks"]] == [
+            (b_part, b_part, "/delegator-c")]
+        for uid in (c_part, b_part, root):
+            watch.wait_json(feedback, lambda d, u=uid: d.get("node-uuid") == u
+                            and d.get("status") == "succeeded", timeout=60.0, what=f"{uid} ok")
+        watch.wait_json(events, lambda d: d.get("root-uuid") == root
+                        and d["status"] == "succeeded", timeout=20.0, what="the mission's end")
+    to_c = [d for d in watch.json_on(f"{watch_prefix(a_cfg.base_topic)}/unit/+/+/delegator-c/"
+                                     "tst/command")]
+    started = [d["tst"]["common_params"]["node-uuid"] for d in to_c
+               if d.get("command") == "start-tst"]
+    assert sorted(started) == sorted([c_part, b_part])  # each once: c's part never again
+    assert not [d for d in to_c if d.get("command") == "signal-tst-tree"]

@@ -95,6 +95,11 @@ def register(subparsers: Any) -> None:
         "the mission goes to delegator0, which asks delegator-b for offers (docs/protocol.md §15)",
     )
     demo.add_argument(
+        "--bid-window", type=float, default=1.0, metavar="SECONDS",
+        help="with --federated: how long delegator0 waits for delegator-b's offers (default 1; "
+        "the round ends as soon as they are in)",
+    )
+    demo.add_argument(
         "--hold", action="store_true",
         help="with --http: keep the system and the page up after the missions until Ctrl-C",
     )
@@ -197,7 +202,8 @@ def _start(
     )
     ours, theirs = split_partners(units) if args.federated else (units, [])
     if theirs:
-        config = replace(config, fleet=frozenset(u.name for u in ours))
+        config = replace(config, fleet=frozenset(u.name for u in ours),
+                         bid_window=args.bid_window, federate=args.bid_window > 0)
     system = LocalSystem(
         ours, settings=broker_settings(args), config=config, speedup=speedup, rates=rates
     )

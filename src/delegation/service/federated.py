@@ -197,6 +197,95 @@ def offer_asks(root: TstNode, delegators: Sequence[Delegator], own: Sequence[Uni
     return asks
 
 
+def without_units(root: TstNode, units: Collection[str]) -> TstNode:
+    """The tree with every ``execunit`` that names one of ``units`` cleared, control nodes too:
+    a lost delegator's subtree (its ``seq``/``conc`` named for it) is free again, for our own
+    units or another delegator's offer (docs/protocol.md §15.4)."""
+    if not units:
+        return root
+
+    def clear(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+        node = node.with_children(children)
+        if isinstance(node.execunit, str):
+            kind, name = classify_execunit(node.execunit)
+            if kind is ExecUnitKind.FIXED and name in units:
+                return node.with_common_values({"execunit": ""})
+        return node
+
+    return map_tree(root, clear)
+
+
+@dataclass(frozen=True, slots=True)
+class Handover:
+    """Subtrees of lost delegators that go whole to other delegators within the running tree
+    (docs/protocol.md §15.4): what the engine is told (``rebind-tst-nodes`` of each subtree's
+    root: it holds the subtree as one node), what the mission's tree records (every node of
+    those subtrees named for the lost delegator), and the ``re-delegated`` rows."""
+
+    engine: dict[str, str]
+    book: dict[str, str]
+    tasks: list[dict[str, str]]
+
+
+def _fixed(node: TstNode) -> str:
+    if not isinstance(node.execunit, str):
+        return ""
+    kind, name = classify_execunit(node.execunit)
+    return name if kind is ExecUnitKind.FIXED else ""
+
+
+def delegated_roots(root: TstNode, units: Collection[str]) -> dict[str, tuple[str, TstNode]]:
+    """uuid -> (path, node) of the topmost nodes below ``root`` named for one of ``units``: the
+    subtrees an engine hands to a delegator whole (`delegation.engine.delegated`)."""
+    found: dict[str, tuple[str, TstNode]] = {}
+    for path, node in walk(root):
+        if node is root or any(path.startswith(p + "/") for p, _ in found.values()):
+            continue
+        if _fixed(node) in units and node.node_uuid:
+            found[node.node_uuid] = (path, node)
+    return found
+
+
+def handover(current: TstNode, planned: TstNode, origin: Mapping[str, str],
+             freed: Collection[str], lost: Collection[str], delegators: Collection[str],
+             status: Mapping[str, str]) -> Handover | None:
+    """The `Handover` when a re-delegation's plan (``planned``, made of the remaining tree whose
+    uuids ``origin`` maps to ``current``'s) gives every subtree a lost delegator was handed,
+    whole (none of its tasks ended), to one live delegator, and frees nothing else; else None
+    (the tree is replaced: our own units take the rest)."""
+    roots = delegated_roots(current, lost)
+    inside = {r: {n.node_uuid or "" for _, n in walk(node) if not n.is_control}
+              for r, (_, node) in roots.items()}
+    covered: set[str] = set().union(*inside.values())
+    if not roots or not {origin.get(f, "") for f in freed} <= covered:
+        return None
+    by_old = {origin[n.node_uuid]: n for _, n in walk(planned)
+              if n.node_uuid and n.node_uuid in origin}
+    engine: dict[str, str] = {}
+    book: dict[str, str] = {}
+    tasks: list[dict[str, str]] = []
+    for r, (path, node) in roots.items():
+        new = by_old.get(r)
+        taker = _fixed(new) if new is not None else ""
+        if new is None or taker in lost or taker not in delegators \
+                or status.get(r) in _ENDED or any(status.get(t) in _ENDED for t in inside[r]):
+            return None
+        if {origin.get(n.node_uuid or "") for _, n in walk(new) if not n.is_control} != inside[r]:
+            return None  # not whole: the delegator would run the subtree from its start
+        engine[r] = f"/{taker}"
+        for sub, n in walk(node, path):
+            if n.node_uuid and (n is node or _fixed(n) in lost):
+                book[n.node_uuid] = f"/{taker}"
+            if not n.is_control and n.node_uuid:
+                tasks.append({"node-uuid": n.node_uuid, "replaces": n.node_uuid,
+                              "name": n.name, "path": where(sub, n), "unit": f"/{taker}"})
+    return Handover(engine, book, tasks)
+
+
+#: Node statuses after which a subtree is not handed to anyone again.
+_ENDED = frozenset({"succeeded", "failed", "aborted"})
+
+
 def kept_delegations(root: TstNode, own: Collection[str], engine: str) -> list[Offer]:
     """The children of a root ``conc`` named wholly for one unit that is neither ours nor the
     engine (every node's ``execunit`` is that ``/delegator``): a re-delegation keeps them with
@@ -301,7 +390,9 @@ class FederatedPlanner:
             if score.key() < best.key():
                 chosen, best = together, score
         while True:
-            used = {o.delegator for o in chosen}
+            # A kept part does not count: a lost partner's subtree may go to a delegator that
+            # runs another part of the mission (its engine hands it the two one after the other).
+            used = {o.delegator for o in chosen if o not in self.kept}
             taken = {k for o in chosen for k in o.covers}
             candidates = [o for o in self.offers
                           if o.delegator not in used and not taken & set(o.covers)]

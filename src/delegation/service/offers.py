@@ -84,11 +84,14 @@ class OfferDesk:
         parsed = parse_unit_topic(topic)
         return parsed is not None and parsed.rest == f"delegation/response/{self.config.name}"
 
-    def open(self, job: Job, caller: str, now: float) -> Effects | None:
+    def open(self, job: Job, caller: str, now: float, *, redelegation: bool = False
+             ) -> Effects | None:
         """Ask the live delegators for offers on the job's offerable subtrees and hold the job;
-        None when there is nothing to ask (the job goes to the planner at once)."""
+        None when there is nothing to ask (the job goes to the planner at once). A re-delegation
+        asks only when ``redelegation`` says so (a lost delegator's part, §15.4)."""
         c = self.config
-        if not c.federate or c.bid_window <= 0 or job.kind != "plan" or job.redelegate:
+        if not c.federate or c.bid_window <= 0 or job.kind != "plan" \
+                or (job.redelegate and not redelegation):
             return None
         delegators = [d for d in self.fleet.delegators(now) if d.name != c.name]
         if caller and (caller in {d.name for d in delegators}

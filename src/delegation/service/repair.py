@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from delegation.allocation import Plan
 from delegation.errors import InputError
@@ -34,6 +34,7 @@ from delegation.messages import (
 from delegation.runtime.core import Effects
 from delegation.service.catch_up import CatchUp
 from delegation.service.engine_link import INTERNAL as INTERNAL  # re-exported: tests, older callers
+from delegation.service.federated import handover, without_units
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.missions import Mission, node_infos
 from delegation.service.planning import MissionPart, Planning
@@ -64,6 +65,9 @@ class Replan:
     job: int = 0
     #: Move the freed tasks within the running tree (`rebind-tst-nodes`) rather than replace it.
     rebind: bool = False
+    #: A lost delegator's part, offered to the other delegators: what goes whole to one of them
+    #: moves within the running tree (`federated.handover`), else the tree is replaced.
+    handover: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,6 +78,9 @@ class Rebinding:
     why: str
     units: frozenset[str]
     tasks: list[dict[str, str]]
+    #: What the mission's tree records, when more than ``execunits`` (a handed-over subtree's
+    #: nodes: the engine holds it as one node, our tree has them all).
+    book: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(eq=False)
@@ -158,15 +165,17 @@ class Repair(MissionPart):
                 continue  # one repair at a time: the next looks for lost units again
             if unfinished_on(parse_tree(m.current_tst), m.node_status, event.name):
                 effects.extend(self.redelegate(m, event.name, why, now,
-                                               rebind=False if delegator else None))
+                                               rebind=False if delegator else None,
+                                               offers=delegator))
         return effects
 
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
-                   *, rebind: bool | None = None) -> Effects:
+                   *, rebind: bool | None = None, offers: bool = False) -> Effects:
         """Plan what ``mission`` still has to do without ``unit`` (a job). With ``rebind``
         (``repair: rebind``, the default for a lost unit) the tree runs on meanwhile and the
         freed tasks then move within it; else the mission waits for a replacement tree
-        (``redelegating``: no root status ends it meanwhile)."""
+        (``redelegating``: no root status ends it meanwhile). With ``offers`` (a lost delegator)
+        the other delegators are asked for offers first (docs/protocol.md §15.4)."""
         if rebind is None:
             rebind = self.config.repair == "rebind"
         tree = parse_tree(mission.current_tst)
@@ -177,6 +186,8 @@ class Repair(MissionPart):
         remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()))
         if remaining is None:
             return Effects()
+        if offers:  # the lost delegator's seq/conc are free for anyone too
+            remaining = replace(remaining, tree=without_units(remaining.tree, lost))
         paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
         for uid in remaining.freed:
             old = remaining.origin[uid]
@@ -196,17 +207,21 @@ class Repair(MissionPart):
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
         job_id = self.planning.next_id()
         self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
-                                                 job_id, rebind)
+                                                 job_id, rebind, offers)
         options = self.planning.options(mission.plan.get("strategy"),
                                         mission.plan.get("objective"), None)
         job = Job(id=job_id, kind="plan",
                   key=(INTERNAL, f"{mission.root_uuid}#{mission.redelegations + 1}"),
                   face="delegation", tree=checked, units=units, options=options,
                   engine=self.config.engine, start=True, source="redelegate", received=now,
-                  notes=notes, redelegate=mission.root_uuid)
+                  notes=notes, redelegate=mission.root_uuid,
+                  delegators=frozenset(d.name for d in self.view.fleet.delegators(
+                      now, alive_only=False)))
         log.info("mission %s: re-delegating %d task(s): %s", mission.root_uuid,
                  len(remaining.freed), why)
-        return Effects(jobs=[job])
+        held = self.planning.offers.open(job, "", now, redelegation=True) \
+            if offers and self.planning.offers is not None else None
+        return held if held is not None else Effects(jobs=[job])
 
     def redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
         """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
@@ -234,6 +249,10 @@ class Repair(MissionPart):
             return self.abort_and_fail(mission, replan.old_root, reason, now)
         if replan.rebind:
             return self.rebind(mission, replan, plan, now)
+        if replan.handover:
+            handed = self.hand_over(mission, replan, plan, now)
+            if handed is not None:
+                return handed
         if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
                for uid in origin):
             # A task finished while this was planned: plan again without it (never run twice).
@@ -291,6 +310,30 @@ class Repair(MissionPart):
         return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
                                                  mission.root_uuid)])
 
+    def hand_over(self, mission: Mission, replan: Replan, plan: Plan, now: float
+                  ) -> Effects | None:
+        """A lost delegator's subtrees that the plan gives whole to other delegators move there
+        within the running tree (one ``rebind-tst-nodes`` of each subtree's root): the rest of
+        the tree, other partners' parts too, runs on untouched, uuids kept. None when the plan
+        does otherwise (the caller replaces the tree)."""
+        moves = handover(parse_tree(mission.current_tst), plan.tst, replan.remaining.origin,
+                         replan.remaining.freed, replan.units,
+                         {d.name for d in self.view.fleet.delegators(now)}, mission.node_status)
+        if moves is None or mission.node_status.get(replan.old_root) in TERMINAL_NODE_STATUSES:
+            return None
+        problem = self.engine.problem(now)
+        if problem:
+            return None
+        mission.current_root = replan.old_root  # the tree runs on
+        self.rebinds[mission.root_uuid] = Rebinding(moves.engine, replan.why, replan.units,
+                                                    moves.tasks, moves.book)
+        key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
+        model = RebindTstNodes(execunits=moves.engine, sender=self.config.name)
+        return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
+                                                 mission.root_uuid)])
+
     def rebind_answered(self, root_uuid: str, ok: bool, reason: str, now: float) -> Effects:
         """The engine's answer to ``rebind-tst-nodes``: the tasks moved (the book follows, the
         operator is told ``re-delegated``); refused or unanswered (an engine without it), the
@@ -305,8 +348,8 @@ class Repair(MissionPart):
             why = f"{sent.why} (the engine did not move the tasks: {reason})"
             return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
                                    rebind=False)
-        self.book.rebind(mission, sent.execunits)
-        for uid in sent.execunits:
+        self.book.rebind(mission, sent.book or sent.execunits)
+        for uid in {t["node-uuid"] for t in sent.tasks}:  # the retry budget counts per task
             first = first_origin(mission.origin, uid)
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = Effects()
