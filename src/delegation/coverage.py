@@ -441,14 +441,19 @@ def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> 
 
 
 def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.ndarray:
-    """``candidate_directions`` of a cleaned polygon whose rectangle's axes are known."""
-    edges = np.roll(poly, -1, axis=0) - poly
-    lengths = np.hypot(*edges.T)
-    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), math.pi)[lengths > 0.0]
-    lengths = lengths[lengths > 0.0]
+    """``candidate_directions`` of a cleaned polygon whose rectangle's axes are known (plain
+    Python: a polygon has a few to a few dozen edges, where numpy's per-call cost dominated)."""
+    pts: list[list[float]] = poly.tolist()
+    n = len(pts)
+    pairs = []
+    for i in range(n):
+        dx, dy = pts[(i + 1) % n][0] - pts[i][0], pts[(i + 1) % n][1] - pts[i][1]
+        length = math.hypot(dx, dy)
+        if length > 0.0:
+            pairs.append((math.atan2(dy, dx) % math.pi, length))
     chosen: list[float] = []
     weight: list[float] = []
-    for a, ln in sorted(zip(angles.tolist(), lengths.tolist(), strict=True), key=lambda x: -x[1]):
+    for a, ln in sorted(pairs, key=lambda x: -x[1]):
         for i, b in enumerate(chosen):
             d = abs(a - b) % math.pi
             if min(d, math.pi - d) < _SAME_DIRECTION:
@@ -460,12 +465,17 @@ def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.n
     top = max(weight, default=1.0)
     ranked = sorted(range(len(chosen)), key=lambda i: (-round(weight[i] / top, 6), chosen[i]))
     kept = sorted(chosen[i] for i in ranked[:MAX_DIRECTIONS])
-    out = [along, across]
+    out = [(float(along[0]), float(along[1])), (float(across[0]), float(across[1]))]
+    same = math.cos(_SAME_DIRECTION)
     for a in kept:
-        v = _canonical(np.array([math.cos(a), math.sin(a)]))
-        if all(abs(float(v @ u)) < math.cos(_SAME_DIRECTION) for u in out):
-            out.append(v)
-    return np.stack(out)
+        x, y = math.cos(a), math.sin(a)
+        h = math.hypot(x, y)
+        x, y = x / h, y / h
+        if x < -1e-12 or (abs(x) <= 1e-12 and y < 0):  # (``_canonical``)
+            x, y = -x, -y
+        if all(abs(x * ux + y * uy) < same for ux, uy in out):
+            out.append((x, y))
+    return np.array(out)
 
 
 def _flown_length(poly: np.ndarray, width: float, along: np.ndarray) -> tuple[float, int]:

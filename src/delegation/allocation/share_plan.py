@@ -239,7 +239,26 @@ def worth_sharing(problem: Problem, tables: CostTables, t: int) -> bool:
     single = float(alone.min()) if len(alone) else math.inf
     if not math.isfinite(single):
         return True
+    if _arrival_floor(tables, t) >= WORTH_SHARING * single:
+        return False  # (the bound is at least that: no need to compute it)
     return search_bound(problem, tables, None, t) < WORTH_SHARING * single
+
+
+def _arrival_floor(tables: CostTables, t: int) -> float:
+    """A lower bound of ``search_bound(..., None, t)`` without geometry: no unit sweeps before
+    it could reach the area's bounding box. Most searches of a mission are small and far from
+    the nearest unit compared with their sweep, and are not worth sharing by this alone."""
+    polygons = _polygons(tables, t)
+    if not polygons:
+        return 0.0
+    every = np.concatenate(polygons)
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    gap = np.maximum(np.maximum(lo - tables.unit_xy, tables.unit_xy - hi), 0.0)
+    speed = tables.speed[:, t]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        times = np.hypot(gap[:, 0], gap[:, 1]) / speed
+    times = times[speed > 0.0]
+    return float(times.min()) if len(times) else 0.0
 
 
 def share_searches(
