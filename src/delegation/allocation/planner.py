@@ -184,8 +184,10 @@ def _shared_plan(
             break
         # The same sizing, the units that fell short made slower by how far they fell short:
         # the cut moves a little (measuring the new parts again would chase their shapes).
+        # No margin on endurance now: each round's plan is checked for real.
         sized = strained(sized, over)
-        again = share_searches(prepared, problem, tables, result.schedule, new_uuid, sized)
+        again = share_searches(prepared, problem, tables, result.schedule, new_uuid, sized,
+                               margin=1.0)
         if again is None:
             break
         shared = again

@@ -115,9 +115,11 @@ def shareable(node: TstNode) -> bool:
 
 
 def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
-             region: shapely.Geometry, fits: dict[int, Fit]) -> list[Sharer]:
+             region: shapely.Geometry, fits: dict[int, Fit], margin: float = ENDURANCE_MARGIN
+             ) -> list[Sharer]:
     """The units that could sweep part of task ``t``'s area, read from ``schedule`` (None:
-    every unit free at the start)."""
+    every unit free at the start); ``margin``: the share of what endurance is left that a
+    part may be sized to use."""
     act = 0.0
     if schedule is not None and schedule.node_act is not None:
         node_act = float(schedule.node_act[problem.structure.node_of_task[t]])
@@ -164,7 +166,7 @@ def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t:
         cap = math.inf
         endurance = float(tables.endurance[u])
         if math.isfinite(endurance):
-            left = (endurance - used - travel - back_m / speed) * ENDURANCE_MARGIN
+            left = (endurance - used - travel - back_m / speed) * margin
             cap = max(0.0, left) * rate
         out.append(Sharer(u, free + travel, rate, cap, here))
     return out
@@ -268,11 +270,13 @@ def share_searches(
     schedule: Schedule,
     new_uuid: Callable[[], str],
     fits: Fits | None = None,
+    margin: float = ENDURANCE_MARGIN,
 ) -> SharedTree | None:
     """``tree`` (the tree ``problem`` and ``tables`` were built from) with every search worth
     sharing replaced by its parts (None when none is): a search is shared when at least two units
     get a part, or when the one unit that can cover it is another than ``schedule``'s (or it had
-    none: endurance). ``fits``: what earlier parts measured (the refinement)."""
+    none: endurance). ``fits``: what earlier parts measured (the refinement); ``margin``: the
+    share of each unit's endurance left that its part may be sized to use."""
     frame = tables.frame
     replaced: dict[str, TstNode] = {}
     searches: list[SharedSearch] = []
@@ -286,7 +290,7 @@ def share_searches(
         if region.is_empty or region.area <= 0.0:
             continue
         fit = (fits or {}).get(task.uuid, {})
-        sharers = _sharers(problem, tables, schedule, t, region, fit)
+        sharers = _sharers(problem, tables, schedule, t, region, fit, margin)
         wanted = shares(float(region.area), sharers)
         if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
             continue
@@ -354,10 +358,10 @@ def measured(shared: SharedTree, tables: CostTables) -> Fits:
 
 def overrun(shared: SharedTree, problem: Problem, tables: CostTables, schedule: Schedule
             ) -> dict[str, dict[int, float]]:
-    """Per shared search uuid, per unit index (of ``tables``' units): how many times more
-    endurance the unit's part needs than the unit had left for it, for each part ``schedule``
-    could not assign (> 1; only parts left unassigned for want of endurance). ``problem`` and
-    ``tables`` are those of ``shared.tree``."""
+    """Per shared search uuid, per unit index (of ``tables``' units): how many times shorter
+    the unit's sweep must be to fit what endurance it had left (its flight there unchanged), for
+    each part ``schedule`` could not assign (> 1, at most 2; only parts left unassigned for want
+    of endurance). ``problem`` and ``tables`` are those of ``shared.tree``."""
     index = {task.uuid: t for t, task in enumerate(problem.tasks)}
     names = {unit.name: u for u, unit in enumerate(tables.units)}
     out: dict[str, dict[int, float]] = {}
@@ -367,9 +371,11 @@ def overrun(shared: SharedTree, problem: Problem, tables: CostTables, schedule: 
             if t is None or u is None or int(schedule.assign[t]) >= 0:
                 continue
             have = float(tables.endurance[u]) - float(schedule.unit_used[u])
-            need = float(tables.need_time[u, t])
+            need, sweep = float(tables.need_time[u, t]), float(tables.work_time[u, t])
             if math.isfinite(need) and need > have:
-                ratio = need / have if have > 0.0 else 2.0
+                # The flight there stays: the sweep must shrink by all of the excess.
+                left = sweep - (need - have)
+                ratio = sweep / left if left > 0.0 else 2.0
                 out.setdefault(search.node_uuid, {})[u] = min(2.0, ratio * 1.02)
     return out
 
