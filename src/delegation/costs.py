@@ -331,6 +331,9 @@ class CostTables:
     width: np.ndarray
     #: Whether busy units were excluded (``cost_tables(exclude_busy=True)``).
     exclude_busy: bool = False
+    #: (T,) per search task its polygons in ``frame`` (east/north m), () for other tasks: the
+    #: sharing of searches reads them again and again (DESIGN 3.11).
+    polygons: tuple[tuple[np.ndarray, ...], ...] = ()
 
     @property
     def n_units(self) -> int:
@@ -445,7 +448,8 @@ def cost_tables(
     speed = _speed_table(units_t, tasks_t)
     listed = _listed_table(units_t, tasks_t)
     width = _width_table(units_t, geoms)
-    start_xy, end_xy, work_distance = _task_ends_and_work(geoms, task_xy, width, listed)
+    start_xy, end_xy, work_distance, polygons = _task_ends_and_work(geoms, task_xy, width,
+                                                                    listed)
     open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(len(geoms))
     fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(len(geoms))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -468,6 +472,7 @@ def cost_tables(
         to_home=np.array([k == "home" for k in kinds], dtype=bool).reshape(len(kinds)),
         width=width,
         exclude_busy=exclude_busy,
+        polygons=polygons,
     )
     _fill_capability(tables)
     return tables
@@ -540,14 +545,16 @@ def _width_table(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> n
 def _task_ends_and_work(
     geoms: Sequence[TaskGeometry], task_xy: Sequence[np.ndarray], width: np.ndarray,
     listed: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(T, 2) where each task starts and ends (NaN: depends on the unit, or in place) and (U, T)
-    the distance its work covers (inf: a search the unit cannot sweep)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[tuple[np.ndarray, ...], ...]]:
+    """(T, 2) where each task starts and ends (NaN: depends on the unit, or in place), (U, T)
+    the distance its work covers (inf: a search the unit cannot sweep) and each search's
+    polygons (``CostTables.polygons``)."""
     n_t = len(geoms)
     start_xy = np.full((n_t, 2), np.nan)
     end_xy = np.full((n_t, 2), np.nan)
     path_len = np.zeros(n_t)
     work_distance = np.zeros(width.shape)
+    polygons: list[tuple[np.ndarray, ...]] = [()] * n_t
     for t, g in enumerate(geoms):
         if g.kind == "point":
             start_xy[t] = end_xy[t] = task_xy[t][0]
@@ -556,20 +563,22 @@ def _task_ends_and_work(
             start_xy[t], end_xy[t] = xy[0], xy[-1]
             path_len[t] = path_length(xy)
         elif g.kind == "areas":
-            start_xy[t], end_xy[t] = _sweep_work(g, task_xy[t], width[:, t], listed[:, t],
+            polygons[t] = tuple(_polygons_from(g, task_xy[t]))
+            start_xy[t], end_xy[t] = _sweep_work(g, polygons[t], width[:, t], listed[:, t],
                                                  work_distance[:, t])
     work_distance += path_len[None, :]
     searches = np.array([g.kind == "areas" for g in geoms], dtype=bool).reshape(n_t)
     work_distance[np.isnan(width) & searches[None, :]] = np.inf
-    return start_xy, end_xy, work_distance
+    return start_xy, end_xy, work_distance, tuple(polygons)
 
 
 def _sweep_work(
-    g: TaskGeometry, xy: np.ndarray, col: np.ndarray, listed: np.ndarray, out: np.ndarray
+    g: TaskGeometry, polygons: Sequence[np.ndarray], col: np.ndarray, listed: np.ndarray,
+    out: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One search task: each unit's sweep length into ``out`` (one coverage path per distinct
     width ``col``); the start and end of the sweep at the reference width (``CostTables``)."""
-    polygons = _polygons_from(g, xy)
+    polygons = list(polygons)
     ref = _reference_width(col, listed)
     ends: tuple[np.ndarray, np.ndarray] | None = None
     for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)

@@ -390,7 +390,26 @@ def coverage_path(
     ``variant`` (0..3) is ``serpentine``'s, applied to the first cell; ``along`` the lanes'
     direction (default: ``sweep_direction``, the shortest path's).
     """
-    return _fly_cells(sweep_cells(polygon_xy, width, along), variant)
+    if variant != 0:
+        return _fly_cells(sweep_cells(polygon_xy, width, along), variant)
+    poly = _clean_polygon(polygon_xy)
+    w = _check_width(width)
+    direction = _direction(poly, w, along)
+    path, _ = _first_path(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
+                          float(direction[0]), float(direction[1]))
+    return path.copy()
+
+
+@functools.lru_cache(maxsize=1024)
+def _first_path(data: bytes, n: int, width: float, ax: float, ay: float
+                ) -> tuple[np.ndarray, int]:
+    """(variant 0's path, lane segments) of the sweep along (ax, ay): remembered, as choosing
+    the direction sweeps the winner already, and the cost tables then ask for its path."""
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    segments, lane = _segments(poly, width, np.array([ax, ay]))
+    path = _fly_cells(_cells(segments, lane), 0)
+    path.setflags(write=False)
+    return path, len(segments)
 
 
 # --------------------------------------------------------------------------- sweep direction
@@ -418,14 +437,23 @@ def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> 
     The order and the choice do not depend on rounding noise (the same polygon in another local
     frame, a regular polygon's equal edges): weights are compared to 6 significant digits."""
     poly = _clean_polygon(polygon_xy)
-    along, across = sweep_axes(poly)
-    edges = np.roll(poly, -1, axis=0) - poly
-    lengths = np.hypot(*edges.T)
-    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), math.pi)[lengths > 0.0]
-    lengths = lengths[lengths > 0.0]
+    return _candidates(poly, *sweep_axes(poly))
+
+
+def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """``candidate_directions`` of a cleaned polygon whose rectangle's axes are known (plain
+    Python: a polygon has a few to a few dozen edges, where numpy's per-call cost dominated)."""
+    pts: list[list[float]] = poly.tolist()
+    n = len(pts)
+    pairs = []
+    for i in range(n):
+        dx, dy = pts[(i + 1) % n][0] - pts[i][0], pts[(i + 1) % n][1] - pts[i][1]
+        length = math.hypot(dx, dy)
+        if length > 0.0:
+            pairs.append((math.atan2(dy, dx) % math.pi, length))
     chosen: list[float] = []
     weight: list[float] = []
-    for a, ln in sorted(zip(angles.tolist(), lengths.tolist(), strict=True), key=lambda x: -x[1]):
+    for a, ln in sorted(pairs, key=lambda x: -x[1]):
         for i, b in enumerate(chosen):
             d = abs(a - b) % math.pi
             if min(d, math.pi - d) < _SAME_DIRECTION:
@@ -437,18 +465,24 @@ def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> 
     top = max(weight, default=1.0)
     ranked = sorted(range(len(chosen)), key=lambda i: (-round(weight[i] / top, 6), chosen[i]))
     kept = sorted(chosen[i] for i in ranked[:MAX_DIRECTIONS])
-    out = [along, across]
+    out = [(float(along[0]), float(along[1])), (float(across[0]), float(across[1]))]
+    same = math.cos(_SAME_DIRECTION)
     for a in kept:
-        v = _canonical(np.array([math.cos(a), math.sin(a)]))
-        if all(abs(float(v @ u)) < math.cos(_SAME_DIRECTION) for u in out):
-            out.append(v)
-    return np.stack(out)
+        x, y = math.cos(a), math.sin(a)
+        h = math.hypot(x, y)
+        x, y = x / h, y / h
+        if x < -1e-12 or (abs(x) <= 1e-12 and y < 0):  # (``_canonical``)
+            x, y = -x, -y
+        if all(abs(x * ux + y * uy) < same for ux, uy in out):
+            out.append((x, y))
+    return np.array(out)
 
 
 def _flown_length(poly: np.ndarray, width: float, along: np.ndarray) -> tuple[float, int]:
     """(path length, lane segments) of the sweep along ``along``: the criterion for choosing."""
-    segments, lane = _segments(poly, width, along)
-    return path_length(_fly_cells(_cells(segments, lane), 0)), len(segments)
+    path, segments = _first_path(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
+                                 float(width), float(along[0]), float(along[1]))
+    return path_length(path), segments
 
 
 def sweep_direction(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: float) -> np.ndarray:
@@ -462,8 +496,8 @@ def sweep_direction(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: f
 @functools.lru_cache(maxsize=1024)
 def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
-    candidates = candidate_directions(poly)
     frame = _sweep_frame(poly)
+    candidates = _candidates(poly, frame.along, frame.across)
     short_side = frame.y_hi - frame.y_lo
     if short_side / width > _SCREEN_LANES and len(candidates) > _SCREEN_KEEP:
         coarse = short_side / _SCREEN_LANES
@@ -471,13 +505,59 @@ def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
         bar = np.sort(rough)[_SCREEN_KEEP - 1] * (1.0 + _SAME_LENGTH)
         keep = np.flatnonzero(rough <= bar)
         candidates = candidates[np.union1d(keep, [0])]  # (the long axis always stays)
-    scores = [_flown_length(poly, width, v) for v in candidates]
-    shortest = min(length for length, _ in scores)
-    near = [i for i, (length, _) in enumerate(scores) if length <= shortest * (1 + _SAME_LENGTH)]
+    area = _convex_area(poly)
+    scores: dict[int, tuple[float, int]] = {}  # candidate -> (path length, lane segments)
+    shortest = math.inf
+    for i, v in enumerate(candidates):
+        if area is not None and _convex_floor(poly, area, width, v) > shortest * (1 + _SAME_LENGTH):
+            continue  # (it cannot be among the shortest: not swept)
+        scores[i] = _flown_length(poly, width, v)
+        shortest = min(shortest, scores[i][0])
+    near = [i for i, (length, _) in scores.items() if length <= shortest * (1 + _SAME_LENGTH)]
     best = min(near, key=lambda i: (scores[i][1], i))  # fewer segments, then the earlier
     chosen = np.array(candidates[best])
     chosen.setflags(write=False)
     return chosen
+
+
+def _convex_area(poly: np.ndarray) -> float | None:
+    """The polygon's area when it is convex (every turn the same way, once around), else None.
+    Plain Python: polygons have a few to a few dozen vertices, where numpy's per-call cost
+    dominated."""
+    pts: list[list[float]] = poly.tolist()
+    n = len(pts)
+    edges = [(pts[(i + 1) % n][0] - pts[i][0], pts[(i + 1) % n][1] - pts[i][1]) for i in range(n)]
+    left = right = False
+    turning = 0.0
+    for i in range(n):
+        (ax, ay), (bx, by) = edges[i], edges[(i + 1) % n]
+        cross = ax * by - ay * bx
+        left, right = left or cross > 0.0, right or cross < 0.0
+        if left and right:
+            return None
+        turning += math.atan2(cross, ax * bx + ay * by)
+    if abs(abs(turning) - 2.0 * math.pi) > 1e-6:
+        return None  # (a star: it winds more than once)
+    twice = sum(pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1]
+                for i in range(n))
+    return 0.5 * abs(twice)
+
+
+def _convex_floor(poly: np.ndarray, area: float, width: float, along: np.ndarray) -> float:
+    """A lower bound of the sweep's path along ``along`` over a convex polygon, without clipping
+    a lane: the chord length across a convex polygon is a concave function, so the ``n`` lanes
+    through the middles of strips of height ``h = H / n`` are together at least ``A / h`` long
+    (the midpoint rule over-estimates a concave integral), and each of the ``n - 1`` connectors
+    is at least ``h``."""
+    along = _canonical(np.asarray(along, dtype=float))
+    across = np.array([-along[1], along[0]])
+    qy = poly @ across
+    height = float(qy.max()) - float(qy.min())
+    n = _lane_count(height, width)
+    if height <= 0.0:
+        return 0.0
+    h = height / n
+    return area / h + (n - 1) * h
 
 
 def path_length(path_xy: np.ndarray) -> float:

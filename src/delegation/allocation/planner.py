@@ -20,10 +20,14 @@ from delegation.allocation.problem import Problem, build_problem, flatten_tree
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.sent_tree import choose_tree
 from delegation.allocation.share_plan import (
+    ENDURANCE_ROUNDS,
     REFINEMENTS,
+    Fits,
     SharedTree,
     measured,
+    overrun,
     share_searches,
+    strained,
     worth_sharing,
 )
 from delegation.allocation.strategies import OBJECTIVES, STRATEGIES, Objective, StrategyResult
@@ -154,22 +158,43 @@ def _shared_plan(
     """The plan with searches shared (``share_plan``), when it is better than ``result``:
     parts sized from ``result``'s schedule, cut, measured, sized and cut again with their real
     sweeps (``REFINEMENTS`` times), then planned by the same strategy with the rest of the
-    tree."""
+    tree. A part its unit cannot fly within its endurance (its real sweep longer than sized)
+    shrinks that unit's share and the area is cut again (``ENDURANCE_ROUNDS`` times at most):
+    the best of these plans is kept, so an area no one unit can cover is planned feasibly
+    whenever the fleet's endurance allows."""
     shared = share_searches(prepared, problem, tables, result.schedule, new_uuid)
     if shared is None:
         return None
+    sized: Fits = {}  # what the parts of ``shared`` were sized with
     for _ in range(REFINEMENTS):
-        again = share_searches(prepared, problem, tables, result.schedule, new_uuid,
-                               measured(shared, tables))
+        fits = measured(shared, tables)
+        again = share_searches(prepared, problem, tables, result.schedule, new_uuid, fits)
+        if again is None:
+            break
+        shared, sized = again, fits
+    best: tuple[SharedTree, Problem, StrategyResult] | None = None
+    for round_ in range(ENDURANCE_ROUNDS + 1):
+        shared_tables = _tables_of(shared.tree, units, tables)
+        shared_problem = build_problem(shared.tree, units, shared_tables)
+        outcome = STRATEGIES[strategy](shared_problem, objective, time_limit)
+        if best is None or outcome.schedule.key(objective) < best[2].schedule.key(objective):
+            best = shared, shared_problem, outcome
+        over = overrun(shared, shared_problem, shared_tables, outcome.schedule)
+        if not over or round_ == ENDURANCE_ROUNDS:
+            break
+        # The same sizing, the units that fell short made slower by how far they fell short:
+        # the cut moves a little (measuring the new parts again would chase their shapes).
+        # No margin on endurance now: each round's plan is checked for real.
+        sized = strained(sized, over)
+        again = share_searches(prepared, problem, tables, result.schedule, new_uuid, sized,
+                               margin=1.0)
         if again is None:
             break
         shared = again
-    shared_problem = build_problem(shared.tree, units, _tables_of(shared.tree, units, tables))
-    outcome = STRATEGIES[strategy](shared_problem, objective, time_limit)
-    if outcome.schedule.key(objective) >= result.schedule.key(objective):
+    if best is None or best[2].schedule.key(objective) >= result.schedule.key(objective):
         log.info("sharing searches did not improve the plan: kept the unshared one")
         return None
-    return shared, shared_problem, outcome
+    return best
 
 
 def _tables_of(tree: TstNode, units: Sequence[UnitState], like: CostTables) -> CostTables:

@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import shapely
-from shapely.geometry import Point
 
 from delegation.allocation.sharing import (
     PLAN_OVERHEAD,
@@ -50,6 +49,9 @@ _GEOMETRY = ("area", "areas", "geopoint", "radius")
 WORTH_SHARING = 0.6
 #: How many times the shares are sized again from the parts' real sweeps.
 REFINEMENTS = 2
+#: How many times at most the parts are cut again when a unit cannot fly its part within its
+#: endurance (``overrun``): each time the units that fell short get a smaller share.
+ENDURANCE_ROUNDS = 4
 #: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
 #: is known only once the part is cut; the refinement and the plan's check do the rest).
 ENDURANCE_MARGIN = 0.97
@@ -113,49 +115,60 @@ def shareable(node: TstNode) -> bool:
 
 
 def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
-             region: shapely.Geometry, fits: dict[int, Fit]) -> list[Sharer]:
+             region: shapely.Geometry, fits: dict[int, Fit], margin: float = ENDURANCE_MARGIN
+             ) -> list[Sharer]:
     """The units that could sweep part of task ``t``'s area, read from ``schedule`` (None:
-    every unit free at the start)."""
-    node_of = problem.structure.node_of_task[t]
+    every unit free at the start); ``margin``: the share of what endurance is left that a
+    part may be sized to use."""
     act = 0.0
-    if (schedule is not None and schedule.node_act is not None
-            and math.isfinite(float(schedule.node_act[node_of]))):
-        act = float(schedule.node_act[node_of])
-    before = problem.before
-    out = []
+    if schedule is not None and schedule.node_act is not None:
+        node_act = float(schedule.node_act[problem.structure.node_of_task[t]])
+        act = node_act if math.isfinite(node_act) else 0.0
+    width_col, speed_col = tables.width[:, t].tolist(), tables.speed[:, t].tolist()
+    listed = tables.listed[:, t].tolist()
+    ready = None if problem.ready is None else problem.ready.tolist()
+    rows: list[tuple[int, float, float, tuple[float, float]]] = []  # (unit, free, used, here)
     for u, unit in enumerate(tables.units):
-        width, speed = float(tables.width[u, t]), float(tables.speed[u, t])
-        if not (unit.alive and "search-area" in unit.tasks and tables.listed[u, t]
+        width, speed = width_col[u], speed_col[u]
+        if not (unit.alive and "search-area" in unit.tasks and listed[u]
                 and math.isfinite(width) and width > 0.0 and speed > 0.0):
             continue
         if tables.exclude_busy and unit.busy:
             continue
-        free = 0.0 if problem.ready is None else float(problem.ready[u])
-        free, used, prior = max(act, free), 0.0, list[int]()
+        free = act if ready is None else max(act, ready[u])
+        used, here = 0.0, tables.unit_xy[u]
         if schedule is not None:
-            prior = [k for k in schedule.orders[u] if k != t and not before[t, k]]
-            free = max([free] + [float(schedule.end[k]) for k in prior])
-            used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
-        here = tables.unit_xy[u]
-        if prior and schedule is not None:
-            ends = schedule.end
-            last = max(prior, key=lambda k: float(ends[k]))
-            end = tables.end_for(u, last)
-            here = here if end is None else end
+            prior = [k for k in schedule.orders[u] if k != t and not problem.before[t, k]]
+            if prior:
+                ends = schedule.end
+                free = max(free, max(float(ends[k]) for k in prior))
+                used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
+                end = tables.end_for(u, max(prior, key=lambda k: float(ends[k])))
+                here = here if end is None else end
+        rows.append((u, free, used, (float(here[0]), float(here[1]))))
+    if not rows:
+        return []
+    # Distances to the area in one vectorised call each (a shapely call per unit cost ~20 us).
+    to_area = shapely.distance(region, shapely.points([r[3] for r in rows])).tolist()
+    homes = tables.home_xy[[r[0] for r in rows]]
+    has_home = ~np.isnan(homes).any(axis=1)
+    back_d = np.zeros(len(rows))
+    if has_home.any():
+        back_d[has_home] = shapely.distance(region, shapely.points(homes[has_home]))
+    out = []
+    for (u, free, used, here), near, back_m in zip(rows, to_area, back_d.tolist(), strict=True):
+        width, speed = width_col[u], speed_col[u]
         fit = fits.get(u, Fit(PLAN_OVERHEAD))
         if fit.start is not None:
-            travel = float(np.hypot(fit.start[0] - here[0], fit.start[1] - here[1])) / speed
-        else:
-            travel = float(region.distance(Point(here))) / speed
+            near = math.hypot(fit.start[0] - here[0], fit.start[1] - here[1])
+        travel = near / speed
         rate = speed * width / fit.overhead
         cap = math.inf
-        if math.isfinite(float(tables.endurance[u])):
-            back = 0.0
-            if not np.isnan(tables.home_xy[u]).any():
-                back = float(region.distance(Point(tables.home_xy[u]))) / speed
-            left = (float(tables.endurance[u]) - used - travel - back) * ENDURANCE_MARGIN
+        endurance = float(tables.endurance[u])
+        if math.isfinite(endurance):
+            left = (endurance - used - travel - back_m / speed) * margin
             cap = max(0.0, left) * rate
-        out.append(Sharer(u, free + travel, rate, cap, (float(here[0]), float(here[1]))))
+        out.append(Sharer(u, free + travel, rate, cap, here))
     return out
 
 
@@ -204,12 +217,19 @@ def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None
     """DESIGN 3.11's lower bound (s from mission start) for search task ``t``: each unit that
     could take part sweeps ``speed x width`` m2/s, with no turns, from when it could be at the
     area's nearest point (free of what it does first in ``schedule``; None: free at once)."""
-    from delegation.costs import search_polygons_xy
-
-    region = region_of(search_polygons_xy(problem.tasks[t].node, tables.frame))
-    raw = [replace(s, rate=s.rate * PLAN_OVERHEAD)
+    region = region_of(_polygons(tables, t))
+    raw = [Sharer(s.key, s.arrive, s.rate * PLAN_OVERHEAD)
            for s in _sharers(problem, tables, schedule, t, region, {})]
     return lower_bound(float(region.area), raw)
+
+
+def _polygons(tables: CostTables, t: int) -> list[np.ndarray]:
+    """Search task ``t``'s polygons in the tables' frame (empty: not a search)."""
+    if tables.polygons:
+        return list(tables.polygons[t])
+    from delegation.costs import search_polygons_xy
+
+    return search_polygons_xy(tables.tasks[t], tables.frame)
 
 
 def worth_sharing(problem: Problem, tables: CostTables, t: int) -> bool:
@@ -221,7 +241,26 @@ def worth_sharing(problem: Problem, tables: CostTables, t: int) -> bool:
     single = float(alone.min()) if len(alone) else math.inf
     if not math.isfinite(single):
         return True
+    if _arrival_floor(tables, t) >= WORTH_SHARING * single:
+        return False  # (the bound is at least that: no need to compute it)
     return search_bound(problem, tables, None, t) < WORTH_SHARING * single
+
+
+def _arrival_floor(tables: CostTables, t: int) -> float:
+    """A lower bound of ``search_bound(..., None, t)`` without geometry: no unit sweeps before
+    it could reach the area's bounding box. Most searches of a mission are small and far from
+    the nearest unit compared with their sweep, and are not worth sharing by this alone."""
+    polygons = _polygons(tables, t)
+    if not polygons:
+        return 0.0
+    every = np.concatenate(polygons)
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    gap = np.maximum(np.maximum(lo - tables.unit_xy, tables.unit_xy - hi), 0.0)
+    speed = tables.speed[:, t]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        times = np.hypot(gap[:, 0], gap[:, 1]) / speed
+    times = times[speed > 0.0]
+    return float(times.min()) if len(times) else 0.0
 
 
 def share_searches(
@@ -231,27 +270,27 @@ def share_searches(
     schedule: Schedule,
     new_uuid: Callable[[], str],
     fits: Fits | None = None,
+    margin: float = ENDURANCE_MARGIN,
 ) -> SharedTree | None:
     """``tree`` (the tree ``problem`` and ``tables`` were built from) with every search worth
     sharing replaced by its parts (None when none is): a search is shared when at least two units
     get a part, or when the one unit that can cover it is another than ``schedule``'s (or it had
-    none: endurance). ``fits``: what earlier parts measured (the refinement)."""
+    none: endurance). ``fits``: what earlier parts measured (the refinement); ``margin``: the
+    share of each unit's endurance left that its part may be sized to use."""
     frame = tables.frame
-    from delegation.costs import search_polygons_xy
-
     replaced: dict[str, TstNode] = {}
     searches: list[SharedSearch] = []
     for t, task in enumerate(problem.tasks):
         if not worth_sharing(problem, tables, t):
             continue
-        polygons = search_polygons_xy(task.node, frame)
+        polygons = _polygons(tables, t)
         if not polygons:
             continue
         region = region_of(polygons)
         if region.is_empty or region.area <= 0.0:
             continue
         fit = (fits or {}).get(task.uuid, {})
-        sharers = _sharers(problem, tables, schedule, t, region, fit)
+        sharers = _sharers(problem, tables, schedule, t, region, fit, margin)
         wanted = shares(float(region.area), sharers)
         if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
             continue
@@ -314,4 +353,40 @@ def measured(shared: SharedTree, tables: CostTables) -> Fits:
             per[u] = Fit(max(1.0, path_length(path) / (part.area_m2 / width)),
                          (float(start[0]), float(start[1])))
         out[search.node_uuid] = per
+    return out
+
+
+def overrun(shared: SharedTree, problem: Problem, tables: CostTables, schedule: Schedule
+            ) -> dict[str, dict[int, float]]:
+    """Per shared search uuid, per unit index (of ``tables``' units): how many times shorter
+    the unit's sweep must be to fit what endurance it had left (its flight there unchanged), for
+    each part ``schedule`` could not assign (> 1, at most 2; only parts left unassigned for want
+    of endurance). ``problem`` and ``tables`` are those of ``shared.tree``."""
+    index = {task.uuid: t for t, task in enumerate(problem.tasks)}
+    names = {unit.name: u for u, unit in enumerate(tables.units)}
+    out: dict[str, dict[int, float]] = {}
+    for search in shared.searches:
+        for part in search.parts:
+            t, u = index.get(part.node_uuid), names.get(part.unit)
+            if t is None or u is None or int(schedule.assign[t]) >= 0:
+                continue
+            have = float(tables.endurance[u]) - float(schedule.unit_used[u])
+            need, sweep = float(tables.need_time[u, t]), float(tables.work_time[u, t])
+            if math.isfinite(need) and need > have:
+                # The flight there stays: the sweep must shrink by all of the excess.
+                left = sweep - (need - have)
+                ratio = sweep / left if left > 0.0 else 2.0
+                out.setdefault(search.node_uuid, {})[u] = min(2.0, ratio * 1.02)
+    return out
+
+
+def strained(fits: Fits, strain: dict[str, dict[int, float]]) -> Fits:
+    """``fits`` with each strained unit's sweep overhead multiplied by its strain (the parts
+    are then sized as if that unit swept slower: it gets less)."""
+    out: Fits = {uuid: dict(per) for uuid, per in fits.items()}
+    for uuid, per in strain.items():
+        mine = out.setdefault(uuid, {})
+        for u, factor in per.items():
+            fit = mine.get(u, Fit(PLAN_OVERHEAD))
+            mine[u] = Fit(fit.overhead * factor, fit.start)
     return out
