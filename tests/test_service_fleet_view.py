@@ -80,6 +80,23 @@ def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
     assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
 
 
+def test_commitments_follow_every_change_of_the_book() -> None:
+    """`committed` is kept between changes: a task ending, a mission ending or forgotten, a
+    new one, each shows at once."""
+    view = _view()
+    _busy_mission(view, "u0")
+    assert view.committed() == {"u0": "t1"}
+    view.book.observe_feedback("t1", "running", True, "", 5.0)
+    assert view.committed() == {"u0": "t1"}
+    view.book.observe_feedback("t1", "succeeded", True, "", 6.0)  # the task (the mission) ended
+    assert view.committed() == {}
+    assert view.book.forget_ended(10_000.0) == ["t1"] and view.committed() == {}
+    _busy_mission(view, "u1")
+    assert view.committed() == {"u1": "t1"}
+    view.book.set_status("t1", MissionStatus.FAILED, 7.0)
+    assert view.committed() == {}
+
+
 def test_a_unit_a_task_was_moved_onto_is_left_out_its_end_being_unknown() -> None:
     view = _view()
     _feed(view, "u0", 57.76, 0.0)

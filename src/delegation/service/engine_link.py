@@ -119,6 +119,8 @@ class EngineLink:
         #: Root uuid -> how many ``start``/``confirm`` requests of it are pending: `starting` is
         #: asked for every open mission per plan (a scan of ``pending`` each was quadratic).
         self._starting: Counter[str] = Counter()
+        #: Counts changes of `starting` (see `MissionBook.revision`).
+        self.revision = 0
         #: Root uuid -> the engine base topic its tree was sent to (bounded, oldest forgotten).
         self.sent_to: OrderedDict[str, str] = OrderedDict()
 
@@ -153,11 +155,13 @@ class EngineLink:
         self.pending[com] = request
         if request.kind in STARTING:
             self._starting[request.root_uuid] += 1
+            self.revision += 1
 
     def _forget(self, com: str) -> EngineRequest | None:
         """Stop waiting for the answer to ``com``; the request, if one waited."""
         request = self.pending.pop(com, None)
         if request is not None and request.kind in STARTING:
+            self.revision += 1
             self._starting[request.root_uuid] -= 1
             if self._starting[request.root_uuid] <= 0:
                 del self._starting[request.root_uuid]

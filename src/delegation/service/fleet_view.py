@@ -52,6 +52,8 @@ class FleetView:
         self.learner = SpeedLearner()
         self._task_class: dict[str, tuple[str, str]] = {}  # node-uuid -> (unit, speed class)
         self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
+        #: `committed`'s last answer and the revisions it was computed at.
+        self._committed: tuple[tuple[int, int, str, int], dict[str, str]] | None = None
 
     # ---- what the units say
 
@@ -220,7 +222,17 @@ class FleetView:
         return wait, where_then
 
     def committed(self, but: str = "") -> dict[str, str]:
-        """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
+        """Unit -> a running mission (other than ``but``) with a task on it not yet ended.
+        Asked twice per plan and a walk of every open mission: kept until the book or the
+        engine's starts change."""
+        key = (self.book.revision, self.engine.revision, but, id(self.book))
+        if self._committed is not None and self._committed[0] == key:
+            return dict(self._committed[1])
+        busy = self._busy(but)
+        self._committed = (key, busy)
+        return dict(busy)
+
+    def _busy(self, but: str) -> dict[str, str]:
         busy: dict[str, str] = {}
         for m in self.book:
             if m.ended or m.root_uuid == but:

@@ -334,10 +334,14 @@ class MissionBook:
         #: Root uuid -> what changed since the unit last drained it (to persist; kept only with
         #: an archive, so a book nobody drains does not grow).
         self.dirty: dict[str, Change] = {}
+        #: Counts changes (every `touch`, every mission forgotten): what is derived from the
+        #: whole book (`FleetView.committed`) is computed again only when it moved.
+        self.revision = 0
 
     def touch(self, root_uuid: str, change: Change = Change.STATE) -> None:
         """Note what of a mission changed (every mutating method does, only when something did;
         code that changes a `Mission` in place must call it too)."""
+        self.revision += 1
         if self.archive is not None and root_uuid in self._missions:
             self.dirty[root_uuid] = self.dirty.get(root_uuid, Change(0)) | change
 
@@ -368,6 +372,7 @@ class MissionBook:
     def _remove(self, root_uuid: str) -> Mission | None:
         old = self._missions.pop(root_uuid, None)
         if old is not None:
+            self.revision += 1
             for uid in old.nodes:
                 if self._node_root.get(uid) == old.root_uuid:
                     del self._node_root[uid]
