@@ -107,9 +107,8 @@ def _service_args(p: argparse.ArgumentParser) -> None:
                    help="plan on a thread of the service's process (thread, the default), or "
                    "in a child process beside it, on another core (process): a crashed or "
                    "hung plan is then ended without the service")
-    p.add_argument("--planner-queue", type=_queue_size, default=200, metavar="N",
-                   help="plans waiting or being made beyond which a command that plans is "
-                   "answered failed, planner busy, and not kept (default 200)")
+    p.add_argument("--planner-queue", type=_queue_size, default=1000, metavar="N", help="plans "
+                   "waiting or being made past which a command that plans is refused (busy)")
     p.add_argument("--fleet", action="append", default=[], metavar="UNIT",
                    help="a unit this service manages (repeatable; default: every unit no other "
                    "delegator says it manages); said in its delegation_info")

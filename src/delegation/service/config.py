@@ -55,8 +55,9 @@ class ServiceConfig:
     listen_first: float = 3.0
     #: Planning jobs handed to the planner and not finished yet (waiting or being planned)
     #: beyond which a command that plans is refused, "busy", and not kept: a re-send once the
-    #: planner has caught up is planned (issue 22; re-delegations are never refused).
-    planner_queue: int = 200
+    #: planner has caught up is planned (issue 22; re-delegations are never refused). 1000:
+    #: the 500-mission burst of benchmarks/burst.py is planned whole (200 turned 296 away).
+    planner_queue: int = 1000
     #: Units whose battery (state of charge, 0..1) is below this are not planned for.
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).
