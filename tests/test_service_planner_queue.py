@@ -6,6 +6,8 @@ planned normally."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 import uuid
 from collections.abc import Callable
@@ -115,3 +117,12 @@ def test_a_busy_planner_on_a_broker_turns_a_command_away_unstored(
         release.set()
         service.stop()
         store.close()
+
+
+@pytest.mark.parametrize("value, says", [("0", "must be at least 1, not 0"),
+                                          ("many", "'many' is not a whole number")])
+def test_serve_names_a_wrong_planner_queue(value: str, says: str) -> None:
+    done = subprocess.run([sys.executable, "-m", "delegation", "serve", "--planner-queue", value],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert f"argument --planner-queue: {says}" in done.stderr
