@@ -14,7 +14,8 @@ missions ended, or ``--settle`` seconds; also net of what the idle service spend
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
 kinds, and whether every command was answered exactly once on its client's topic (exit 1
 otherwise). ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
-the run or (``--profile-until answers``) to the last answer (``--format raw --threads``:
+the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
+``--profile-gil`` only the thread holding the GIL:
 collapsed stacks, one line per stack with its sample count).
 
     PYTHONPATH=src python benchmarks/burst.py [--missions 500] [--clients 5] [--units 15]
@@ -129,14 +130,17 @@ def start_service(settings: BrokerSettings, tmp: Path, planner: str
         stdout=log, stderr=subprocess.STDOUT)
 
 
-def profiler(pid: int, out: str) -> subprocess.Popen[bytes] | None:
-    """``py-spy record`` on ``pid`` until stopped with SIGINT (None if py-spy is missing)."""
+def profiler(pid: int, out: str, gil: bool = False) -> subprocess.Popen[bytes] | None:
+    """``py-spy record`` on ``pid`` until stopped with SIGINT (None if py-spy is missing); with
+    ``gil`` only the thread holding the GIL is sampled (where the CPU goes, not where threads
+    wait for it)."""
     spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
     if not Path(spy).exists():
         print("no py-spy: not profiling", file=sys.stderr)
         return None
     return subprocess.Popen([spy, "record", "--pid", str(pid), "--format", "raw", "-o", out,
-                             "--rate", "200", "--nonblocking", "--threads"],
+                             "--rate", "200", "--nonblocking", "--threads",
+                             *(["--gil"] if gil else [])],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -219,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", metavar="OUT", help="py-spy raw profile of the service")
     ap.add_argument("--profile-until", choices=("answers", "end"), default="end",
                     help="profile the burst up to the last answer, or to the end of the run")
+    ap.add_argument("--profile-gil", action="store_true",
+                    help="profile only the thread holding the GIL (py-spy --gil)")
     args = ap.parse_args(argv)
     rng = random.Random(args.seed)
     config = ServiceConfig(prefix=PREFIX, name=NAME)
@@ -248,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             watch.wait(lambda: False, args.idle)  # the fleet's periodic messages alone
             idle = (cpu_seconds(proc.pid) - idle0) / (time.monotonic() - i0)
             if args.profile:
-                spy = profiler(proc.pid, args.profile)
+                spy = profiler(proc.pid, args.profile, args.profile_gil)
             cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
             sent = publish_burst(settings, base, watch, bodies)
             cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle}

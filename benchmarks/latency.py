@@ -9,7 +9,8 @@ Measured:
    20-task tree to the service's ``tst/command`` until the stand-in engine's client receives the
    instantiated tree on ``op0/tst/command`` (on the wire, both hops through the broker included),
    with the ``auction`` strategy, over 100 missions run one after another. Also the service's own
-   figure (message taken off its queue -> tree handed to paho) from its timings.
+   figures from its timings: the plan itself (on the planner), and the rest (the command's arrival
+   in the service's inbox -> the plan back from the planner, less the plan).
 2. ``ping`` on ``delegation/command`` -> ``pong`` on ``delegation/response``, 200 round trips.
 3. ``plan_mission`` alone (in this process, no broker, no service threads around it) on trees of
    the same shapes and the same units, and on ``small`` missions (a ``conc`` of 2-5 move-tos,

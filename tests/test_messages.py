@@ -60,6 +60,29 @@ def test_new_com_uuid_is_fresh() -> None:
     assert a != b and len(a) == 36
 
 
+def test_com_uuids_stay_fresh_past_the_pool_and_in_a_forked_child() -> None:
+    """The random bytes come from the OS a pool at a time: many uuids, all distinct version-4
+    ones, and a forked child never hands out the parent's next ones."""
+    import os
+    import uuid
+
+    many = [new_com_uuid() for _ in range(1000)]
+    assert len(set(many)) == 1000
+    assert all(uuid.UUID(u).version == 4 and uuid.UUID(u).variant == uuid.RFC_4122 for u in many)
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its next uuid, to the parent
+        os.write(write, new_com_uuid().encode())
+        os._exit(0)
+    os.close(write)
+    try:
+        child = os.read(read, 64).decode()
+    finally:
+        os.close(read)
+        os.waitpid(pid, 0)
+    assert len(child) == 36 and child != new_com_uuid()
+
+
 # --------------------------------------------------------------------------- the example agent
 # Messages exactly as the public WARA-PS L2 Python example agent builds them (json.dumps of dicts
 # in its key order), docs/protocol.md §9.

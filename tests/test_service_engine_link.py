@@ -83,6 +83,19 @@ def test_a_start_answered_started() -> None:
     assert got.answer.response == "started" and got.answer.plan == {"feasible": True}
 
 
+def test_a_mission_is_starting_until_its_last_start_request_ends() -> None:
+    """`starting` is kept as a count per root (asked for every open mission per plan): a start
+    sent again under its com-uuid replaces the first, an expired one stops counting."""
+    link = live_link()
+    com = start(link)
+    assert start(link) == com and link.starting("root-1")  # the same command again
+    assert respond(link, com, "started") is not None
+    assert not link.starting("root-1") and link.pending == {}
+    start(link, com="c-2")
+    assert link.starting("root-1")
+    assert link.expire(105.0) and not link.starting("root-1")
+
+
 def test_a_refused_start() -> None:
     link = live_link()
     got = respond(link, start(link), "failed", fail_reason="unit /dji0 unknown")

@@ -10,6 +10,7 @@ from delegation.messages import (
     DirectExecutionInfo,
     HeartBeat,
     MissionStatus,
+    StartTst,
     TaskAvailable,
     TstFeedback,
     encode,
@@ -78,6 +79,45 @@ def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
     assert unit.available_at == 100.0 and unit.position.latitude == 57.8
     assert "busy in mission t1, planned from when and where it becomes free" in notes[0]
     assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
+
+
+def test_commitments_follow_every_change_of_the_book() -> None:
+    """`committed` is kept between changes: a task ending, a mission ending or forgotten, a
+    new one, each shows at once."""
+    view = _view()
+    _busy_mission(view, "u0")
+    assert view.committed() == {"u0": "t1"}
+    view.book.observe_feedback("t1", "running", True, "", 5.0)
+    assert view.committed() == {"u0": "t1"}
+    view.book.observe_feedback("t1", "succeeded", True, "", 6.0)  # the task (the mission) ended
+    assert view.committed() == {}
+    assert view.book.forget_ended(10_000.0) == ["t1"] and view.committed() == {}
+    _busy_mission(view, "u1")
+    assert view.committed() == {"u1": "t1"}
+    view.book.set_status("t1", MissionStatus.FAILED, 7.0)
+    assert view.committed() == {}
+
+
+def test_commitments_follow_a_task_moved_and_a_start_sent() -> None:
+    """Per mission too: a rebind moves its unit; a mission planned only holds nobody until
+    its start-tst is on its way to the engine."""
+    view = _view()
+    _busy_mission(view, "u0")
+    mission = view.book.find("t1")
+    assert mission is not None and view.committed() == {"u0": "t1"}
+    view.book.rebind(mission, {"t1": "/u1"})
+    assert view.committed() == {"u1": "t1"}
+    tree = {"name": "move-to", "common_params": {"node-uuid": "p1", "execunit": "/u2"},
+            "params": {"waypoint": {"latitude": 57.8, "longitude": 16.7, "altitude": 20.0}}}
+    view.book.add(Mission(root_uuid="p1", source="delegate", created=1000.0, tst=tree, plan={},
+                          nodes=node_infos(parse_tree(tree))))
+    assert view.committed() == {"u1": "t1"}  # planned only
+    hb = HeartBeat(agent_type="ground", agent_uuid="e", levels=["tst execution"], name="op0",
+                   rate=1.0, stamp=1.0)
+    view.fleet.observe(f"{PREFIX}/unit/ground/simulation/op0/heartbeat", hb, 1.0)
+    view.engine.send("start", ("tst", "c"), "tst", StartTst(receiver="op0", tst=tree), 1.0,
+                     "p1")
+    assert view.committed() == {"u1": "t1", "u2": "p1"}
 
 
 def test_a_unit_a_task_was_moved_onto_is_left_out_its_end_being_unknown() -> None:

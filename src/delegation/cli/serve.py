@@ -66,6 +66,17 @@ def register(subparsers: Any) -> None:
     serve.set_defaults(func=_serve)
 
 
+def _queue_size(value: str) -> int:
+    """An argparse ``type`` for ``--planner-queue``: a whole number >= 1."""
+    try:
+        number = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not a whole number") from None
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return number
+
+
 def _service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default="delegator0", help="the service's unit name")
     p.add_argument("--engine", default="op0", help="the TST engine's unit name")
@@ -96,6 +107,8 @@ def _service_args(p: argparse.ArgumentParser) -> None:
                    help="plan on a thread of the service's process (thread, the default), or "
                    "in a child process beside it, on another core (process): a crashed or "
                    "hung plan is then ended without the service")
+    p.add_argument("--planner-queue", type=_queue_size, default=1000, metavar="N", help="plans "
+                   "waiting or being made past which a command that plans is refused (busy)")
     p.add_argument("--fleet", action="append", default=[], metavar="UNIT",
                    help="a unit this service manages (repeatable; default: every unit no other "
                    "delegator says it manages); said in its delegation_info")
@@ -145,6 +158,7 @@ def _serve(args: argparse.Namespace) -> int:
         bid_window=args.bid_window,
         federate=args.bid_window > 0,
         partners=frozenset(args.partner),
+        planner_queue=args.planner_queue,
     )
     if config.time_limit > config.max_time_limit:
         raise UsageError(f"--time-limit: {config.time_limit:g} s is above the service's maximum "

@@ -178,6 +178,12 @@ class CommandLog:
         self._trim()
         return entry
 
+    def forget(self, key: CommandKey) -> CommandEntry | None:
+        """Drop a command begun in this step and not kept (turned away before it was accepted:
+        a re-send is then a new command); its entry, if there was one."""
+        self.dirty.discard(key)
+        return self._entries.pop(key, None)
+
     def finish(self, key: CommandKey, answer: Sequence[Outgoing]) -> bool:
         """Record the answer; False if the command was already answered (nothing to send)."""
         entry = self._entries.get(key)

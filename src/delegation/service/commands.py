@@ -203,6 +203,14 @@ class CommandDesk:
         log.info("command %s on %s refused: %s", com_uuid or "?", face, reason)
         return self.respond(face, key, failure(face, com_uuid, reason), reply_topic)
 
+    def turn_away(self, face: Face, key: CommandKey, reason: str) -> Effects:
+        """Answer ``failed`` with ``reason`` and forget the command (not accepted, not stored):
+        the same command re-sent later is taken as new."""
+        entry = self.commands.forget(key)
+        log.info("command %s on %s turned away: %s", key[1], face, reason)
+        return self.respond(face, None, failure(face, key[1], reason),
+                            entry.reply_topic if entry is not None else "")
+
     def caller(self, key: CommandKey) -> str:
         """Who sent the command ``key`` ("" for anonymous)."""
         entry = self.commands.get(key)

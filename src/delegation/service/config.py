@@ -53,6 +53,11 @@ class ServiceConfig:
     #: (rather than being refused or planned for the part of the fleet heard so far) until the
     #: engine has been heard: peers' heartbeats come once a second and are not retained.
     listen_first: float = 3.0
+    #: Planning jobs handed to the planner and not finished yet (waiting or being planned)
+    #: beyond which a command that plans is refused, "busy", and not kept: a re-send once the
+    #: planner has caught up is planned (issue 22; re-delegations are never refused). 1000:
+    #: the 500-mission burst of benchmarks/burst.py is planned whole (200 turned 296 away).
+    planner_queue: int = 1000
     #: Units whose battery (state of charge, 0..1) is below this are not planned for.
     min_battery: float = 0.2
     #: How often one task may be re-delegated (lost unit, unit answered ``failed``).

@@ -118,6 +118,9 @@ class ServiceCore:
         #: that arrived before the engine was heard, held until it is or ``listen_first`` passed.
         self._listening_since: float | None = None
         self._held: list[tuple[Face, WireModel, CommandKey]] = []
+        #: Jobs handed to the planner whose results have not come back (`ServiceConfig.
+        #: planner_queue` bounds the ones commands add).
+        self.planner_jobs = 0
         #: ``now`` as epoch seconds (the offset learnt from `status`): mission records' stamps.
         self._epoch = Epoch()
         self.topics = Topics.under(c.base_topic)
@@ -238,7 +241,12 @@ class ServiceCore:
         """One message from the broker (a command on a shared or a per-client command topic)."""
         self._listening(now)
         effects = self._message(topic, payload, now)
-        return effects.extend(self._release_held(now)) if self._held else effects
+        return self._counted(effects.extend(self._release_held(now)) if self._held else effects)
+
+    def _counted(self, effects: Effects) -> Effects:
+        """Count the jobs ``effects`` hands to the planner (each comes back as one `JobDone`)."""
+        self.planner_jobs += len(effects.jobs)
+        return effects
 
     def _message(self, topic: str, payload: bytes, now: float) -> Effects:
         faces: tuple[tuple[Face, str], ...] = (("tst", self.topics.tst_command),
@@ -277,7 +285,7 @@ class ServiceCore:
         effects.jobs.extend(self.offers.expire(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
-        return effects.extend(self._fleet_events(now))
+        return self._counted(effects.extend(self._fleet_events(now)))
 
     def on_disconnect(self, now: float) -> Effects:
         """Our own connection to the broker is lost: stop judging liveness until it is back."""
@@ -328,7 +336,13 @@ class ServiceCore:
         if arrival.effects is not None or arrival.command is None:
             return arrival.effects or Effects()
         key = arrival.key
-        if self._warming(now) and isinstance(arrival.command, StartTst | Delegate | GetBids):
+        plans = isinstance(arrival.command, StartTst | Delegate | GetBids)
+        if plans and self.planner_jobs >= self.config.planner_queue:
+            return self.desk.turn_away(face, key, InputError(InputProblem(
+                "planner", "", f"busy: {self.planner_jobs} plans are waiting or being made (at "
+                f"most {self.config.planner_queue}); nothing was accepted: send the command "
+                "again later")).fail_reason)
+        if self._warming(now) and plans:
             log.info("command %s on %s held until the engine %s is heard (at most %.1f s)",
                      key[1], face, self.config.engine, self.config.listen_first)
             self._held.append((face, arrival.command, key))
@@ -407,6 +421,10 @@ class ServiceCore:
 
     def on_job_done(self, done: JobDone, now: float) -> Effects:
         """A planning job finished: answer it, and with ``start`` send the tree to the engine."""
+        self.planner_jobs = max(0, self.planner_jobs - 1)
+        return self._counted(self._job_done(done, now))
+
+    def _job_done(self, done: JobDone, now: float) -> Effects:
         job: Job = done.job
         result: JobResult = (done.result if isinstance(done.result, PlanDone | BidsDone | JobFailed)
                              else internal_error(done.result))

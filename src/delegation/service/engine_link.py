@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import uuid
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -42,6 +42,8 @@ from delegation.service.faces import Face, failure
 log = logging.getLogger(__name__)
 
 RequestKind = Literal["start", "signal", "cancel", "rebind", "query", "confirm"]
+#: Requests during which a mission counts as starting (`EngineLink.starting`).
+STARTING = frozenset({"start", "confirm"})
 
 #: How many trees' engine topics are remembered (feedback for older ones is ignored).
 MAX_TREES = 10_000
@@ -114,6 +116,11 @@ class EngineLink:
         self.config = config
         self.fleet = fleet
         self.pending: dict[str, EngineRequest] = {}
+        #: Root uuid -> how many ``start``/``confirm`` requests of it are pending: `starting` is
+        #: asked for every open mission per plan (a scan of ``pending`` each was quadratic).
+        self._starting: Counter[str] = Counter()
+        #: Counts changes of `starting` (see `MissionBook.revision`).
+        self.revision = 0
         #: Root uuid -> the engine base topic its tree was sent to (bounded, oldest forgotten).
         self.sent_to: OrderedDict[str, str] = OrderedDict()
 
@@ -140,8 +147,25 @@ class EngineLink:
     def starting(self, root_uuid: str) -> bool:
         """True while a ``start-tst`` of this mission waits for the engine (or, unanswered, the
         engine is asked whether it runs the tree)."""
-        return any(r.kind in ("start", "confirm") and r.root_uuid == root_uuid
-                   for r in self.pending.values())
+        return self._starting[root_uuid] > 0
+
+    def _await(self, com: str, request: EngineRequest) -> None:
+        """Wait for the answer to ``com`` (a re-used com-uuid replaces its older request)."""
+        self._forget(com)
+        self.pending[com] = request
+        if request.kind in STARTING:
+            self._starting[request.root_uuid] += 1
+            self.revision += 1
+
+    def _forget(self, com: str) -> EngineRequest | None:
+        """Stop waiting for the answer to ``com``; the request, if one waited."""
+        request = self.pending.pop(com, None)
+        if request is not None and request.kind in STARTING:
+            self.revision += 1
+            self._starting[request.root_uuid] -= 1
+            if self._starting[request.root_uuid] <= 0:
+                del self._starting[request.root_uuid]
+        return request
 
     def send(
         self,
@@ -168,8 +192,7 @@ class EngineLink:
             tree = tree or tree_root(model.tst)
         com = getattr(model, "com_uuid", "") or new_com_uuid()
         wait = (self.config.catch_up_timeout if kind == "query" else self.config.engine_timeout)
-        self.pending[com] = EngineRequest(kind, key, face, now + wait, root_uuid, plan, base,
-                                          tree)
+        self._await(com, EngineRequest(kind, key, face, now + wait, root_uuid, plan, base, tree))
         if kind == "start" and root_uuid:
             self.sent_to[root_uuid] = base
             self.sent_to.move_to_end(root_uuid)
@@ -202,7 +225,7 @@ class EngineLink:
             if req.base and not topic.startswith(req.base + "/"):
                 log.warning("ignoring an answer on %s: the command went to %s", topic, req.base)
                 return None
-            del self.pending[message.response_to]
+            self._forget(message.response_to)
             return self._answer(req, message)
         return None
 
@@ -214,7 +237,7 @@ class EngineLink:
         for com, req in list(self.pending.items()):
             if now < req.deadline:
                 continue
-            del self.pending[com]
+            self._forget(com)
             if req.kind == "query":  # asked again by the catch-up, or given up there
                 expired.append(EngineAnswer(req, None))
             elif req.kind == "start" and req.tree:  # ask rather than assume it did not start

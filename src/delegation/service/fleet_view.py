@@ -21,7 +21,7 @@ from delegation.learning import SpeedLearner, speed_class
 from delegation.messages import TERMINAL_NODE_STATUSES, MissionStatus, TstFeedback, decode
 from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineLink
-from delegation.service.missions import MissionBook
+from delegation.service.missions import Mission, MissionBook
 from delegation.topics import parse_unit_topic
 from delegation.tst.node import COMMON_KEYS, TstNode, walk
 
@@ -52,6 +52,11 @@ class FleetView:
         self.learner = SpeedLearner()
         self._task_class: dict[str, tuple[str, str]] = {}  # node-uuid -> (unit, speed class)
         self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
+        #: `committed`'s last answer and the revisions it was computed at.
+        self._committed: tuple[tuple[int, int, str, int], dict[str, str]] | None = None
+        #: Per mission: the units its unfinished tasks hold, and the (change, starting) it was
+        #: read at (a burst changes one mission between two plans: the others are not walked).
+        self._holds: dict[str, tuple[tuple[int, bool], tuple[str, ...]]] = {}
 
     # ---- what the units say
 
@@ -220,18 +225,47 @@ class FleetView:
         return wait, where_then
 
     def committed(self, but: str = "") -> dict[str, str]:
-        """Unit -> a running mission (other than ``but``) with a task on it not yet ended."""
+        """Unit -> a running mission (other than ``but``) with a task on it not yet ended.
+        Asked twice per plan and a walk of every open mission: kept until the book or the
+        engine's starts change."""
+        key = (self.book.revision, self.engine.revision, but, id(self.book))
+        if self._committed is not None and self._committed[0] == key:
+            return dict(self._committed[1])
+        busy = self._busy(but)
+        self._committed = (key, busy)
+        return dict(busy)
+
+    def _busy(self, but: str) -> dict[str, str]:
         busy: dict[str, str] = {}
-        for m in self.book:
-            if m.ended or m.root_uuid == but:
+        missions = list(self.book)
+        if len(self._holds) > 2 * len(missions) + 100:  # forget the missions that left
+            roots = {m.root_uuid for m in missions}
+            self._holds = {r: h for r, h in self._holds.items() if r in roots}
+        for m in missions:
+            if m.root_uuid == but:
                 continue
-            if m.status is MissionStatus.PLANNED and not self.engine.starting(m.root_uuid):
-                continue  # planned only (start: false)
-            for uid in m.current_nodes:
-                info, status = m.nodes[uid], m.node_status.get(uid)
-                if info.is_task and info.execunit and status not in TERMINAL:
-                    busy.setdefault(info.execunit.strip("/"), m.root_uuid)
+            root = m.root_uuid
+            key = (self.book.changed_at.get(root, 0), self.engine.starting(root))
+            held = self._holds.get(root)
+            if held is None or held[0] != key:
+                held = (key, _held_units(m, key[1]))
+                self._holds[root] = held
+            for unit in held[1]:
+                busy.setdefault(unit, root)
         return busy
+
+
+def _held_units(m: Mission, starting: bool) -> tuple[str, ...]:
+    """The units ``m``'s unfinished tasks are on (none once it ended, or while it is planned
+    only: ``start: false``)."""
+    if m.ended or (m.status is MissionStatus.PLANNED and not starting):
+        return ()
+    units = []
+    for uid in m.current_nodes:
+        info, status = m.nodes[uid], m.node_status.get(uid)
+        if info.is_task and info.execunit and status not in TERMINAL:
+            units.append(info.execunit.strip("/"))
+    return tuple(units)
 
 
 def _node_in(tree: dict[str, Any], node_uuid: str) -> tuple[str, dict[str, Any]]:

@@ -336,10 +336,18 @@ class MissionBook:
         #: Root uuid -> what changed since the unit last drained it (to persist; kept only with
         #: an archive, so a book nobody drains does not grow).
         self.dirty: dict[str, Change] = {}
+        #: Counts changes (every `touch`, every mission forgotten): what is derived from the
+        #: whole book (`FleetView.committed`) is computed again only when it moved.
+        self.revision = 0
+        #: Root uuid -> the `revision` of its last change (what is derived per mission is kept
+        #: until it moves).
+        self.changed_at: dict[str, int] = {}
 
     def touch(self, root_uuid: str, change: Change = Change.STATE) -> None:
         """Note what of a mission changed (every mutating method does, only when something did;
         code that changes a `Mission` in place must call it too)."""
+        self.revision += 1
+        self.changed_at[root_uuid] = self.revision
         if self.archive is not None and root_uuid in self._missions:
             self.dirty[root_uuid] = self.dirty.get(root_uuid, Change(0)) | change
 
@@ -370,6 +378,8 @@ class MissionBook:
     def _remove(self, root_uuid: str) -> Mission | None:
         old = self._missions.pop(root_uuid, None)
         if old is not None:
+            self.revision += 1
+            self.changed_at.pop(root_uuid, None)
             for uid in old.nodes:
                 if self._node_root.get(uid) == old.root_uuid:
                     del self._node_root[uid]

@@ -94,6 +94,8 @@ class OfferDesk:
                 or (job.redelegate and not redelegation):
             return None
         delegators = [d for d in self.fleet.delegators(now) if d.name != c.name]
+        if not delegators:  # nobody to ask: no geometry (it cost more than the plan, issue 19)
+            return None
         if caller and (caller in {d.name for d in delegators}
                        or "tst execution" in self.fleet.levels(caller)):
             return None  # another delegator (or its engine) gives us a part: our fleet does it
