@@ -26,7 +26,6 @@ reliable; all volatile (a plain ROS publisher is volatile), keep-last `DEPTH`.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import queue
 import threading
@@ -44,7 +43,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from delegation.messages.ros_text import json_text
+from delegation.messages.ros_text import NOT_JSON, read_text
 from delegation.ros_topics import RosFilter, UnitNames, ros_token, ros_topic
 from delegation.runtime.mqtt import Message, MessageSink, MqttConnectError, MqttError
 from delegation.runtime.settings import BrokerSettings
@@ -143,9 +142,11 @@ class Ros2Client:
         self._running = threading.Event()
         self._readers: dict[str, Any] = {}
         self._writers: dict[str, Any] = {}
-        #: ROS topic -> the MQTT topic it is delivered as (None: no filter wants it); cleared
-        #: whenever the filters or what is known of the units change.
-        self._routes: dict[str, str | None] = {}
+        #: ROS topic -> the MQTT topic it is delivered as and its QoS (None: no filter wants
+        #: it); cleared whenever the filters or what is known of the units change.
+        self._routes: dict[str, tuple[str, int] | None] = {}
+        #: The ROS graph's topics at the last look (None: look again in full).
+        self._graph: list[tuple[str, list[str]]] | None = None
 
     # ---- lifecycle
 
@@ -240,7 +241,7 @@ class Ros2Client:
         with self._lock:
             self._subscriptions.pop(pattern, None)
             self._filters.pop(pattern, None)
-            self._routes.clear()
+            self._forget_routes()
             node = self._node
             for ros in [r for r in self._readers if not self._wanted(r)]:
                 reader = self._readers.pop(ros)
@@ -265,7 +266,7 @@ class Ros2Client:
             if node is None:
                 raise Ros2Error(f"not connected: cannot publish to {topic}")
             if self.names.published(topic):
-                self._routes.clear()
+                self._forget_routes()
             writer = self._writers.get(ros)
             new = writer is None
             if writer is None:
@@ -292,7 +293,7 @@ class Ros2Client:
     def _add_filter(self, pattern: str) -> None:
         flt = RosFilter.of(pattern)
         self._filters[pattern] = flt
-        self._routes.clear()
+        self._forget_routes()
         concrete = flt.concrete
         if concrete is not None:
             self._read(concrete)
@@ -332,7 +333,11 @@ class Ros2Client:
         wild = [f for f in self._filters.values() if f.concrete is None]
         if not wild:
             return
-        for ros, types in node.get_topic_names_and_types():
+        graph = node.get_topic_names_and_types()
+        if graph == self._graph:
+            return  # nothing new since the last look (and no filter or name changed)
+        self._graph = graph
+        for ros, types in graph:
             if _STRING not in types:
                 continue
             for flt in wild:
@@ -347,38 +352,44 @@ class Ros2Client:
 
     def _on_message(self, ros: str, msg: Any) -> None:
         try:
-            text = json_text(str(msg.data))
+            text, value = read_text(str(msg.data))
             data = text.encode("utf-8")
-            if ros.endswith("/heartbeat") and len(data) <= MAX_PAYLOAD:
-                self._learn(ros, text)
-            topic = self._mqtt_topic(ros)
-            if topic is not None:
-                self._sink(Message(topic, data, qos=QOS_PERIODIC if _periodic(ros)
-                                   else QOS_COMMAND))
+            if value is not NOT_JSON and ros.endswith("/heartbeat") and len(data) <= MAX_PAYLOAD:
+                self._learn(ros, value)
+            try:
+                route = self._routes[ros]  # without the lock: a dict read is atomic
+            except KeyError:
+                route = self._route(ros)
+            if route is not None:
+                self._sink(Message(route[0], data, qos=route[1]))
         except Exception as exc:
             self._callback_failed(f"a message on {ros[:200]}", exc)
 
-    def _learn(self, ros: str, text: str) -> None:
-        try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):
-            return
+    def _learn(self, ros: str, value: Any) -> None:
         token = ros.strip("/").split("/")[0]
         with self._lock:
             if self.names.heard(token, value):
-                self._routes.clear()
+                self._forget_routes()
 
-    def _mqtt_topic(self, ros: str) -> str | None:
-        """The MQTT topic for the first filter that means ``ros``: a concrete one first."""
+    def _forget_routes(self) -> None:
+        """What the filters or the units' names mean changed (under the lock)."""
+        self._routes.clear()
+        self._graph = None
+
+    def _route(self, ros: str) -> tuple[str, int] | None:
+        """The MQTT topic for the first filter that means ``ros`` (a concrete one first), and
+        the QoS it is delivered with."""
         with self._lock:
             if ros in self._routes:
                 return self._routes[ros]
-            route: str | None = None
+            topic: str | None = None
             for flt in sorted(self._filters.values(), key=lambda f: f.concrete is None):
-                route = flt.mqtt if flt.concrete == ros and flt.prefix is None \
+                topic = flt.mqtt if flt.concrete == ros and flt.prefix is None \
                     else flt.mqtt_topic(ros, self.names)
-                if route is not None:
+                if topic is not None:
                     break
+            route = None if topic is None else \
+                (topic, QOS_PERIODIC if _periodic(ros) else QOS_COMMAND)
             self._routes[ros] = route
             return route
 
