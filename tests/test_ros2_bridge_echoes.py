@@ -42,6 +42,21 @@ def _until(got: queue.Queue[Message], payload: bytes) -> list[bytes]:
     return seen
 
 
+def _both_subscribed(sender: MqttClient, topic: str, queues: list[queue.Queue[Message]]) -> None:
+    """Probe until every queue got a probe: subscriptions are made after CONNACK (later probes
+    may still arrive; the checks look only for their own payloads)."""
+    deadline = time.monotonic() + WAIT
+    pending = list(queues)
+    while pending:
+        assert time.monotonic() < deadline, "a subscription never became active"
+        sender.publish(topic, b"probe", qos=1)
+        try:
+            pending[0].get(timeout=0.2)
+            pending.pop(0)
+        except queue.Empty:
+            continue
+
+
 @pytest.mark.parametrize("protocol", ["5", "3.1.1"])
 def test_no_local_keeps_a_client_s_own_messages_from_it_on_mqtt_5_only(
         mosquitto: PrivateMosquitto, prefix: str, protocol: str) -> None:
@@ -55,6 +70,7 @@ def test_no_local_keeps_a_client_s_own_messages_from_it_on_mqtt_5_only(
             c.subscribe(f"{prefix}/#", 1)
             c.connect()
         assert me.no_local_active == (protocol == "5")
+        _both_subscribed(other, f"{prefix}/probe", [mine, theirs])
         me.publish(topic, b"mine", qos=1)
         assert b"mine" in _until(theirs, b"mine")  # the broker routed it before "theirs"
         other.publish(topic, b"theirs", qos=1)

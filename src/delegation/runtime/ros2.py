@@ -147,6 +147,11 @@ class Ros2Client:
         self._routes: dict[str, tuple[str, int] | None] = {}
         #: The ROS graph's topics at the last look (None: look again in full).
         self._graph: list[tuple[str, list[str]]] | None = None
+        #: Do not read a topic that only this client publishes: what it wrote would come back
+        #: to it (MQTT 5's "No Local", for the bridge); set before `connect`.
+        self.ignore_own = False
+        #: Topics found but not read for that reason.
+        self._own: set[str] = set()
 
     # ---- lifecycle
 
@@ -334,9 +339,10 @@ class Ros2Client:
         if not wild:
             return
         graph = node.get_topic_names_and_types()
-        if graph == self._graph:
+        if graph == self._graph and not any(self._others_publish(node, r) for r in self._own):
             return  # nothing new since the last look (and no filter or name changed)
         self._graph = graph
+        self._own.clear()
         for ros, types in graph:
             if _STRING not in types:
                 continue
@@ -344,9 +350,22 @@ class Ros2Client:
                 token = flt.unit_token(ros)
                 per_unit = flt.for_unit(token) if token is not None else None
                 if per_unit is not None:
-                    self._read(per_unit)
+                    self._read_found(node, per_unit)
                 if ros not in self._readers and flt.mqtt_topic(ros, self.names) is not None:
-                    self._read(ros)
+                    self._read_found(node, ros)
+
+    def _read_found(self, node: Node, ros: str) -> None:
+        """Read a topic discovery found, unless `ignore_own` and no one else publishes there."""
+        if ros in self._readers:
+            return
+        if self.ignore_own and not self._others_publish(node, ros):
+            self._own.add(ros)  # looked at again at each discovery, until someone else does
+            return
+        self._read(ros)
+
+    def _others_publish(self, node: Node, ros: str) -> bool:
+        """Whether a writer other than this client's is on ``ros`` (the ROS graph's count)."""
+        return node.count_publishers(ros) > (1 if ros in self._writers else 0)
 
     # ---- the executor thread: convert and hand over only
 

@@ -8,8 +8,10 @@ One mission can then use ROS 2 robots and MQTT robots, with the service on eithe
 
 No echo loops: what the bridge publishes on one side would come back to it there (it reads
 everything). On MQTT 5 it subscribes with "No Local", so the broker never sends its own messages
-back; on a 3.1.1 broker, and on ROS 2 always, such a message (same topic, same payload, within
-`ECHO_SECONDS`) is dropped once per time it was sent (`_Echoes`).
+back; on ROS 2 it does not read a topic that only it writes (the topics of MQTT units: the ROS
+graph's publisher count says so, looked at with every discovery). Where that is not enough (a
+3.1.1 broker; a ROS topic someone else writes too), such a message (same topic, same payload,
+within `ECHO_SECONDS`) is dropped once per time it was sent (`_Echoes`).
 
 What it checks: a unit topic under the prefix (and of a unit in ``units`` when given), a payload
 of at most `MAX_PAYLOAD` bytes (larger is refused and counted: no reader accepts it on either
@@ -38,7 +40,6 @@ from delegation.ros_topics import UNKNOWN_TYPE, ros_topic
 from delegation.runtime.lifecycle import StartStop
 from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
-from delegation.runtime.transport import MessageClient, make_client
 from delegation.topics import (
     DEFAULT_PREFIX,
     MAX_PAYLOAD,
@@ -199,11 +200,12 @@ class Bridge(StartStop):
                                sink=lambda m: self._take("ros", m))
         self.mqtt.no_local = True  # MQTT 5: the broker keeps our own messages from us
         self.mqtt.buffered_reads = True  # many small messages: one recv for many
-        self.ros: MessageClient = make_client(
-            BrokerSettings(transport="ros2"), sink=lambda m: self._take("mqtt", m))
-        names = getattr(self.ros, "names", None)
-        if names is not None:
-            names.default_role = role
+        from delegation.runtime.ros2 import Ros2Client  # only with the [ros2] extra
+
+        self.ros = Ros2Client(BrokerSettings(transport="ros2"),
+                              sink=lambda m: self._take("mqtt", m))
+        self.ros.names.default_role = role
+        self.ros.ignore_own = True  # topics only the bridge writes (MQTT units'): not read
         self._threads: list[threading.Thread] = []
 
     # ---- lifecycle
