@@ -152,6 +152,10 @@ class Ros2Client:
         self.ignore_own = False
         #: Topics found but not read for that reason.
         self._own: set[str] = set()
+        #: A first command-class message waits for a reader even before the ROS graph shows
+        #: one (discovery may lag). A relay (the bridge) sets False: waiting 2 s for each new
+        #: topic nobody reads would stall everything it forwards behind it.
+        self.wait_unseen = True
 
     # ---- lifecycle
 
@@ -281,11 +285,14 @@ class Ros2Client:
                     raise Ros2Error(f"cannot publish to {ros}: {exc}") from exc
                 self._writers[ros] = writer
         if new and qos >= QOS_COMMAND:
-            self._await_reader(writer, ros)
+            self._await_reader(node, writer, ros)
         writer.publish(String(data=text))
 
-    def _await_reader(self, writer: Any, ros: str) -> None:
-        """Wait (at most `MATCH_WAIT`) until the new writer has matched a reader."""
+    def _await_reader(self, node: Node, writer: Any, ros: str) -> None:
+        """Wait (at most `MATCH_WAIT`) until the new writer has matched a reader (with
+        `wait_unseen` False, only when the ROS graph shows one)."""
+        if not self.wait_unseen and node.count_subscribers(ros) == 0:
+            return
         deadline = time.monotonic() + MATCH_WAIT
         while writer.get_subscription_count() == 0:
             if time.monotonic() >= deadline:

@@ -206,6 +206,7 @@ class Bridge(StartStop):
                               sink=lambda m: self._take("mqtt", m))
         self.ros.names.default_role = role
         self.ros.ignore_own = True  # topics only the bridge writes (MQTT units'): not read
+        self.ros.wait_unseen = False  # no 2 s stall per new topic that no ROS node reads
         self._threads: list[threading.Thread] = []
 
     # ---- lifecycle
