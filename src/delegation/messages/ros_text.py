@@ -17,35 +17,55 @@ from typing import Any
 
 from delegation.topics import MAX_PAYLOAD
 
-__all__ = ["json_text"]
+__all__ = ["NOT_JSON", "json_text", "read_text"]
 
 #: JSON wrapped in quotes is unwrapped at most this many times (``"\"{...}\""``).
 _MAX_UNWRAP = 2
 
 
+#: What `read_text` gives as the value of a text that holds no JSON value.
+NOT_JSON: Any = object()
+
+
 def json_text(text: str) -> str:
     """``text`` as JSON text when it is JSON, quoted JSON, or a Python literal of JSON values;
     otherwise ``text`` unchanged, so that the strict reader refuses it as it would on MQTT."""
-    if len(text.encode("utf-8", errors="replace")) > MAX_PAYLOAD:
-        return text  # the reader refuses it unread, as on MQTT
+    return read_text(text)[0]
+
+
+def read_text(text: str) -> tuple[str, Any]:
+    """`json_text` and the value the text holds (`NOT_JSON` when none), parsed once: a reader
+    that needs the value (a heartbeat's name and type) does not parse it again."""
+    # A character is at most 4 bytes: only a long text can be over (no copy for the rest).
+    if len(text) > MAX_PAYLOAD // 4 and len(text.encode("utf-8", "replace")) > MAX_PAYLOAD:
+        return text, NOT_JSON  # the reader refuses it unread, as on MQTT
     current = text
     for _ in range(_MAX_UNWRAP + 1):
         try:
             value = json.loads(current)
         except (ValueError, RecursionError):
-            literal = _from_literal(current)
-            return text if literal is None else literal
+            return _from_literal(text, current)
         if not isinstance(value, str):
-            return current  # JSON (perhaps unwrapped): the strict reader decides the rest
+            return current, value  # JSON (perhaps unwrapped): the strict reader decides the rest
         stripped = value.strip()
         if not stripped.startswith(("{", "[", '"')):
-            return text  # a JSON string value, not wrapped JSON
+            return text, value  # a JSON string value, not wrapped JSON
         current = stripped
-    return text
+    return text, NOT_JSON
 
 
-def _from_literal(text: str) -> str | None:
-    """A Python literal (``{'a': True, 'b': None}``) as JSON text; None when it is none."""
+def _from_literal(text: str, current: str) -> tuple[str, Any]:
+    """``current`` (``text`` perhaps unwrapped) read as a Python literal: its JSON text and value,
+    or ``text`` unchanged and `NOT_JSON`."""
+    literal = _literal(current)
+    if literal is None:
+        return text, NOT_JSON
+    return literal
+
+
+def _literal(text: str) -> tuple[str, Any] | None:
+    """A Python literal (``{'a': True, 'b': None}``) as JSON text and value; None when it is
+    none."""
     try:
         value = ast.literal_eval(text.strip())
     except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
@@ -53,7 +73,7 @@ def _from_literal(text: str) -> str | None:
     if not _json_like(value, 0):
         return None
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False), value
     except (ValueError, TypeError, RecursionError):
         return None
 

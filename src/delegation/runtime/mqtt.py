@@ -21,6 +21,7 @@ from typing import Any
 
 import paho.mqtt.client as paho
 from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode, MQTTProtocolVersion
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from delegation.errors import DelegationError
 from delegation.runtime.settings import BrokerSettings
@@ -168,6 +169,9 @@ class MqttClient:
         self.nodelay_sockets = 0
         #: Read the socket in chunks (`_BufferedReadClient`); set before `connect`.
         self.buffered_reads = False
+        #: Ask the broker not to send back what this client publishes (MQTT 5 "No Local"; a
+        #: 3.1.1 broker has no such option: see `no_local_active`); set before `connect`.
+        self.no_local = False
         #: Exceptions caught in callbacks (each dropped what it was handling).
         self.callback_errors = 0
 
@@ -326,7 +330,18 @@ class MqttClient:
             self._subscriptions[pattern] = qos
         client = self._client
         if client is not None and self.connected.is_set():
-            client.subscribe(pattern, qos)
+            client.subscribe(self._sub_options(client, [(pattern, qos)]))
+
+    @property
+    def no_local_active(self) -> bool:
+        """True when the broker was asked not to echo this client's messages (MQTT 5)."""
+        return self.no_local and self.protocol_version == paho.MQTTv5
+
+    def _sub_options(self, client: paho.Client, subs: list[tuple[str, int]]) -> list[Any]:
+        """paho's subscribe list: with "No Local" on MQTT 5 when `no_local` is set."""
+        if not (self.no_local and client.protocol == paho.MQTTv5):
+            return list(subs)
+        return [(pattern, SubscribeOptions(qos=qos, noLocal=True)) for pattern, qos in subs]
 
     def unsubscribe(self, pattern: str) -> None:
         with self._sub_lock:
@@ -369,7 +384,7 @@ class MqttClient:
                 with self._sub_lock:
                     subs = list(self._subscriptions.items())
                 if subs:
-                    client.subscribe(subs)
+                    client.subscribe(self._sub_options(client, subs))
                 self.connect_count += 1
                 self.connected.set()
                 if self._on_connection is not None:

@@ -26,7 +26,6 @@ reliable; all volatile (a plain ROS publisher is volatile), keep-last `DEPTH`.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import queue
 import threading
@@ -44,7 +43,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from delegation.messages.ros_text import json_text
+from delegation.messages.ros_text import NOT_JSON, read_text
 from delegation.ros_topics import RosFilter, UnitNames, ros_token, ros_topic
 from delegation.runtime.mqtt import Message, MessageSink, MqttConnectError, MqttError
 from delegation.runtime.settings import BrokerSettings
@@ -143,9 +142,20 @@ class Ros2Client:
         self._running = threading.Event()
         self._readers: dict[str, Any] = {}
         self._writers: dict[str, Any] = {}
-        #: ROS topic -> the MQTT topic it is delivered as (None: no filter wants it); cleared
-        #: whenever the filters or what is known of the units change.
-        self._routes: dict[str, str | None] = {}
+        #: ROS topic -> the MQTT topic it is delivered as and its QoS (None: no filter wants
+        #: it); cleared whenever the filters or what is known of the units change.
+        self._routes: dict[str, tuple[str, int] | None] = {}
+        #: The ROS graph's topics at the last look (None: look again in full).
+        self._graph: list[tuple[str, list[str]]] | None = None
+        #: Do not read a topic that only this client publishes: what it wrote would come back
+        #: to it (MQTT 5's "No Local", for the bridge); set before `connect`.
+        self.ignore_own = False
+        #: Topics found but not read for that reason.
+        self._own: set[str] = set()
+        #: A first command-class message waits for a reader even before the ROS graph shows
+        #: one (discovery may lag). A relay (the bridge) sets False: waiting 2 s for each new
+        #: topic nobody reads would stall everything it forwards behind it.
+        self.wait_unseen = True
 
     # ---- lifecycle
 
@@ -240,7 +250,7 @@ class Ros2Client:
         with self._lock:
             self._subscriptions.pop(pattern, None)
             self._filters.pop(pattern, None)
-            self._routes.clear()
+            self._forget_routes()
             node = self._node
             for ros in [r for r in self._readers if not self._wanted(r)]:
                 reader = self._readers.pop(ros)
@@ -265,7 +275,7 @@ class Ros2Client:
             if node is None:
                 raise Ros2Error(f"not connected: cannot publish to {topic}")
             if self.names.published(topic):
-                self._routes.clear()
+                self._forget_routes()
             writer = self._writers.get(ros)
             new = writer is None
             if writer is None:
@@ -275,11 +285,14 @@ class Ros2Client:
                     raise Ros2Error(f"cannot publish to {ros}: {exc}") from exc
                 self._writers[ros] = writer
         if new and qos >= QOS_COMMAND:
-            self._await_reader(writer, ros)
+            self._await_reader(node, writer, ros)
         writer.publish(String(data=text))
 
-    def _await_reader(self, writer: Any, ros: str) -> None:
-        """Wait (at most `MATCH_WAIT`) until the new writer has matched a reader."""
+    def _await_reader(self, node: Node, writer: Any, ros: str) -> None:
+        """Wait (at most `MATCH_WAIT`) until the new writer has matched a reader (with
+        `wait_unseen` False, only when the ROS graph shows one)."""
+        if not self.wait_unseen and node.count_subscribers(ros) == 0:
+            return
         deadline = time.monotonic() + MATCH_WAIT
         while writer.get_subscription_count() == 0:
             if time.monotonic() >= deadline:
@@ -292,7 +305,7 @@ class Ros2Client:
     def _add_filter(self, pattern: str) -> None:
         flt = RosFilter.of(pattern)
         self._filters[pattern] = flt
-        self._routes.clear()
+        self._forget_routes()
         concrete = flt.concrete
         if concrete is not None:
             self._read(concrete)
@@ -332,53 +345,77 @@ class Ros2Client:
         wild = [f for f in self._filters.values() if f.concrete is None]
         if not wild:
             return
-        for ros, types in node.get_topic_names_and_types():
+        graph = node.get_topic_names_and_types()
+        if graph == self._graph and not any(self._others_publish(node, r) for r in self._own):
+            return  # nothing new since the last look (and no filter or name changed)
+        self._graph = graph
+        self._own.clear()
+        for ros, types in graph:
             if _STRING not in types:
                 continue
             for flt in wild:
                 token = flt.unit_token(ros)
                 per_unit = flt.for_unit(token) if token is not None else None
                 if per_unit is not None:
-                    self._read(per_unit)
+                    self._read_found(node, per_unit)
                 if ros not in self._readers and flt.mqtt_topic(ros, self.names) is not None:
-                    self._read(ros)
+                    self._read_found(node, ros)
+
+    def _read_found(self, node: Node, ros: str) -> None:
+        """Read a topic discovery found, unless `ignore_own` and no one else publishes there."""
+        if ros in self._readers:
+            return
+        if self.ignore_own and not self._others_publish(node, ros):
+            self._own.add(ros)  # looked at again at each discovery, until someone else does
+            return
+        self._read(ros)
+
+    def _others_publish(self, node: Node, ros: str) -> bool:
+        """Whether a writer other than this client's is on ``ros`` (the ROS graph's count)."""
+        return node.count_publishers(ros) > (1 if ros in self._writers else 0)
 
     # ---- the executor thread: convert and hand over only
 
     def _on_message(self, ros: str, msg: Any) -> None:
         try:
-            text = json_text(str(msg.data))
+            text, value = read_text(str(msg.data))
             data = text.encode("utf-8")
-            if ros.endswith("/heartbeat") and len(data) <= MAX_PAYLOAD:
-                self._learn(ros, text)
-            topic = self._mqtt_topic(ros)
-            if topic is not None:
-                self._sink(Message(topic, data, qos=QOS_PERIODIC if _periodic(ros)
-                                   else QOS_COMMAND))
+            if value is not NOT_JSON and ros.endswith("/heartbeat") and len(data) <= MAX_PAYLOAD:
+                self._learn(ros, value)
+            try:
+                route = self._routes[ros]  # without the lock: a dict read is atomic
+            except KeyError:
+                route = self._route(ros)
+            if route is not None:
+                self._sink(Message(route[0], data, qos=route[1]))
         except Exception as exc:
             self._callback_failed(f"a message on {ros[:200]}", exc)
 
-    def _learn(self, ros: str, text: str) -> None:
-        try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):
-            return
+    def _learn(self, ros: str, value: Any) -> None:
         token = ros.strip("/").split("/")[0]
         with self._lock:
             if self.names.heard(token, value):
-                self._routes.clear()
+                self._forget_routes()
 
-    def _mqtt_topic(self, ros: str) -> str | None:
-        """The MQTT topic for the first filter that means ``ros``: a concrete one first."""
+    def _forget_routes(self) -> None:
+        """What the filters or the units' names mean changed (under the lock)."""
+        self._routes.clear()
+        self._graph = None
+
+    def _route(self, ros: str) -> tuple[str, int] | None:
+        """The MQTT topic for the first filter that means ``ros`` (a concrete one first), and
+        the QoS it is delivered with."""
         with self._lock:
             if ros in self._routes:
                 return self._routes[ros]
-            route: str | None = None
+            topic: str | None = None
             for flt in sorted(self._filters.values(), key=lambda f: f.concrete is None):
-                route = flt.mqtt if flt.concrete == ros and flt.prefix is None \
+                topic = flt.mqtt if flt.concrete == ros and flt.prefix is None \
                     else flt.mqtt_topic(ros, self.names)
-                if route is not None:
+                if topic is not None:
                     break
+            route = None if topic is None else \
+                (topic, QOS_PERIODIC if _periodic(ros) else QOS_COMMAND)
             self._routes[ros] = route
             return route
 

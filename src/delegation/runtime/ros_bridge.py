@@ -6,11 +6,23 @@ the type its heartbeat says and the role the bridge is given; a MQTT unit keeps 
 role (what the bridge publishes on ROS is remembered, so commands to it go back to its base).
 One mission can then use ROS 2 robots and MQTT robots, with the service on either side.
 
-No echo loops: what the bridge publishes on one side comes back to it there (it reads
-everything); such a message (same topic, same payload, within `ECHO_SECONDS`) is dropped once per
-time it was sent. Bounded queues: each direction has its own queue of `QUEUE_MAX` messages and
-its own thread (a new ROS writer may wait for its reader: that must not stall MQTT's network
-thread); a full queue drops the message and counts it.
+No echo loops: what the bridge publishes on one side would come back to it there (it reads
+everything). On MQTT 5 it subscribes with "No Local", so the broker never sends its own messages
+back; on ROS 2 it does not read a topic that only it writes (the topics of MQTT units: the ROS
+graph's publisher count says so, looked at with every discovery). Where that is not enough (a
+3.1.1 broker; a ROS topic someone else writes too), such a message (same topic, same payload,
+within `ECHO_SECONDS`) is dropped once per time it was sent (`_Echoes`).
+
+What it checks: a unit topic under the prefix (and of a unit in ``units`` when given), a payload
+of at most `MAX_PAYLOAD` bytes (larger is refused and counted: no reader accepts it on either
+side), and, from ROS 2, the text made JSON as every ROS 2 reader does (`delegation.messages.
+ros_text`). The JSON itself is not parsed again: the receiving reader checks it strictly, as on
+MQTT, and answers a malformed command with its fail-reason, which the bridge carries back.
+
+Bounded queues: each direction has its own outbox of `QUEUE_MAX` messages and its own thread (a
+new ROS writer may wait for its reader: that must not stall MQTT's network thread); a full
+outbox drops the message and counts it. The receiving thread only appends; the forwarding
+thread drains everything waiting at each wake-up (one wake-up per burst, not per message).
 """
 
 from __future__ import annotations
@@ -18,7 +30,6 @@ from __future__ import annotations
 import collections
 import hashlib
 import logging
-import queue
 import threading
 import time
 from collections.abc import Callable, Collection
@@ -27,10 +38,15 @@ from dataclasses import dataclass
 from delegation.messages.ros_text import json_text
 from delegation.ros_topics import UNKNOWN_TYPE, ros_topic
 from delegation.runtime.lifecycle import StartStop
-from delegation.runtime.mqtt import Message, MqttError
+from delegation.runtime.mqtt import Message, MqttClient, MqttError
 from delegation.runtime.settings import BrokerSettings
-from delegation.runtime.transport import MessageClient, make_client
-from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, parse_unit_topic, unit_filter
+from delegation.topics import (
+    DEFAULT_PREFIX,
+    MAX_PAYLOAD,
+    QOS_COMMAND,
+    parse_unit_topic,
+    unit_filter,
+)
 
 log = logging.getLogger(__name__)
 
@@ -40,12 +56,15 @@ __all__ = ["Bridge", "BridgeCounts"]
 QUEUE_MAX = 10_000
 #: How long a message the bridge sent is recognised when it comes back (seconds).
 ECHO_SECONDS = 10.0
+#: What a topic of a ROS 2 unit whose type no heartbeat said yet holds.
+_UNTYPED = f"/unit/{UNKNOWN_TYPE}/"
 
 
 @dataclass
 class BridgeCounts:
     """What went through, per direction: forwarded, echoes dropped, dropped on a full queue,
-    held back (a ROS unit whose type no heartbeat said yet), failed to publish."""
+    held back (a ROS unit whose type no heartbeat said yet), failed to publish, refused (over
+    `MAX_PAYLOAD`)."""
 
     to_mqtt: int = 0
     to_ros: int = 0
@@ -53,6 +72,7 @@ class BridgeCounts:
     full: int = 0
     untyped: int = 0
     failed: int = 0
+    refused: int = 0
 
 
 class _Echoes:
@@ -61,42 +81,95 @@ class _Echoes:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._counts: dict[tuple[str, bytes], int] = {}
+        #: Messages pending per topic: a message on another topic is no echo, known unhashed.
+        self._topics: collections.Counter[str] = collections.Counter()
         self._order: collections.deque[tuple[float, tuple[str, bytes]]] = collections.deque()
+        #: Sendings whose echo came back but whose entry in ``_order`` has not expired yet.
+        self._consumed: collections.Counter[tuple[str, bytes]] = collections.Counter()
 
     @staticmethod
-    def _key(topic: str, text: str) -> tuple[str, bytes]:
-        return topic, hashlib.blake2b(text.encode("utf-8", "replace"), digest_size=16).digest()
+    def _key(topic: str, data: str | bytes) -> tuple[str, bytes]:
+        raw = data.encode("utf-8", "replace") if isinstance(data, str) else data
+        return topic, hashlib.blake2b(raw, digest_size=16).digest()
 
-    def sent(self, topic: str, text: str, now: float) -> None:
-        key = self._key(topic, text)
+    def sent(self, topic: str, data: str | bytes, now: float) -> None:
+        key = self._key(topic, data)
         with self._lock:
             self._expire(now)
             self._counts[key] = self._counts.get(key, 0) + 1
+            self._topics[topic] += 1
             self._order.append((now, key))
 
-    def is_echo(self, topic: str, text: str, now: float) -> bool:
-        key = self._key(topic, text)
+    def pending(self) -> bool:
+        """Anything sent that may come back (read without the lock: a dict read is atomic)."""
+        return bool(self._topics)
+
+    def is_echo(self, topic: str, data: str | bytes, now: float) -> bool:
         with self._lock:
             self._expire(now)
+            if topic not in self._topics:
+                return False
+            key = self._key(topic, data)
             count = self._counts.get(key, 0)
             if count <= 0:
                 return False
-            self._counts[key] = count - 1
+            self._drop(key)
+            self._consumed[key] += 1
             return True
+
+    def _drop(self, key: tuple[str, bytes]) -> None:
+        """One sending of ``key`` is accounted for (under the lock)."""
+        left = self._counts.get(key, 0) - 1
+        if left > 0:
+            self._counts[key] = left
+        else:
+            self._counts.pop(key, None)
+        topic = key[0]
+        if self._topics[topic] > 1:
+            self._topics[topic] -= 1
+        else:
+            del self._topics[topic]
 
     def _expire(self, now: float) -> None:
         while self._order and (now - self._order[0][0] > ECHO_SECONDS
                                or len(self._order) > 4 * QUEUE_MAX):
             _, key = self._order.popleft()
-            left = self._counts.get(key, 0) - 1
-            if left > 0:
-                self._counts[key] = left
+            if self._consumed[key] > 0:  # its echo came back (echoes come back in order)
+                self._consumed[key] -= 1
+                if not self._consumed[key]:
+                    del self._consumed[key]
             else:
-                self._counts.pop(key, None)
+                self._drop(key)
 
     def __len__(self) -> int:
         with self._lock:
             return len(self._order)
+
+
+class _Outbox:
+    """One direction's bounded FIFO: the receiving client's thread appends, the forwarding
+    thread drains. The event is set only when the forwarder may be asleep, so a burst costs one
+    wake-up, not one per message (a `queue.Queue` takes two locks and notifies per message)."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.items: collections.deque[Message | None] = collections.deque()
+        self.ready = threading.Event()
+
+    def put(self, msg: Message | None, force: bool = False) -> bool:
+        """Append (None: stop); False when full (``force``: append even then)."""
+        if not force and len(self.items) >= self.limit:
+            return False
+        self.items.append(msg)
+        if not self.ready.is_set():
+            self.ready.set()
+        return True
+
+    def wait(self) -> None:
+        """Sleep until something was appended after the outbox was drained."""
+        self.ready.clear()
+        if not self.items:  # appended between the drain and the clear: it set nothing
+            self.ready.wait(1.0)
 
 
 class Bridge(StartStop):
@@ -119,16 +192,21 @@ class Bridge(StartStop):
         self.units = frozenset(units)
         self.clock = clock
         self.counts = BridgeCounts()
-        self._queues: dict[str, queue.Queue[Message | None]] = {
-            "mqtt": queue.Queue(QUEUE_MAX), "ros": queue.Queue(QUEUE_MAX)}
+        self._outboxes = {"mqtt": _Outbox(QUEUE_MAX), "ros": _Outbox(QUEUE_MAX)}
         self._echo = {"mqtt": _Echoes(), "ros": _Echoes()}
-        self.mqtt: MessageClient = make_client(
-            mqtt.model_copy(update={"transport": "mqtt"}), sink=lambda m: self._take("ros", m))
-        self.ros: MessageClient = make_client(
-            BrokerSettings(transport="ros2"), sink=lambda m: self._take("mqtt", m))
-        names = getattr(self.ros, "names", None)
-        if names is not None:
-            names.default_role = role
+        #: Whether a topic is a unit topic the bridge forwards (bounded: cleared when large).
+        self._wanted: dict[str, bool] = {}
+        self.mqtt = MqttClient(mqtt.model_copy(update={"transport": "mqtt"}),
+                               sink=lambda m: self._take("ros", m))
+        self.mqtt.no_local = True  # MQTT 5: the broker keeps our own messages from us
+        self.mqtt.buffered_reads = True  # many small messages: one recv for many
+        from delegation.runtime.ros2 import Ros2Client  # only with the [ros2] extra
+
+        self.ros = Ros2Client(BrokerSettings(transport="ros2"),
+                              sink=lambda m: self._take("mqtt", m))
+        self.ros.names.default_role = role
+        self.ros.ignore_own = True  # topics only the bridge writes (MQTT units'): not read
+        self.ros.wait_unseen = False  # no 2 s stall per new topic that no ROS node reads
         self._threads: list[threading.Thread] = []
 
     # ---- lifecycle
@@ -140,6 +218,9 @@ class Bridge(StartStop):
         # Both sides joined before anything is forwarded: what arrives meanwhile waits queued.
         self.mqtt.connect(timeout)
         self.ros.connect(timeout)
+        if not self.mqtt.no_local_active:
+            log.info("the broker speaks MQTT 3.1.1 (no 'No Local'): echoes of what the bridge "
+                     "publishes there are recognised by topic and payload (%.0f s)", ECHO_SECONDS)
         for side in ("mqtt", "ros"):
             thread = threading.Thread(target=self._forward, args=(side,), daemon=True,
                                       name=f"bridge-to-{side}")
@@ -150,11 +231,8 @@ class Bridge(StartStop):
         return self
 
     def stop(self) -> None:
-        for q in self._queues.values():
-            try:
-                q.put(None, timeout=1.0)
-            except queue.Full:
-                log.warning("bridge queue full at stop: its messages are dropped")
+        for box in self._outboxes.values():
+            box.put(None, force=True)
         for thread in self._threads:
             thread.join(5.0)
         self._threads.clear()
@@ -163,7 +241,7 @@ class Bridge(StartStop):
 
     def queued(self) -> dict[str, int]:
         """Messages waiting per direction (memory stays bounded by `QUEUE_MAX` each)."""
-        return {side: q.qsize() for side, q in self._queues.items()}
+        return {side: len(box.items) for side, box in self._outboxes.items()}
 
     # ---- receiving (each client's thread: check and queue only)
 
@@ -171,20 +249,35 @@ class Bridge(StartStop):
         """A message from the side other than ``to``: an echo of ours is dropped, the rest
         queued for ``to``."""
         source = "ros" if to == "mqtt" else "mqtt"
-        text = msg.text
-        if self._echo[source].is_echo(self._echo_topic(source, msg.topic), text, self.clock()):
+        echoes = self._echo[source]
+        if echoes.pending() and echoes.is_echo(self._echo_topic(source, msg.topic),
+                                               msg.payload, self.clock()):
             self.counts.echoes += 1
             return
-        parsed = parse_unit_topic(msg.topic)
-        if parsed is None or (self.units and parsed.name not in self.units):
+        if not self._forwards(msg.topic):
             return
-        try:
-            self._queues[to].put_nowait(msg)
-        except queue.Full:
+        if len(msg.payload) > MAX_PAYLOAD:
+            self.counts.refused += 1
+            if self.counts.refused in (1, 100) or self.counts.refused % 10_000 == 0:
+                log.warning("bridge: %d messages over %d bytes refused (the last on %s)",
+                            self.counts.refused, MAX_PAYLOAD, msg.topic[:200])
+            return
+        if not self._outboxes[to].put(msg):
             self.counts.full += 1
             if self.counts.full in (1, 100) or self.counts.full % 10_000 == 0:
                 log.warning("bridge: the queue to %s is full: %d messages dropped", to,
                             self.counts.full)
+
+    def _forwards(self, topic: str) -> bool:
+        """A unit topic (of a unit in ``units`` when given): remembered per topic."""
+        wanted = self._wanted.get(topic)
+        if wanted is None:
+            parsed = parse_unit_topic(topic)
+            wanted = parsed is not None and (not self.units or parsed.name in self.units)
+            if len(self._wanted) >= 4 * QUEUE_MAX:
+                self._wanted.clear()
+            self._wanted[topic] = wanted
+        return wanted
 
     @staticmethod
     def _echo_topic(side: str, topic: str) -> str:
@@ -195,33 +288,39 @@ class Bridge(StartStop):
     # ---- forwarding (one thread per direction)
 
     def _forward(self, to: str) -> None:
-        q = self._queues[to]
+        box = self._outboxes[to]
+        items = box.items
         while True:
-            msg = q.get()
-            if msg is None:
-                return
-            try:
-                self._send(to, msg)
-            except MqttError as exc:
-                self.counts.failed += 1
-                log.warning("bridge: to %s: %s", to, exc)
-            except Exception:
-                self.counts.failed += 1
-                log.exception("bridge: forwarding %s to %s failed", msg.topic[:200], to)
+            while items:
+                msg = items.popleft()
+                if msg is None:
+                    return
+                try:
+                    self._send(to, msg)
+                except MqttError as exc:
+                    self.counts.failed += 1
+                    log.warning("bridge: to %s: %s", to, exc)
+                except Exception:
+                    self.counts.failed += 1
+                    log.exception("bridge: forwarding %s to %s failed", msg.topic[:200], to)
+            box.wait()
 
     def _send(self, to: str, msg: Message) -> None:
-        topic, text = msg.topic, msg.text
+        topic = msg.topic
         if to == "mqtt":
-            parsed = parse_unit_topic(topic)
-            if parsed is not None and parsed.agent_type == UNKNOWN_TYPE:
-                if self.agent_type is None:
-                    self.counts.untyped += 1
-                    return
-                topic = topic.replace(f"/unit/{UNKNOWN_TYPE}/", f"/unit/{self.agent_type}/", 1)
-            self._echo["mqtt"].sent(topic, text, self.clock())
+            if _UNTYPED in topic:
+                parsed = parse_unit_topic(topic)
+                if parsed is not None and parsed.agent_type == UNKNOWN_TYPE:
+                    if self.agent_type is None:
+                        self.counts.untyped += 1
+                        return
+                    topic = topic.replace(_UNTYPED, f"/unit/{self.agent_type}/", 1)
+            if not self.mqtt.no_local_active:
+                self._echo["mqtt"].sent(topic, msg.payload, self.clock())
             self.mqtt.publish(topic, msg.payload, qos=msg.qos)
             self.counts.to_mqtt += 1
         else:
+            text = msg.text
             self._echo["ros"].sent(ros_topic(topic), json_text(text), self.clock())
-            self.ros.publish(topic, msg.payload, qos=msg.qos)
+            self.ros.publish(topic, text, qos=msg.qos)
             self.counts.to_ros += 1
