@@ -393,6 +393,67 @@ def coverage_path(
     return _fly_cells(sweep_cells(polygon_xy, width, along), variant)
 
 
+# --------------------------------------------------------------------------- turns inside
+
+def flown_sweep(polygons: Sequence[np.ndarray], width: float) -> np.ndarray:
+    """The path a unit flies to search ``polygons`` (one: ``coverage_path``'s lanes; several:
+    ``multi_coverage_path``'s order) with its turns inside the area (``turns_inside``): what the
+    cost model counts and the simulated units fly (``costs.task_path``)."""
+    parts: list[np.ndarray] = []
+    for poly in polygons:
+        cells = turns_inside(sweep_cells(poly, width), width)
+        parts.append(_fly_cells(cells, 0, start=parts[-1][-1] if parts else None))
+    return np.concatenate(parts, axis=0) if parts else np.zeros((0, 2))
+
+
+def turns_inside(cells: list[np.ndarray], width: float) -> list[np.ndarray]:
+    """The cells' lanes as flown: each lane end pulled back along the lane so that the unit turns
+    inside the area (issue 21: turns on a shared search's part border swept the neighbour's part).
+
+    The footprint is about ``w`` long as well as ``w`` wide (``costs.footprint_width``), so a lane
+    ending ``w/2`` before a border perpendicular to it still images up to that border, and the
+    connector to the next lane runs ``w/2`` inside it instead of on it. Where the border slants
+    across the lane's strip (half-way to each neighbouring lane of the cell) the end is pulled
+    back less, so that the footprint still reaches the border's farthest point in the strip
+    (cover first: the rest of the overshoot stays). A lane shorter than its pull-backs shrinks to
+    its middle point. ``sweep_cells``/``sweep_lanes`` keep the lanes as clipped, and
+    ``coverage_path`` flies them as clipped; ``flown_sweep`` flies these."""
+    return [_pull_back(cell, _check_width(width)) for cell in cells]
+
+
+def _pull_back(cell: np.ndarray, w: float) -> np.ndarray:
+    vec = cell[:, 1] - cell[:, 0]
+    length = np.hypot(vec[:, 0], vec[:, 1])
+    longest = float(length.max()) if len(length) else 0.0
+    if longest <= 0.0:
+        return cell
+    along = vec[int(np.argmax(length))] / longest  # (every segment of a cell points along)
+    x0, x1 = cell[:, 0] @ along, cell[:, 1] @ along
+    if len(cell) < 2:  # (no neighbour tells how the border runs: fly it as clipped)
+        return cell
+    # Where the border is at the strip's edges: half-way to the neighbouring lanes' ends (the
+    # cell's outer lanes: as far again, outwards).
+    end_reach, start_reach = _strip_reach(x1, np.maximum), _strip_reach(x0, np.minimum)
+    pull_end = np.clip(w / 2.0 - (end_reach - x1), 0.0, w / 2.0)
+    pull_start = np.clip(w / 2.0 - (x0 - start_reach), 0.0, w / 2.0)
+    total = pull_end + pull_start
+    scale = np.where(total > length, length / np.where(total > 0.0, total, 1.0), 1.0)
+    out = cell.copy()
+    out[:, 0] += along * (pull_start * scale)[:, None]
+    out[:, 1] -= along * (pull_end * scale)[:, None]
+    return out
+
+
+def _strip_reach(x: np.ndarray, farthest: np.ufunc) -> np.ndarray:
+    """Per lane (of at least two): the farthest of its end ``x`` and the border's position at
+    its strip's two edges, interpolated between neighbouring lanes (extrapolated at the first
+    and the last)."""
+    mid = (x[1:] + x[:-1]) / 2.0
+    before = np.r_[x[0] + (x[0] - x[1]) / 2.0, mid]
+    after = np.r_[mid, x[-1] + (x[-1] - x[-2]) / 2.0]
+    return np.asarray(farthest(farthest(x, before), after))
+
+
 # --------------------------------------------------------------------------- sweep direction
 
 #: Most directions tried per polygon (the edges with the most length in their direction win).
