@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from shapely.geometry import Polygon
@@ -116,3 +118,71 @@ def search_node(poly: np.ndarray) -> TstNode:
     """A free ``search-area`` over ``poly`` (execunit ``*``): the family's mission."""
     return make_node("search-area", execunit="*", params={
         "area": [geo_at(x, y) for x, y in poly], "speed": "standard", "target-size": 2.0})
+
+
+# --------------------------------------------------------------------------- bench --generate
+
+#: Every third generated case (seed % 3 == 2) gives the drones this share of what the slowest
+#: would need to sweep the area alone (at the family's 1.1 sweep overhead): no drone can do it
+#: alone, the fleet can (the boat, where there is one, has no limit).
+ENDURANCE_SHARE = 0.5
+
+
+def _wire(x: float, y: float, altitude: float) -> dict[str, float]:
+    point = geo_at(x, y, altitude)
+    return {k: round(v, 7) if k != "altitude" else v for k, v in point.items()}
+
+
+def team_scenario(seed: int) -> dict[str, Any]:
+    """One team-search case as a scenario dict (docs/scenarios.md): the ``seed``-th polygon of
+    ``concave_polygons`` (in turn), a 3-6 unit ``fleet`` from ``seed``, one free
+    ``search-area``; every third seed an endurance case (``ENDURANCE_SHARE``)."""
+    polygons = concave_polygons()
+    name = sorted(polygons)[seed % len(polygons)]
+    poly = polygons[name]
+    units = fleet(seed, poly)
+    endurance_case = seed % 3 == 2
+    if endurance_case:
+        slowest = min(u.speeds["standard"] for u in units if u.agent_type == "air")
+        alone = 1.1 * float(Polygon(poly).area) / (37.0 * slowest)
+        units = fleet(seed, poly, endurance=round(ENDURANCE_SHARE * alone))
+    agents = []
+    for u in units:
+        x, y = FRAME.point_xy(u.position)
+        agent: dict[str, Any] = {
+            "name": u.name, "type": u.agent_type, "position": _wire(x, y, 0.0),
+            "tasks": sorted(u.tasks), "speeds": {k: round(v, 3) for k, v in u.speeds.items()}}
+        if u.endurance is not None:
+            agent["endurance"] = float(u.endurance)
+        agents.append(agent)
+    search = {"name": "search-area", "common_params": {"execunit": "*"},
+              "params": {"area": [_wire(x, y, 40.0) for x, y in poly], "speed": "standard",
+                         "target-size": 2.0}}
+    kind = "endurance" if endurance_case else "free"
+    return {
+        "name": f"team-{name}-u{len(units)}-s{seed}",
+        "description": (f"Team search (seed {seed}, {kind}): {name}, concave, searched by "
+                        f"{len(units)} units 0.5-2.5 km away (delegation.bench.team_search)."),
+        "agents": agents,
+        "mission": search,
+    }
+
+
+def team_bound(tree: TstNode, units: Sequence[UnitState]) -> float | None:
+    """The largest DESIGN 3.11 lower bound (s) among the tree's shareable searches, every unit
+    free at the start (no plan ends before it); None without one."""
+    from delegation.allocation.problem import build_problem, flatten_tree
+    from delegation.allocation.share_plan import search_bound, shareable
+    from delegation.costs import cost_tables
+    from delegation.tst import with_defaults, with_uuids
+
+    prepared = with_defaults(with_uuids(tree))
+    nodes = [node for _, node in flatten_tree(prepared)[1]]
+    if not any(shareable(n) for n in nodes):
+        return None
+    tables = cost_tables(list(units), nodes)
+    problem = build_problem(prepared, list(units), tables)
+    bounds = [search_bound(problem, tables, None, t) for t, task in enumerate(problem.tasks)
+              if shareable(task.node)]
+    finite = [b for b in bounds if math.isfinite(b)]
+    return max(finite) if finite else None
