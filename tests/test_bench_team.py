@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 import shapely
-from shapely.geometry import Polygon
+from shapely.geometry import Point, Polygon
 
 from delegation.bench.generate import generate_scenario, save_scenarios
 from delegation.bench.runner import run_bench, scenarios_from_dicts
-from delegation.bench.team_search import ENDURANCE_SHARE, FRAME, team_scenario
+from delegation.bench.team_search import DRONE_WIDTH, FRAME, team_scenario
 from delegation.cli import main
 from delegation.costs import search_polygons_xy
 from delegation.errors import InputError
@@ -37,11 +37,14 @@ def test_the_family_generates_valid_concave_searches_for_mixed_fleets(seed: int,
     assert 0.19e6 < area.area < 4.1e6
     assert area.area < 0.97 * shapely.convex_hull(area).area  # concave
     drones = [u for u in units if u.agent_type == "air"]
-    if seed % 3 == 2:  # an endurance case: no drone alone, the fleet together
-        slowest = min(u.speeds["standard"] for u in drones)
-        alone = 1.1 * area.area / (37.0 * slowest)
-        assert all(u.endurance == pytest.approx(ENDURANCE_SHARE * alone, rel=2e-3)
-                   for u in drones)
+    if seed % 3 == 2:  # an endurance case: no drone alone, the fleet together with slack
+        for u in drones:
+            flight = area.distance(Point(FRAME.point_xy(u.position))) / u.speeds["standard"]
+            assert u.endurance is not None
+            assert u.endurance < flight + area.area / (DRONE_WIDTH * u.speeds["standard"])
+        swept = [((u.endurance or 0.0) - area.distance(Point(FRAME.point_xy(u.position)))
+                  / u.speeds["standard"]) * DRONE_WIDTH * u.speeds["standard"] for u in drones]
+        assert sum(swept) > 1.09 * area.area
     else:
         assert all(u.endurance is None for u in units)
     (path,) = save_scenarios([data], tmp_path)

@@ -13,10 +13,11 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from shapely.geometry import Polygon
+from shapely.geometry import Point, Polygon
 
 from delegation.fleet import UnitState, make_unit
 from delegation.geo import GeoPoint, LocalFrame
@@ -122,15 +123,32 @@ def search_node(poly: np.ndarray) -> TstNode:
 
 # --------------------------------------------------------------------------- bench --generate
 
-#: Every third generated case (seed % 3 == 2) gives the drones this share of what the slowest
-#: would need to sweep the area alone (at the family's 1.1 sweep overhead): no drone can do it
-#: alone, the fleet can (the boat, where there is one, has no limit).
+#: Every third generated case (seed % 3 == 2) gives each drone its flight to the area and this
+#: share of what it would need to sweep the area alone (at a 1.1 sweep overhead): no drone can
+#: do it alone, two or more together can, with slack (the boat has no limit).
 ENDURANCE_SHARE = 0.5
+#: Drones' sweep width (m) in the family (40 m up, a 60 degree camera).
+DRONE_WIDTH = 37.0
 
 
 def _wire(x: float, y: float, altitude: float) -> dict[str, float]:
     point = geo_at(x, y, altitude)
     return {k: round(v, 7) if k != "altitude" else v for k, v in point.items()}
+
+
+def _short_endurance(poly: np.ndarray, units: Sequence[UnitState]) -> list[UnitState]:
+    """The drones of ``units`` with an endurance (s, whole) of their flight to the area and
+    ``ENDURANCE_SHARE`` of their own sweep of it alone (at a 1.1 sweep overhead)."""
+    area = Polygon(poly)
+    out = []
+    for u in units:
+        if u.agent_type == "air":
+            speed = u.speeds["standard"]
+            flight = area.distance(Point(FRAME.point_xy(u.position))) / speed
+            alone = 1.1 * float(area.area) / (DRONE_WIDTH * speed)
+            u = replace(u, endurance=float(round(flight + ENDURANCE_SHARE * alone)))
+        out.append(u)
+    return out
 
 
 def team_scenario(seed: int) -> dict[str, Any]:
@@ -143,9 +161,7 @@ def team_scenario(seed: int) -> dict[str, Any]:
     units = fleet(seed, poly)
     endurance_case = seed % 3 == 2
     if endurance_case:
-        slowest = min(u.speeds["standard"] for u in units if u.agent_type == "air")
-        alone = 1.1 * float(Polygon(poly).area) / (37.0 * slowest)
-        units = fleet(seed, poly, endurance=round(ENDURANCE_SHARE * alone))
+        units = _short_endurance(poly, units)
     agents = []
     for u in units:
         x, y = FRAME.point_xy(u.position)
