@@ -15,7 +15,13 @@ from delegation.allocation import plan_mission
 from delegation.allocation.sharing import region_of
 from delegation.bench.team_search import FRAME, concave_polygons, fleet, search_node, unit_at
 from delegation.costs import search_polygons_xy, sweep_width
-from delegation.coverage import flown_sweep, path_length, sweep_cells, turns_inside
+from delegation.coverage import (
+    flown_sweep,
+    path_length,
+    sweep_cells,
+    transitions_inside,
+    turns_inside,
+)
 from delegation.sim.flown import fly_plan, footprint, outside, swept
 from delegation.tst import leaves, with_uuids
 
@@ -86,3 +92,16 @@ def test_concave_parts_are_flown_in_the_planned_time_and_mostly_inside(name: str
         # Lanes and turns are inside; only transitions between a concave part's cells may
         # cut across a notch.
         assert outside(f.track_xy, parts[f.node_uuid], w / 2.0) <= 0.05 * length
+
+
+def test_a_transition_across_a_notch_goes_round_it_inside_the_area() -> None:
+    u = np.array([[0, 0], [300, 0], [300, 300], [200, 300], [200, 100], [100, 100], [100, 300],
+                  [0, 300]], dtype=float)
+    path = np.array([[50.0, 250.0], [50.0, 50.0], [250.0, 50.0], [250.0, 250.0], [50.0, 280.0]])
+    routed = transitions_inside(path, u)
+    area = Polygon(u)
+    assert area.buffer(1e-6).covers(shapely.LineString(routed))
+    # the last leg (across the notch) bends at the notch's two inner corners
+    assert routed[-3:-1].tolist() == [[200.0, 100.0], [100.0, 100.0]]
+    assert routed[:4].tolist() == path[:4].tolist()  # legs inside are kept
+    assert transitions_inside(path[:4], u).tolist() == path[:4].tolist()
