@@ -40,71 +40,16 @@ from delegation.allocation.planner import flatten_tree
 from delegation.allocation.problem import build_problem
 from delegation.allocation.share_plan import search_bound
 from delegation.allocation.sharing import region_of
+from delegation.bench.team_search import concave_polygons, fleet, geo_at, unit_at
+from delegation.bench.team_search import search_node as _search
 from delegation.costs import cost_tables, search_polygons_xy, sweep_width, task_path
 from delegation.coverage import coverage_length, sweep_axes, sweep_direction
-from delegation.fleet import UnitState, make_unit
-from delegation.geo import GeoPoint, LocalFrame
+from delegation.fleet import UnitState
+from delegation.geo import LocalFrame
 from delegation.tst import TstNode, make_node, with_defaults, with_uuids
-
-FRAME = LocalFrame(57.76, 16.68)
-TASKS = ("move-to", "move-path", "search-area", "search-areas", "search-around-position")
 
 #: Sweep widths (m): a drone at 40 m with a 60 degree camera, and a boat at 10 m.
 WIDTHS = (37.0, 9.2)
-#: Areas (km2) the shapes are scaled to, in turn.
-AREAS_KM2 = (0.2, 0.5, 1.0, 2.0, 4.0)
-
-
-def _coast(seed: int, n: int = 48) -> np.ndarray:
-    """A star-shaped polygon with a ragged, coastline-like boundary and two or three deep bays."""
-    rng = random.Random(seed)
-    bays = [(rng.uniform(0, 2 * math.pi), rng.uniform(0.25, 0.5), rng.uniform(0.2, 0.45))
-            for _ in range(rng.randint(2, 3))]
-    pts = []
-    for i in range(n):
-        a = 2 * math.pi * i / n
-        r = 1.0 + 0.12 * rng.uniform(-1, 1)
-        for centre, width, depth in bays:
-            d = abs((a - centre + math.pi) % (2 * math.pi) - math.pi)
-            if d < width:
-                r -= depth * (1 - d / width)
-        stretch = 1.6 if seed % 2 else 1.0
-        pts.append((stretch * r * math.cos(a), r * math.sin(a)))
-    return np.array(pts)
-
-
-def _shapes() -> dict[str, np.ndarray]:
-    shapes = {
-        "L": np.array([[0, 0], [3, 0], [3, 1], [1, 1], [1, 3], [0, 3]], dtype=float),
-        "U": np.array([[0, 0], [3, 0], [3, 2], [2, 2], [2, 1], [1, 1], [1, 2], [0, 2]],
-                      dtype=float),
-        "comb": np.array([[0, 0], [5, 0], [5, 3], [4, 3], [4, 1], [3, 1], [3, 3], [2, 3],
-                          [2, 1], [1, 1], [1, 3], [0, 3]], dtype=float),
-        "crescent": np.array(
-            [[math.cos(a), math.sin(a)] for a in np.linspace(0.0, math.pi, 24)]
-            + [[0.6 * math.cos(a), 0.45 * math.sin(a)] for a in np.linspace(math.pi, 0.0, 24)]
-        ),
-        "star": np.array([[(1.0 if i % 2 == 0 else 0.5) * math.cos(math.pi * i / 5 + 0.3),
-                           (1.0 if i % 2 == 0 else 0.5) * math.sin(math.pi * i / 5 + 0.3)]
-                          for i in range(10)]),
-    }
-    for seed in range(5):
-        shapes[f"coast{seed}"] = _coast(seed)
-    return shapes
-
-
-def concave_polygons() -> dict[str, np.ndarray]:
-    """Name -> (N, 2) polygon in metres: every shape rotated by a fixed angle and scaled to one of
-    ``AREAS_KM2`` in turn (deterministic)."""
-    out = {}
-    for i, (name, shape) in enumerate(sorted(_shapes().items())):
-        area_km2 = AREAS_KM2[i % len(AREAS_KM2)]
-        a = math.radians(17.0 * i + 5.0)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        centred = (shape - shape.mean(axis=0)) @ rot.T
-        scale = math.sqrt(area_km2 * 1e6 / Polygon(centred).area)
-        out[f"{name}-{area_km2:g}km2"] = centred * scale
-    return out
 
 
 def _geo_mean(xs: list[float]) -> float:
@@ -131,40 +76,6 @@ def sweep_overhead(widths: tuple[float, ...]) -> None:
     print(f"sweep overhead path/(A/w): long-axis rule geo-mean {_geo_mean(old_all):.3f} "
           f"worst {max(old_all):.3f}; chosen direction geo-mean {_geo_mean(new_all):.3f} "
           f"worst {max(new_all):.3f} ({len(new_all)} sweeps)")
-
-
-def _geo(x: float, y: float, altitude: float = 40.0) -> dict[str, float]:
-    lat, lon = FRAME.to_geo(x, y)
-    return {"latitude": float(lat), "longitude": float(lon), "altitude": altitude}
-
-
-def _unit(name: str, kind: str, x: float, y: float, **kw: object) -> UnitState:
-    lat, lon = FRAME.to_geo(x, y)
-    point = GeoPoint(latitude=float(lat), longitude=float(lon), altitude=0.0)
-    return make_unit(name, kind, point, TASKS, **kw)  # type: ignore[arg-type]
-
-
-def fleet(seed: int, poly: np.ndarray, endurance: float | None = None) -> list[UnitState]:
-    """3-6 units around the area: drones at 2.5-4 m/s standard, one boat in every other fleet."""
-    rng = random.Random(seed)
-    n = 3 + seed % 4
-    reach = float(np.hypot(*(poly - poly.mean(axis=0)).T).max())
-    units = []
-    for i in range(n):
-        a = rng.uniform(0.0, 2.0 * math.pi)
-        r = reach + rng.uniform(500.0, 2500.0)
-        boat = i == n - 1 and seed % 2 == 0
-        std = rng.uniform(2.5, 4.0) if not boat else 2.5
-        units.append(_unit(f"{'usv' if boat else 'dji'}{i}", "surface" if boat else "air",
-                           r * math.cos(a), r * math.sin(a),
-                           speeds={"slow": std / 2, "standard": std, "fast": 2 * std},
-                           endurance=None if boat else endurance))
-    return units
-
-
-def _search(poly: np.ndarray) -> TstNode:
-    return make_node("search-area", execunit="*", params={
-        "area": [_geo(x, y) for x, y in poly], "speed": "standard", "target-size": 2.0})
 
 
 def _bound(tree: TstNode, units: list[UnitState], uuid: str) -> float:
@@ -257,11 +168,12 @@ def team(seeds: int) -> None:
 
 
 def _move(x: float, y: float) -> TstNode:
-    return make_node("move-to", execunit="*", params={"waypoint": _geo(x, y), "speed": "standard"})
+    return make_node("move-to", execunit="*",
+                     params={"waypoint": geo_at(x, y), "speed": "standard"})
 
 
 def _path(rng: random.Random, reach: float) -> TstNode:
-    pts = [_geo(rng.uniform(-reach, reach), rng.uniform(-reach, reach)) for _ in range(3)]
+    pts = [geo_at(rng.uniform(-reach, reach), rng.uniform(-reach, reach)) for _ in range(3)]
     return make_node("move-path", execunit="*", params={"waypoints": pts, "speed": "standard"})
 
 
@@ -358,9 +270,9 @@ def speed(repeats: int = 3) -> None:
     polys = concave_polygons()
     rng = random.Random(7)
     a, b = polys["coast1-2km2"], polys["star-4km2"] + np.array([4000.0, 0.0])
-    units = [_unit(f"dji{i}", "air", rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3))
+    units = [unit_at(f"dji{i}", "air", rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3))
              for i in range(8)]
-    units += [_unit(f"usv{i}", "surface", rng.uniform(-3e3, 6e3), -3500.0) for i in range(2)]
+    units += [unit_at(f"usv{i}", "surface", rng.uniform(-3e3, 6e3), -3500.0) for i in range(2)]
     others = [_move(rng.uniform(-3e3, 6e3), rng.uniform(-3e3, 3e3)) for _ in range(12)]
     others += [_path(rng, 3000.0) for _ in range(6)]
     for run in range(repeats):

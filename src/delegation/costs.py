@@ -53,7 +53,7 @@ from delegation.coverage import (
     circle_polygon,
     coverage_length,
     coverage_path,
-    multi_coverage_path,
+    flown_sweep,
     path_length,
 )
 from delegation.errors import InputError
@@ -259,9 +259,9 @@ def search_polygons_xy(node: TstNode, frame: LocalFrame) -> list[np.ndarray]:
 
 
 def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:
-    if len(polygons) == 1:
-        return coverage_path(polygons[0], width)
-    return multi_coverage_path(polygons, width)
+    """The sweep as flown, turns inside the area (``coverage.flown_sweep``, issue 21): the plan
+    counts the path the simulated units fly."""
+    return flown_sweep(polygons, width)
 
 
 def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None) -> list[GeoPoint]:

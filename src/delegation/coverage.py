@@ -412,6 +412,153 @@ def _first_path(data: bytes, n: int, width: float, ax: float, ay: float
     return path, len(segments)
 
 
+# --------------------------------------------------------------------------- turns inside
+
+def flown_sweep(polygons: Sequence[np.ndarray], width: float) -> np.ndarray:
+    """The path a unit flies to search ``polygons`` (one: ``coverage_path``'s lanes; several:
+    ``multi_coverage_path``'s order) with its turns inside the area (``turns_inside``): what the
+    cost model counts and the simulated units fly (``costs.task_path``)."""
+    parts: list[np.ndarray] = []
+    for poly in polygons:
+        cells = turns_inside(sweep_cells(poly, width), width)
+        path = _fly_cells(cells, 0, start=parts[-1][-1] if parts else None)
+        parts.append(transitions_inside(path, _clean_polygon(poly)))
+    return np.concatenate(parts, axis=0) if parts else np.zeros((0, 2))
+
+
+def transitions_inside(path: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
+    """``path`` with every straight leg that leaves the polygon (a transition between cells
+    across a concave notch) replaced by the shortest way inside it, through its corners: the
+    unit stays over its own part instead of flying over a neighbour's."""
+    if len(path) < 3:
+        return path
+    shape = shapely.make_valid(Polygon(polygon_xy))
+    scale = max(1.0, float(np.ptp(polygon_xy, axis=0).max()))
+    room = shape.buffer(1e-6 * scale)
+    shapely.prepare(room)
+    legs = shapely.linestrings(np.stack([path[:-1], path[1:]], axis=1))
+    out_of = ~shapely.covers(room, legs)
+    if not out_of.any():
+        return path
+    corners = _corners(shape)
+    i, j = np.triu_indices(len(corners), k=1)
+    seen = _sight(room, corners[i], corners[j])
+    among = (i[seen], j[seen])
+    out = [path[:1]]
+    for k in range(len(path) - 1):
+        if out_of[k]:
+            out.append(_route_inside(path[k], path[k + 1], corners, room, among)[1:])
+        else:
+            out.append(path[k + 1 : k + 2])
+    return np.concatenate(out, axis=0)
+
+
+def _corners(shape: shapely.Geometry) -> np.ndarray:
+    """Where a shortest way inside the region may bend: its exteriors' reflex vertices and its
+    holes' vertices."""
+    out = []
+    for p in shapely.get_parts(shape):
+        if not isinstance(p, Polygon):
+            continue
+        ring = np.asarray(shapely.get_coordinates(p.exterior))[:-1]
+        d_in, d_out = ring - np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0) - ring
+        turn = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
+        ccw = p.exterior.is_ccw
+        out.append(ring[turn < 0] if ccw else ring[turn > 0])
+        out += [np.asarray(shapely.get_coordinates(r))[:-1] for r in p.interiors]
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def _sight(room: shapely.Geometry, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a),) True where the straight leg a[k] -> b[k] stays inside ``room``."""
+    if len(a) == 0:
+        return np.zeros(0, dtype=bool)
+    return np.asarray(shapely.covers(room, shapely.linestrings(np.stack([a, b], axis=1))))
+
+
+def _route_inside(a: np.ndarray, b: np.ndarray, corners: np.ndarray, room: shapely.Geometry,
+                  among: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The shortest polyline from ``a`` to ``b`` inside ``room`` bending only at ``corners``
+    (Dijkstra on the visibility graph; ``among``: the corner pairs that see each other); the
+    straight leg when there is none."""
+    n = len(corners) + 2
+    nodes = np.vstack([a[None, :], b[None, :], corners])
+    ends = np.repeat([0, 1], len(corners))
+    others = np.tile(np.arange(2, n), 2)
+    seen = _sight(room, nodes[ends], nodes[others])
+    i = np.concatenate([ends[seen], among[0] + 2])
+    j = np.concatenate([others[seen], among[1] + 2])
+    length = np.hypot(*(nodes[i] - nodes[j]).T)
+    near: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+    for u, v, d in zip(i.tolist(), j.tolist(), length.tolist(), strict=True):
+        near[u].append((v, d))
+        near[v].append((u, d))
+    best, before, done = [math.inf] * n, [-1] * n, [False] * n
+    best[0] = 0.0
+    while True:
+        u = min((k for k in range(n) if not done[k]), key=lambda k: best[k], default=-1)
+        if u < 0 or not math.isfinite(best[u]) or u == 1:
+            break
+        done[u] = True
+        for v, d in near[u]:
+            if best[u] + d < best[v]:
+                best[v], before[v] = best[u] + d, u
+    if not math.isfinite(best[1]):
+        return np.stack([a, b])
+    way = [1]
+    while way[-1] != 0:
+        way.append(before[way[-1]])
+    return nodes[way[::-1]]
+
+
+def turns_inside(cells: list[np.ndarray], width: float) -> list[np.ndarray]:
+    """The cells' lanes as flown: each lane end pulled back along the lane so that the unit turns
+    inside the area (issue 21: turns on a shared search's part border swept the neighbour's part).
+
+    The footprint is about ``w`` long as well as ``w`` wide (``costs.footprint_width``), so a lane
+    ending ``w/2`` before a border perpendicular to it still images up to that border, and the
+    connector to the next lane runs ``w/2`` inside it instead of on it. Where the border slants
+    across the lane's strip (half-way to each neighbouring lane of the cell) the end is pulled
+    back less, so that the footprint still reaches the border's farthest point in the strip
+    (cover first: the rest of the overshoot stays). A lane shorter than its pull-backs shrinks to
+    its middle point. ``sweep_cells``/``sweep_lanes`` keep the lanes as clipped, and
+    ``coverage_path`` flies them as clipped; ``flown_sweep`` flies these."""
+    return [_pull_back(cell, _check_width(width)) for cell in cells]
+
+
+def _pull_back(cell: np.ndarray, w: float) -> np.ndarray:
+    vec = cell[:, 1] - cell[:, 0]
+    length = np.hypot(vec[:, 0], vec[:, 1])
+    longest = float(length.max()) if len(length) else 0.0
+    if longest <= 0.0:
+        return cell
+    along = vec[int(np.argmax(length))] / longest  # (every segment of a cell points along)
+    x0, x1 = cell[:, 0] @ along, cell[:, 1] @ along
+    if len(cell) < 2:  # (no neighbour tells how the border runs: fly it as clipped)
+        return cell
+    # Where the border is at the strip's edges: half-way to the neighbouring lanes' ends (the
+    # cell's outer lanes: as far again, outwards).
+    end_reach, start_reach = _strip_reach(x1, np.maximum), _strip_reach(x0, np.minimum)
+    pull_end = np.clip(w / 2.0 - (end_reach - x1), 0.0, w / 2.0)
+    pull_start = np.clip(w / 2.0 - (x0 - start_reach), 0.0, w / 2.0)
+    total = pull_end + pull_start
+    scale = np.where(total > length, length / np.where(total > 0.0, total, 1.0), 1.0)
+    out = cell.copy()
+    out[:, 0] += along * (pull_start * scale)[:, None]
+    out[:, 1] -= along * (pull_end * scale)[:, None]
+    return out
+
+
+def _strip_reach(x: np.ndarray, farthest: np.ufunc) -> np.ndarray:
+    """Per lane (of at least two): the farthest of its end ``x`` and the border's position at
+    its strip's two edges, interpolated between neighbouring lanes (extrapolated at the first
+    and the last)."""
+    mid = (x[1:] + x[:-1]) / 2.0
+    before = np.r_[x[0] + (x[0] - x[1]) / 2.0, mid]
+    after = np.r_[mid, x[-1] + (x[-1] - x[-2]) / 2.0]
+    return np.asarray(farthest(farthest(x, before), after))
+
+
 # --------------------------------------------------------------------------- sweep direction
 
 #: Most directions tried per polygon (the edges with the most length in their direction win).

@@ -77,6 +77,12 @@ _TYPE_SPEEDS: dict[str, tuple[float, float, float]] = {
 _TYPE_ALTITUDE: dict[str, float] = {"air": 40.0, "surface": 0.0, "ground": 0.0}
 _TYPE_PREFIX: dict[str, str] = {"air": "dji", "surface": "boat", "ground": "ugv"}
 
+#: Scenario families: ``mixed`` (random tasks, the default) and ``team-search`` (one free search
+#: over a concave area 0.2-4 km2 with a heterogeneous fleet of 3-6 units, every third an endurance
+#: case: ``delegation.bench.team_search``; units, tasks, site, mix, structure and radius do not
+#: apply to it).
+FAMILIES: tuple[str, ...] = ("mixed", "team-search")
+
 #: Default share of each agent type in a fleet.
 DEFAULT_TYPE_MIX: dict[str, float] = {"air": 0.6, "surface": 0.2, "ground": 0.2}
 
@@ -98,6 +104,8 @@ class GeneratorOptions:
     radius: float = 2000.0
     #: Give every unit a ``home`` (its start position): routes become closed tours.
     homes: bool = False
+    #: Which scenarios: one of ``FAMILIES``.
+    family: str = "mixed"
 
 
 def parse_mix(text: str, known: Sequence[str] = TASK_TYPES) -> dict[str, float]:
@@ -169,6 +177,9 @@ def _check(options: GeneratorOptions) -> None:
                 f"needs positive weights for some of {', '.join(_TYPE_TASKS)}",
             )
         )
+    if options.family not in FAMILIES:
+        problems.append(InputProblem(
+            "generator", "family", f"{options.family!r} is not one of {', '.join(FAMILIES)}"))
     if not options.radius > 0:
         problems.append(InputProblem("generator", "radius", f"must be > 0, not {options.radius}"))
     if problems:
@@ -188,6 +199,10 @@ def generate_scenario(options: GeneratorOptions | None = None, **overrides: Any)
     elif overrides:
         options = GeneratorOptions(**{**options.__dict__, **overrides})
     _check(options)
+    if options.family == "team-search":
+        from delegation.bench.team_search import team_scenario
+
+        return team_scenario(options.seed)
     site = SITES[options.site]
     rng = np.random.default_rng(options.seed)
     frame = LocalFrame(site.latitude, site.longitude)

@@ -41,7 +41,8 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
     """One scenario's objective per strategy: a panel per objective; the legend explains every
     mark: bar = mean over repeats, black whisker = the mean's 95 % CI (Student t), grey dots =
     the single runs, hatched = tasks left unassigned, thick black tick = CP-SAT's proven bound,
-    dashed line = best known value. A strategy that returned another's plan is labelled so."""
+    dashed line = best known value, black dotted tick = a shared search's lower bound (DESIGN
+    3.11) with the makespan over it. A strategy that returned another's plan is labelled so."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -81,6 +82,17 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
             label = f"{stats.mean:,.0f}" + (f"\n{unassigned} unassigned" if unassigned else "")
             ax.annotate(label, (i, stats.mean), ha="center", va="bottom", fontsize=8,
                         xytext=(8, 3), textcoords="offset points")
+            searches = [r.search_bound for r in runs
+                        if r.search_bound is not None and objective == "makespan"]
+            if searches:
+                ax.plot([i - 0.4, i + 0.4], [max(searches)] * 2, color="black", lw=2,
+                        ls=":")
+                best_vs = min((r.vs_search_bound for r in runs if r.vs_search_bound), default=None)
+                if best_vs is not None:
+                    ax.annotate(f"{best_vs:.2f}x bound", (i, max(searches)), ha="center",
+                                va="top", fontsize=7, color="black", xytext=(0, -3),
+                                textcoords="offset points")
+                shown.add("search")
             bounds = [r.bound for r in runs if r.bound is not None]
             if bounds:
                 ax.plot([i - 0.4, i + 0.4], [max(bounds)] * 2, color="black", lw=3)
@@ -105,6 +117,8 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
                        label="tasks left unassigned"),
         "bound": Line2D([], [], color="black", lw=3, label="proven lower bound (CP-SAT)"),
         "best": Line2D([], [], color="tab:red", ls="--", label="best known value"),
+        "search": Line2D([], [], color="black", ls=":", lw=2,
+                         label="search's lower bound (DESIGN 3.11), makespan / it"),
     }
     handles = [h for k, h in marks.items() if k in shown]
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), fontsize=8,

@@ -78,6 +78,8 @@ COLUMNS: tuple[Column, ...] = (
     Column("unassigned", "unassigned", _int),
     Column("bound", "bound", _fixed(1)),
     Column("gap", "gap", _percent),
+    Column("search_bound", "search bound", _fixed(1)),
+    Column("vs_search_bound", "vs search bound", _ratio),
     Column("ratio_to_baseline", "vs baseline", _ratio),
     Column("best_known", "best known", _fixed(1)),
     Column("gap_to_best_known", "vs best known", _percent),
@@ -103,7 +105,8 @@ _TERMINAL_HEADERS: dict[str, str] = {
     "objective": "objective", "label": "strategy", "repeat": "run", "makespan": "makespan",
     "total_time": "total", "total_distance": "dist m", "solve_time": "solve s",
     "unassigned": "unasg", "bound": "bound", "gap": "gap", "ratio_to_baseline": "ratio",
-    "gap_to_best_known": "vs best", "problems": "checks",
+    "gap_to_best_known": "vs best", "problems": "checks", "search_bound": "srch bound",
+    "vs_search_bound": "vs srch",
 }  # fmt: skip
 TERMINAL_COLUMNS: tuple[Column, ...] = tuple(
     replace(c, header=_TERMINAL_HEADERS[c.field]) for c in COLUMNS if c.field in _TERMINAL_HEADERS
@@ -132,7 +135,8 @@ def table_note(baseline: str) -> str:
         "makespan, total (travel + work of all units) and solve in seconds; unasg: tasks "
         "unassigned; bound/gap: proven by CP-SAT; ratio: the objective / "
         f"{baseline}'s on the same scenario (geometric mean over repeats); vs best: gap to the "
-        "best known value of a standard instance; mean/median/std over repeats, 95% CI: the "
+        "best known value of a standard instance; srch bound: the largest shared search's lower "
+        "bound (DESIGN 3.11, s), vs srch: makespan / it; mean/median/std over repeats, 95% CI: the "
         "mean's Student-t interval; 'a (= b)': a returned b's plan; -: unknown"
     )
 
@@ -147,7 +151,7 @@ def _useful(columns: Sequence[Column], records: Sequence[RunRecord]) -> tuple[Co
         drop.add("repeat")
     if not any(r.problems for r in records):
         drop.add("problems")
-    for name in ("best_known", "gap_to_best_known", "bound"):
+    for name in ("best_known", "gap_to_best_known", "bound", "search_bound", "vs_search_bound"):
         if all(getattr(r, name) is None for r in records):
             drop.add(name)
     return tuple(c for c in columns if c.field not in drop)

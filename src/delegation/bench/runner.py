@@ -34,6 +34,9 @@ SCENARIO_SUFFIXES: tuple[str, ...] = (".yaml", ".yml", ".json")
 #: The strategy every other one is compared with, unless ``--baseline`` says otherwise.
 BASELINE = "nearest"
 
+#: Strategies that share searches among units (DESIGN 3.11; ``nearest`` never does).
+SPLITTERS: frozenset[str] = frozenset({"auction", "optimal"})
+
 
 @dataclass(frozen=True)
 class LoadedScenario:
@@ -119,13 +122,20 @@ class RunRecord:
     instantiation_loss: float | None = None
     #: a lower bound on any plan's makespan (``allocation.bounds``), s
     lower_bound: float | None = None
+    #: searches shared among units (DESIGN 3.11): False for a ``--no-split`` comparison run;
+    #: the largest shareable search's lower bound (every unit free at the start, s) and the
+    #: makespan over it (None without a shareable search)
+    split: bool = True
+    search_bound: float | None = None
+    vs_search_bound: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @property
     def label(self) -> str:
-        """The strategy, with whose plan it returned when that was another's."""
+        """The strategy (``strategy`` already says ``--no-split``), with whose plan it returned
+        when that was another's."""
         return self.strategy + (f" (= {self.same_plan_as})" if self.same_plan_as else "")
 
 
@@ -251,6 +261,7 @@ def run_bench(
     run_timeout: float | None = None,
     baseline: str | None = None,
     executor: Executor | None = None,
+    no_split: bool = False,
 ) -> BenchResult:
     """Plan every scenario with every strategy x objective, ``repeat`` times; check every plan.
 
@@ -258,7 +269,9 @@ def run_bench(
     crashes the process, or runs past ``run_timeout`` seconds, becomes a failure naming the file,
     strategy and objective, and the bench goes on. ``executor`` says where runs happen (default:
     here, one after another); the records are the same whichever runs them. Ctrl-C stops the
-    bench and returns the runs that finished (``interrupted``).
+    bench and returns the runs that finished (``interrupted``). ``no_split`` adds, for each
+    strategy that shares searches (``SPLITTERS``), a run with sharing off, as the comparison
+    (its strategy reads ``auction --no-split``).
     """
     from delegation.allocation import OBJECTIVES, STRATEGIES
     from delegation.bench.executor import LocalExecutor
@@ -285,8 +298,10 @@ def run_bench(
             continue
         result.scenarios[item.source] = (item.scenario, units)
         for rep, objective, strategy in itertools.product(range(repeat), objectives, strategies):
-            runs.append({"item": item, "tree": tree, "units": units, "strategy": strategy,
-                         "objective": objective, "time_limit": time_limit, "repeat": rep + 1})
+            for split in (True, False) if no_split and strategy in SPLITTERS else (True,):
+                runs.append({"item": item, "tree": tree, "units": units, "strategy": strategy,
+                             "objective": objective, "time_limit": time_limit,
+                             "repeat": rep + 1, "split": split})
     result.total_runs = len(runs)
     executor = executor or LocalExecutor(isolate)
     outcomes: dict[int, Any] = {}
@@ -332,7 +347,7 @@ def _collect(result: BenchResult, runs: Sequence[dict[str, Any]], outcomes: dict
             record, plan = outcome.value
             records.append(record)
             if keep_plans and run["repeat"] == 1:
-                result.plans[(source, run["strategy"], run["objective"])] = plan
+                result.plans[(source, record.strategy, run["objective"])] = plan
         add_ratios(records, result.baseline)
         mark_same_plans(records)
         result.records.extend(records)
@@ -367,9 +382,12 @@ def run_one(
     objective: str,
     time_limit: float,
     repeat: int = 1,
+    split: bool = True,
 ) -> tuple[RunRecord, Plan]:
-    """Plan once, check the plan's invariants, and make its record."""
+    """Plan once (``split``: searches may be shared), check the plan's invariants, and make its
+    record."""
     from delegation.allocation import check_invariants, plan_mission
+    from delegation.bench.team_search import team_bound
     from delegation.tst import leaves
 
     strategy = resolve_strategy(strategy)  # a module:function spec, on a Dask worker too
@@ -381,6 +399,7 @@ def run_one(
         objective=objective,
         time_limit=time_limit,
         new_uuid=counter_uuids(),
+        split=split,
     )
     wall = time.perf_counter() - started
     problems = list(check_invariants(plan, tree, units))
@@ -389,6 +408,11 @@ def run_one(
     record = make_record(
         item, plan, units, tasks=len(leaves(tree)), repeat=repeat, wall_time=wall, problems=problems
     )
+    record.search_bound = _opt(team_bound(tree, units))
+    if record.search_bound and not plan.unassigned:
+        record.vs_search_bound = record.makespan / record.search_bound
+    if not split:
+        record.split, record.strategy = False, f"{record.strategy} --no-split"
     return record, plan
 
 

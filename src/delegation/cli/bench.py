@@ -207,6 +207,17 @@ def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
     gen.add_argument(
         "--save", type=Path, default=None, help="write the generated scenarios as YAML here"
     )
+    gen.add_argument(
+        "--family", default="mixed", choices=("mixed", "team-search"),
+        help="mixed (random tasks, default) or team-search (one free search over a concave "
+        "area of 0.2-4 km2, 3-6 heterogeneous units, every third an endurance case; --count "
+        "cases from --seed; --units/--tasks/--mix/--structure/--radius do not apply)",
+    )
+    gen.add_argument(
+        "--no-split", action="store_true",
+        help="also run auction and optimal with searches never shared, as the comparison "
+        "('auction --no-split')",
+    )
 
 
 
@@ -284,6 +295,7 @@ def _generator_options(args: argparse.Namespace, units: int, tasks: int, seed: i
         structure=args.structure,
         radius=args.radius,
         homes=args.homes,
+        family=getattr(args, "family", "mixed"),
         **extra,
     )
 
@@ -293,6 +305,8 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
 
     if args.count < 1:
         raise InputError(InputProblem("count", "", f"must be at least 1, not {args.count}"))
+    if getattr(args, "family", "mixed") == "team-search":  # (its sizes are the family's own)
+        return generate_many(_generator_options(args, 1, 1, args.seed), args.count)
     out = []
     for units in args.units or [5]:
         for tasks in args.tasks or [20]:
@@ -353,6 +367,7 @@ def _run_bench(args: argparse.Namespace, console: Any, err: Any) -> int:
             run_timeout=args.run_timeout,
             baseline=args.baseline,
             executor=executor,
+            no_split=getattr(args, "no_split", False),
         )
     for failure in result.failures:
         err.print(f"[red]error[/red] {failure}", markup=True, highlight=False)
@@ -567,7 +582,11 @@ def _command_line(args: argparse.Namespace) -> str:
         words += ["--tsplib", str(path)]
     if args.tsplib and not args.generate:
         words += ["--units", ",".join(map(str, args.units or [3]))]
-    if args.generate:
+    family = getattr(args, "family", "mixed")
+    if args.generate and family != "mixed":
+        words += ["--generate", "--family", family, "--seed", str(args.seed),
+                  "--count", str(args.count)]
+    elif args.generate:
         words += ["--generate", "--seed", str(args.seed), "--site", args.site]
         words += ["--units", ",".join(map(str, args.units or [5]))]
         words += ["--tasks", ",".join(map(str, args.tasks or [20]))]
@@ -575,6 +594,8 @@ def _command_line(args: argparse.Namespace) -> str:
         words += ["--strategies", ",".join(args.strategies)]
     if args.objectives:
         words += ["--objectives", ",".join(args.objectives)]
+    if getattr(args, "no_split", False):
+        words.append("--no-split")
     if args.repeat != 1:
         words += ["--repeat", str(args.repeat)]
     if args.baseline:
