@@ -25,7 +25,12 @@ import numpy as np
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
 from delegation.allocation.schedule import Schedule, evaluate
-from delegation.allocation.series_parallel import tree_makespan
+from delegation.allocation.series_parallel import (
+    best_decomposition,
+    precedence_graph,
+    sp_times,
+    tree_makespan,
+)
 from delegation.allocation.strategies import Objective
 
 #: Longest run of consecutive tasks moved as one (a ``seq`` of a few tasks moves whole).
@@ -108,9 +113,41 @@ class _Search:
         return (key[0], key[1], sent)
 
     def run(self) -> Schedule:
+        start = self.best
+        kept = [start]
         while self.left > 0 and self._round():
-            pass
-        return self.best
+            kept.append(self.best)
+        if self.plain or len(kept) == 1:
+            return self.best
+        # The search compared trees of one cheap decomposition; the plan sends the better of
+        # the best decomposition and the old wrap rule's tree. Keep the latest schedule that is
+        # better on that measure too (the tree is never shorter than the graph: the auction's
+        # own tree is only built where that cannot decide).
+        floor = start.key(self.objective)  # the start's tree is never better than its graph
+        start_key: tuple[float, float, float] | None = None
+        for schedule in reversed(kept[1:]):
+            key = self._sent_key(schedule)
+            if _better(key, floor):
+                return schedule
+            start_key = start_key or self._sent_key(start)
+            if _better(key, start_key):
+                return schedule
+        return start
+
+    def _sent_key(self, schedule: Schedule) -> tuple[float, float, float]:
+        """``_key`` with the tree the plan would send: the best series-parallel decomposition
+        or the old rule's wrapped tree, whichever is shorter (``sent_tree.choose_tree``)."""
+        problem = self.problem
+        graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
+                                 schedule.home_time)
+        sent, _, _ = sp_times(best_decomposition(graph, schedule.makespan), graph)
+        wrapped = evaluate(problem, schedule.assign, schedule.orders, wrapped=True)
+        if wrapped.valid:
+            sent = min(sent, wrapped.makespan)
+        key = schedule.key(self.objective)
+        if self.objective is Objective.MAKESPAN:
+            return (key[0], sent, key[2])
+        return (key[0], key[1], sent)
 
     def _round(self) -> bool:
         """Simulate the best-estimated moves that keep subtrees whole; True when one was kept."""
@@ -148,6 +185,9 @@ class _Search:
         best, problem = self.best, self.problem
         self.times = [self.route_time(v, r) for v, r in enumerate(best.orders)]
         self.finish = np.asarray(best.unit_finish, dtype=float)
+        node_of = np.asarray(problem.structure.node_of_task, dtype=int)
+        self.act = best.node_act[node_of] if best.node_act is not None \
+            else np.zeros(problem.n_tasks)
         makespan_first = self.objective is Objective.MAKESPAN
         sources = [int(np.argmax(self.finish))] if makespan_first else range(problem.n_units)
         top = sorted(((float(f), v) for v, f in enumerate(self.finish)), reverse=True)[:3]
@@ -185,6 +225,8 @@ class _Search:
                 rest = route[:i] + route[i + k:]
                 gain = self.times[s] - self.route_time(s, rest)
                 cost, place = flat.insertion(seg)
+                # A run the tree activates late makes its new unit wait for it.
+                cost = np.maximum(self.finish, self.act[seg[0]]) + cost - self.finish
                 takers = self.problem.allowed[:, seg].all(axis=1)
                 takers &= ~self._hopeless(cost, gain, self.finish)
                 takers[s] = False
@@ -280,6 +322,7 @@ class _FlatRoutes:
         self.task_at = np.array([t for r in orders for t in r], dtype=int)
         self.k_at = np.array([k for r in orders for k in range(len(r))], dtype=int)
         self.owner_at = np.repeat(np.arange(len(orders)), sizes - 1)
+        self.ordered = bool(problem.before.any())
         self.at = self.offsets[self.owner_at] + self.k_at  # the point before the task
 
     def _in_place(self, f: np.ndarray, units: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -306,25 +349,41 @@ class _FlatRoutes:
 
     def insertion(self, seg: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Per unit: the least added travel + work time of the run ``seg`` in its route
-        (``routes.insertion_costs`` for a run), and the position it goes at."""
+        (``routes.insertion_costs`` for a run) at a position after the tasks the tree runs
+        before it and before those it runs after it (inf: none), and that position."""
         p, idx = self.problem, np.asarray(seg, dtype=int)
         extra = p.work_time[:, idx].sum(axis=1)  # (U,)
         moving = idx[p.travels[idx]]
         if moving.size == 0:
-            return extra, np.zeros(p.n_units, dtype=int)
-        first, last = int(moving[0]), int(moving[-1])
-        for a, b in itertools.pairwise(moving.tolist()):
-            extra = extra + math.hypot(*(p.start_xy[b] - p.end_xy[a])) / p.speed[:, b]
-        into = np.hypot(*(self.prev - p.start_xy[first]).T) / p.speed[self.owner, first]
-        out = np.where(self.has_next,
-                       np.hypot(*(self.next - p.end_xy[last]).T) / self.speed, 0.0)
-        cost = into + out - self.old
+            cost = np.zeros(self.owner.size)
+        else:
+            first, last = int(moving[0]), int(moving[-1])
+            for a, b in itertools.pairwise(moving.tolist()):
+                extra = extra + math.hypot(*(p.start_xy[b] - p.end_xy[a])) / p.speed[:, b]
+            into = np.hypot(*(self.prev - p.start_xy[first]).T) / p.speed[self.owner, first]
+            out = np.where(self.has_next,
+                           np.hypot(*(self.next - p.end_xy[last]).T) / self.speed, 0.0)
+            cost = into + out - self.old
+        if self.ordered:
+            cost = np.where(self._in_order(idx), cost, np.inf)
         best = np.minimum.reduceat(cost, self.offsets)
         at = np.flatnonzero(cost == best[self.owner])
         place = np.zeros(p.n_units, dtype=int)
         # The first best position of each unit (``at`` is sorted: reverse so the first wins).
         place[self.owner[at[::-1]]] = at[::-1] - self.offsets[self.owner[at[::-1]]]
         return best + extra, place
+
+    def _in_order(self, seg: np.ndarray) -> np.ndarray:
+        """(positions,) where the run ``seg`` keeps the tree's order with the route's tasks."""
+        before = self.problem.before
+        pred = before[np.ix_(self.task_at, seg)].any(axis=1)
+        succ = before[np.ix_(seg, self.task_at)].any(axis=0)
+        low = np.zeros(self.offsets.size, dtype=int)
+        np.maximum.at(low, self.owner_at[pred], self.k_at[pred] + 1)
+        high = np.diff(np.append(self.offsets, self.owner.size)) - 1
+        np.minimum.at(high, self.owner_at[succ], self.k_at[succ])
+        place = np.arange(self.owner.size) - self.offsets[self.owner]
+        return np.asarray((place >= low[self.owner]) & (place <= high[self.owner]))
 
 
 def _better(ka: tuple[float, ...], kb: tuple[float, ...], rel: float = 1e-9) -> bool:
