@@ -25,6 +25,7 @@ import numpy as np
 
 from delegation.allocation.auction.flat import flat_auction
 from delegation.allocation.auction.general import POSITION_TRIES, SHARE_FACTOR, general_auction
+from delegation.allocation.auction.improve import improve
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule, evaluate
 from delegation.allocation.strategies import Objective
@@ -77,11 +78,15 @@ def unassigned_reason(problem: Problem, t: int) -> str:
 
 def auction(problem: Problem, objective: Objective | str = Objective.MAKESPAN) -> Schedule:
     """Plan with the sequential auction; see the module docstring. ``ValueError`` for an unknown
-    objective."""
+    objective.
+
+    The awards are followed by a bounded local search (``improve``): moves of tasks off the unit
+    that ends last, kept only when strictly better on the objective.
+    """
     goal = Objective(objective)
     if problem.plain:
         assign, orders = flat_auction(problem, goal)
     else:
         assign, orders = general_auction(problem, goal)
     assign_passive(problem, assign)
-    return evaluate(problem, assign, orders)
+    return improve(problem, goal, evaluate(problem, assign, orders))
