@@ -277,7 +277,8 @@ class EngineCore:
         elif isinstance(command, SignalUnit):
             actions = self.executor.signal_unit(command.unit, command.signal, now)
         elif isinstance(command, RebindTstNodes):
-            actions = self.executor.rebind(command.execunits, now)
+            subtrees = {uid: parse_tree(raw) for uid, raw in (command.subtrees or {}).items()}
+            actions = self.executor.rebind(command.execunits, now, subtrees)
         else:  # a tst command this engine does not implement (decode knows every tst command)
             name = getattr(command, "command", type(command).__name__)
             reason = f"{name} is not supported by the TST engine"

@@ -905,32 +905,35 @@ class TreeExecutor:
 
     # ---- re-binding tasks to other units (the service's repairs, docs/protocol.md §12.6)
 
-    def rebind(self, execunits: dict[str, str], now: float) -> list[Action]:
+    def rebind(self, execunits: dict[str, str], now: float,
+               subtrees: dict[str, TstNode] | None = None) -> list[Action]:
         """``rebind-tst-nodes``: each task node (uuid -> ``/unit``) runs on another unit from now
         on, in the same tree: one not started yet starts there when its turn comes; one waiting
         or running on its old unit is started again on the new one (the old unit, which may
         still fly it, is sent ``$abort`` for its old task-uuid, whose messages are ignored from
-        then). The rest of the tree is not touched. All or nothing: raises `InputError` naming
-        every node that cannot be re-bound (unknown, not a task, already ended, not a unit)."""
-        found: list[tuple[Tree, TaskNode, str]] = []
+        then). ``subtrees`` (uuid -> a fully instantiated tree whose root has that uuid or none)
+        replace task nodes the same way: the old task is stopped on its unit and the subtree
+        runs in its place (a lost unit's unswept remainder of a search shared among live
+        units). The rest of the tree is not touched. All or nothing: raises `InputError` naming
+        every node that cannot be re-bound (unknown, not a task, already ended, not a unit, a
+        subtree not instantiated or reusing a known node uuid)."""
+        subtrees = subtrees or {}
         problems: list[InputProblem] = []
+        found: list[tuple[Tree, TaskNode, str]] = []
         for uid, execunit in execunits.items():
-            field_name = f"execunits.{uid}"
-            tree = self.trees.get(self._node_tree.get(uid, ""))
-            node = tree.nodes.get(uid) if tree is not None else None
-            unit = execunit.strip("/") if isinstance(execunit, str) else ""
-            if tree is None or node is None:
-                problems.append(InputProblem("execunits", field_name, "no executing node"))
-            elif not isinstance(node, TaskNode):
-                problems.append(InputProblem(node.path, field_name, "not a task node"))
-            elif node.terminal:
-                problems.append(InputProblem(node.path, field_name,
-                                             f"already ended ({node.status.value})"))
-            elif not execunit.startswith("/") or not unit or "/" in unit:
-                problems.append(InputProblem(node.path, field_name,
-                                             f"{execunit!r} is not a unit (/name)"))
-            else:
-                found.append((tree, node, unit))
+            at = self._rebindable(uid, f"execunits.{uid}", problems)
+            unit = self._unit_named(at[1], uid, execunit, problems) if at else ""
+            if at and unit:
+                found.append((at[0], at[1], unit))
+        grafts: list[tuple[Tree, TaskNode, TstNode]] = []
+        for uid, raw in subtrees.items():
+            if uid in execunits:
+                problems.append(InputProblem("subtrees", f"subtrees.{uid}", "also in execunits"))
+                continue
+            at = self._rebindable(uid, f"subtrees.{uid}", problems)
+            sub = self._graftable(at[1], uid, raw, problems) if at else None
+            if at and sub is not None:
+                grafts.append((at[0], at[1], sub))
         if problems:
             raise InputError(problems)
         actions: list[Action] = []
@@ -938,15 +941,82 @@ class TreeExecutor:
         for tree, node, unit in found:
             if unit != node.unit:
                 freed += self._rebind_task(tree, node, unit, now, actions)
+        for tree, node, sub in grafts:
+            freed += self._graft(tree, node, sub, now, actions)
         for old in freed:  # its next queued task (if any) may start on it now
             self._wake(old, now, actions)
         self._drain(now, actions)
         return actions
 
-    def _rebind_task(
-        self, tree: Tree, node: TaskNode, unit: str, now: float, actions: list[Action]
-    ) -> list[str]:
-        """Move one task node to ``unit``; the old unit's name if the node occupied it."""
+    def _rebindable(self, uid: str, field_name: str, problems: list[InputProblem]
+                    ) -> tuple[Tree, TaskNode] | None:
+        """The executing task node ``uid`` that has not ended, else None (the problem noted)."""
+        tree = self.trees.get(self._node_tree.get(uid, ""))
+        node = tree.nodes.get(uid) if tree is not None else None
+        if tree is None or node is None:
+            problems.append(InputProblem("execunits", field_name, "no executing node"))
+        elif not isinstance(node, TaskNode):
+            problems.append(InputProblem(node.path, field_name, "not a task node"))
+        elif node.terminal:
+            problems.append(InputProblem(node.path, field_name,
+                                         f"already ended ({node.status.value})"))
+        else:
+            return tree, node
+        return None
+
+    @staticmethod
+    def _unit_named(node: TaskNode, uid: str, execunit: object,
+                    problems: list[InputProblem]) -> str:
+        """The unit name of ``/name``, else "" (the problem noted)."""
+        unit = execunit.strip("/") if isinstance(execunit, str) else ""
+        if not isinstance(execunit, str) or not execunit.startswith("/") or not unit \
+                or "/" in unit:
+            problems.append(InputProblem(node.path, f"execunits.{uid}",
+                                         f"{execunit!r} is not a unit (/name)"))
+            return ""
+        return unit
+
+    def _graftable(self, node: TaskNode, uid: str, sub: TstNode,
+                   problems: list[InputProblem]) -> TstNode | None:
+        """``sub`` with ``uid`` as its root's uuid, its other nodes given uuids, if it can run
+        in the task's place: instantiated, its root ``uid`` (or none), no uuid already known."""
+        field_name = f"subtrees.{uid}"
+        if sub.node_uuid not in (None, uid):
+            problems.append(InputProblem(node.path, field_name,
+                                         f"its root's node-uuid is {sub.node_uuid}, not {uid}"))
+            return None
+        sub = with_uuids(sub.with_common_values({"node-uuid": uid}), self.new_uuid)
+        mine = [InputProblem(node.path + q.where.removeprefix("root"),
+                             f"{field_name}.{q.field}", q.message)
+                for q in check_instantiated(sub)]
+        for path, n in walk(sub):
+            if n.node_uuid != uid and n.node_uuid in self._node_tree:
+                mine.append(InputProblem(f"{node.path}{path[len('root'):]}", field_name,
+                                         f"node-uuid {n.node_uuid} is already executing"))
+        problems += mine
+        return None if mine else sub
+
+    def _graft(self, tree: Tree, node: TaskNode, sub: TstNode, now: float,
+               actions: list[Action]) -> list[str]:
+        """Run ``sub`` (root uuid = the node's) in the task node's place; the task is stopped on
+        its unit as by a move. The old unit's name if the node occupied it."""
+        released = self._detach(node, now, actions)
+        part = build_tree(sub, now, tree.run, tree.resume)
+        for uid, new in part.nodes.items():
+            new.path = node.path + new.path[len("root"):]
+            if uid == node.uuid:
+                new.parent, new.turn, new.held = node.parent, False, node.held
+            tree.nodes[uid] = new
+            self._node_tree[uid] = tree.root_uuid
+        log.info("task %s (%s) on /%s replaced by a %s of %d node(s)", node.uuid, node.path,
+                 node.unit, sub.name, len(part.nodes))
+        if node.turn:
+            self._activate(tree, tree.nodes[node.uuid], now, actions)
+        return [node.unit] if released else []
+
+    def _detach(self, node: TaskNode, now: float, actions: list[Action]) -> bool:
+        """Take the node off its unit: ``$abort`` for what it was sent (its answer or giving up
+        changes nothing), its ids forgotten. True if it occupied the unit."""
         old = node.unit
         queue = self._queue.get(old)
         if queue and node.uuid in queue:
@@ -972,6 +1042,14 @@ class TreeExecutor:
         released = node.vehicle and self._occupant.get(old) == node.uuid
         if released:
             del self._occupant[old]
+        return released
+
+    def _rebind_task(
+        self, tree: Tree, node: TaskNode, unit: str, now: float, actions: list[Action]
+    ) -> list[str]:
+        """Move one task node to ``unit``; the old unit's name if the node occupied it."""
+        old = node.unit
+        released = self._detach(node, now, actions)
         node.unit = unit
         log.info("task %s (%s) re-bound from /%s to /%s", node.uuid, node.path, old, unit)
         if node.turn:

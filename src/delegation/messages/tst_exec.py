@@ -84,6 +84,9 @@ class RebindTstNodes(Command):
 
     command: Literal["rebind-tst-nodes"] = "rebind-tst-nodes"
     execunits: dict[str, str]
+    #: Task node uuid -> a fully instantiated tree run in its place (its root has that uuid):
+    #: a lost unit's unswept remainder of a shared search, shared again among live units.
+    subtrees: dict[str, dict[str, Any]] | None = None
 
 
 class QueryTst(Command):
