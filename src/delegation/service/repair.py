@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import logging
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 from delegation.allocation import Plan
+from delegation.allocation.sharing import SHAREABLE
 from delegation.errors import InputError
 from delegation.fleet import FleetEvent, FleetEventKind
 from delegation.messages import (
@@ -45,7 +47,8 @@ from delegation.service.redelegation import (
     unfinished_on,
     unit_of,
 )
-from delegation.tst.node import parse_tree, walk, where
+from delegation.service.sweep_progress import unswept
+from delegation.tst.node import TstNode, map_tree, parse_tree, to_dict, walk, where
 from delegation.tst.validate import validate_tree
 
 log = logging.getLogger(__name__)
@@ -64,6 +67,8 @@ class Replan:
     job: int = 0
     #: Move the freed tasks within the running tree (`rebind-tst-nodes`) rather than replace it.
     rebind: bool = False
+    #: Freed searches reduced to what their lost unit had not swept: new uuid -> share swept.
+    credited: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,7 +78,9 @@ class Rebinding:
     execunits: dict[str, str]
     why: str
     units: frozenset[str]
-    tasks: list[dict[str, str]]
+    tasks: list[dict[str, Any]]
+    #: Task uuid -> the subtree run in its place (a lost unit's unswept remainder, shared).
+    subtrees: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(eq=False)
@@ -189,6 +196,10 @@ class Repair(MissionPart):
         except InputError as exc:
             return self.abort_and_fail(mission, mission.current_root, f"{why}; {exc.fail_reason}",
                                        now)
+        credited: dict[str, float] = {}
+        if rebind and self.config.repair_sweep == "remainder":
+            remaining, credited = self.subtract_swept(mission, remaining, now)
+            checked = validate_tree(remaining.tree, self.config.limits)
         old_root = mission.current_root
         if not rebind:
             mission.current_root = ""  # re-delegating
@@ -196,7 +207,7 @@ class Repair(MissionPart):
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
         job_id = self.planning.next_id()
         self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
-                                                 job_id, rebind)
+                                                 job_id, rebind, credited)
         options = self.planning.options(mission.plan.get("strategy"),
                                         mission.plan.get("objective"), None)
         job = Job(id=job_id, kind="plan",
@@ -207,6 +218,44 @@ class Repair(MissionPart):
         log.info("mission %s: re-delegating %d task(s): %s", mission.root_uuid,
                  len(remaining.freed), why)
         return Effects(jobs=[job])
+
+    def subtract_swept(self, mission: Mission, remaining: Remaining, now: float
+                       ) -> tuple[Remaining, dict[str, float]]:
+        """``remaining`` with each freed search that ran reduced to what its unit had not swept
+        (`sweep_progress`: the positions it reported since the task ran), and the share of each
+        credited as swept (new uuid -> share)."""
+        states = {u.name: u for u in self.view.fleet.snapshot(now)}
+        to_mono = now - self.lifecycle.epoch(now)  # node_started is in epoch seconds
+        reduced: dict[str, TstNode] = {}
+        credited: dict[str, float] = {}
+        for _, node in walk(remaining.tree):
+            uid = node.node_uuid or ""
+            old = remaining.origin.get(uid, "")
+            started = mission.node_started.get(old)
+            info = mission.nodes.get(old)
+            if uid not in remaining.freed or node.name not in SHAREABLE or started is None \
+                    or info is None:
+                continue
+            unit = states.get(info.execunit.strip("/"))
+            if unit is None:
+                continue
+            track = self.view.fleet.track(unit.name, started + to_mono)
+            left, done = unswept(node, unit, track)
+            if done > 0.0:
+                reduced[uid], credited[uid] = left, done
+                log.info("mission %s: %s had swept %.0f %% of %s (%d positions): the rest is "
+                         "shared again", mission.root_uuid, info.execunit, 100.0 * done,
+                         info.path, len(track))
+
+        def swap(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+            if node.is_control:
+                return replace(node, children=children)
+            return reduced.get(node.node_uuid or "", node)
+
+        if not reduced:
+            return remaining, {}
+        return Remaining(map_tree(remaining.tree, swap), remaining.origin,
+                         remaining.freed), credited
 
     def redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
         """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
@@ -266,30 +315,60 @@ class Repair(MissionPart):
 
     def rebind(self, mission: Mission, replan: Replan, plan: Plan, now: float) -> Effects:
         """Send ``rebind-tst-nodes`` for the freed tasks that have not ended, each to the unit
-        the plan gave it (the rest of the running tree is not touched)."""
-        origin = replan.remaining.origin
-        unit_by_uuid = {n.node_uuid: unit_of(n) for _, n in walk(plan.tst) if not n.is_control}
-        execunits = {origin[uid]: f"/{unit_by_uuid[uid]}" for uid in sorted(replan.remaining.freed)
-                     if unit_by_uuid.get(uid)
-                     and mission.node_status.get(origin[uid]) not in TERMINAL_NODE_STATUSES}
-        if not execunits:
+        the plan gave it; a freed search the plan shared, or reduced to its unswept remainder,
+        is replaced by its parts (``subtrees``). The rest of the running tree is not touched."""
+        execunits, subtrees, tasks = self.moves(mission, replan, plan)
+        if not execunits and not subtrees:
             return Effects()
         problem = self.engine.problem(now)
         if problem:
             return self.abort_and_fail(mission, mission.current_root,
                                        f"{replan.why}; {problem}", now)
-        tasks = []
-        for old, unit in execunits.items():
-            info = mission.nodes[old]
-            tasks.append({"node-uuid": old, "replaces": old, "name": info.name,
-                          "path": info.path, "unit": unit})
-        self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks)
-        model = RebindTstNodes(execunits=execunits, sender=self.config.name)
+        self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks,
+                                                    subtrees)
+        model = RebindTstNodes(execunits=execunits, subtrees=subtrees or None,
+                               sender=self.config.name)
         key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
         for note in plan.notes:
             log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
         return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
                                                  mission.root_uuid)])
+
+    def moves(self, mission: Mission, replan: Replan, plan: Plan
+              ) -> tuple[dict[str, str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
+        """What the rebind moves: (task uuid -> its new unit, task uuid -> the subtree of parts
+        run in its place, the ``re-delegated`` rows) for the freed tasks that have not ended."""
+        origin = replan.remaining.origin
+        planned = {n.node_uuid: n for _, n in walk(plan.tst) if n.node_uuid}
+        parts = plan.part_map()
+        execunits: dict[str, str] = {}
+        subtrees: dict[str, dict[str, Any]] = {}
+        tasks: list[dict[str, Any]] = []
+        for uid in sorted(replan.remaining.freed):
+            old = origin[uid]
+            if mission.node_status.get(old) in TERMINAL_NODE_STATUSES:
+                continue
+            info = mission.nodes[old]
+            row: dict[str, Any] = {"node-uuid": old, "replaces": old, "name": info.name,
+                                   "path": info.path}
+            if uid in replan.credited:
+                row["swept"] = round(replan.credited[uid], 3)
+            pieces = [planned[p] for p in parts.get(uid, []) if p in planned]
+            node = planned.get(uid)
+            if pieces or uid in replan.credited:
+                pieces = pieces or ([node] if node is not None and not node.is_control else [])
+                if not pieces:
+                    continue
+                sub = TstNode(name="conc", children=tuple(pieces),
+                              common_params={"node-uuid": old})
+                subtrees[old] = to_dict(sub)
+                tasks += [{**row, "node-uuid": p.node_uuid or "", "name": p.name,
+                           "path": f"{info.path}/children[{i}]", "unit": p.execunit}
+                          for i, p in enumerate(pieces)]
+            elif node is not None and unit_of(node):
+                execunits[old] = f"/{unit_of(node)}"
+                tasks.append({**row, "unit": execunits[old]})
+        return execunits, subtrees, tasks
 
     def rebind_answered(self, root_uuid: str, ok: bool, reason: str, now: float) -> Effects:
         """The engine's answer to ``rebind-tst-nodes``: the tasks moved (the book follows, the
@@ -306,7 +385,9 @@ class Repair(MissionPart):
             return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
                                    rebind=False)
         self.book.rebind(mission, sent.execunits)
-        for uid in sent.execunits:
+        if sent.subtrees:
+            self.book.graft(mission, sent.subtrees)
+        for uid in [*sent.execunits, *sent.subtrees]:
             first = first_origin(mission.origin, uid)
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = Effects()
