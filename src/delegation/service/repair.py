@@ -5,7 +5,9 @@ A unit lost (heartbeat stopped, or a new agent-uuid) or answering ``failed`` has
 tasks re-delegated: what remains of the mission is planned without it (a job), and the operator is
 told which task moved where (`delegation.service.redelegation` computes the remaining tree).
 A lost unit's tasks move within the running tree (``rebind-tst-nodes``): the other units' tasks
-go on untouched. A failed task (its branch already stopped by the engine), or a rebind the engine
+go on untouched. A lost unit's search that ran is first reduced to what its reported positions had
+not swept (`delegation.service.sweep_progress`); the planner may share that remainder among the
+live units, and its pieces then run in the task's place (``rebind-tst-nodes`` ``subtrees``). A failed task (its branch already stopped by the engine), or a rebind the engine
 refuses, replaces the tree: the old one is aborted and the remaining one started. A task
 re-delegated ``max_retries`` times, or one nobody can take, fails the mission naming it. An engine
 lost or restarted does not fail its missions: they are caught up with
