@@ -218,12 +218,14 @@ class TreeExecutor:
     # ---- starting
 
     def start_tree(
-        self, root: TstNode, now: float, run: str = "", resume: bool = False
+        self, root: TstNode, now: float, run: str = "", resume: bool = False,
+        hold_failed: float = 0.0,
     ) -> tuple[str, list[Action]]:
         """Start executing a parsed tree; raises `InputError` naming the nodes it cannot run.
 
         ``run`` (the start-tst's com-uuid) makes the start-task ids reproducible (`Tree.run`);
-        ``resume`` asks each task's unit for its status once its start-task is answered."""
+        ``resume`` asks each task's unit for its status once its start-task is answered;
+        ``hold_failed`` holds a failed task that long for a rebind (`Tree.hold_failed`)."""
         root = with_uuids(root, self.new_uuid)
         problems = check_instantiated(root)
         for path, node in walk(root):
@@ -242,6 +244,7 @@ class TreeExecutor:
         if problems:
             raise InputError(problems)
         tree = build_tree(root, now, run, resume)
+        tree.hold_failed = max(0.0, hold_failed)
         self._prune()
         self.trees[tree.root_uuid] = tree
         for uid in tree.nodes:
@@ -309,10 +312,19 @@ class TreeExecutor:
         now: float,
         actions: list[Action],
         reason: str = "",
+        *,
+        release: bool = False,
     ) -> None:
-        """A node reached a final status: tell its parent if it was waiting for it."""
+        """A node reached a final status: tell its parent if it was waiting for it (a failed
+        task of a holding tree is held first, `_hold`; ``release`` ends the hold)."""
         if node.terminal:
             return
+        if isinstance(node, TaskNode) and not release and (
+                node.hold_until is not None or self._hold(tree, node, status, reason, now,
+                                                          actions)):
+            return  # held: reported, its branch not told; a later end changes nothing
+        if isinstance(node, TaskNode):
+            node.hold_until = None
         self._set(tree, node, status, actions, reason)
         if isinstance(node, TaskNode):
             self._release_unit(node, now, actions)
@@ -325,6 +337,28 @@ class TreeExecutor:
             node.signals.clear()
         if node.turn and node.parent is not None:
             self._todo.append(("child", tree, node.parent, node.uuid))
+
+    def _hold(self, tree: Tree, node: TaskNode, status: NodeStatus, reason: str, now: float,
+              actions: list[Action]) -> bool:
+        """A task of a holding tree failed (or its unit aborted it unasked): report it, free its
+        unit, and keep its branch going until a rebind moves it or `Tree.hold_failed` runs out
+        (docs/protocol.md §12.7). False when the tree does not hold, or this end is not held."""
+        unasked = status is NodeStatus.ABORTED and reason.endswith(UNIT_ABORTED)
+        if tree.hold_failed <= 0.0 or not node.turn or not (
+                status is NodeStatus.FAILED or unasked):
+            return False
+        node.hold_until = now + tree.hold_failed
+        node.held_end = (status, reason)
+        self._release_unit(node, now, actions)
+        node.pending.clear()
+        for com in node.signals:
+            self._signals.pop(com, None)
+        node.signals.clear()
+        actions.append(NodeChanged(tree.root_uuid, node.uuid, status, node.uuid == tree.root_uuid,
+                                   reason))
+        log.info("task %s (%s) %s: held %g s for a rebind", node.uuid, node.path, status.value,
+                 tree.hold_failed)
+        return True
 
     def _note(
         self, tree: Tree, parent: ControlNode, child: ExecNode, now: float, actions: list[Action]
@@ -493,6 +527,11 @@ class TreeExecutor:
         """Deliver a signal to one task node, whatever state it is in (docs/protocol.md §12.1);
         a task-specific one only to a task the unit may be running (`_task_signal_targets`)."""
         if node.terminal:
+            return
+        if node.hold_until is not None:  # failed already: only an abort changes it (ends it)
+            if signal is Signal.ABORT:
+                end, why = node.held_end
+                self._finish(tree, node, end, now, actions, why, release=True)
             return
         if not isinstance(signal, Signal) and not node.sent:
             log.info("task %s: task-specific signal %r dropped: nothing runs", node.uuid, signal)
@@ -758,7 +797,7 @@ class TreeExecutor:
             return []
         tree, node = found
         actions: list[Action] = []
-        if node.terminal or node.attempt.answered:
+        if node.terminal or node.attempt.answered or node.hold_until is not None:
             return actions
         node.attempt.answered = True
         if response in ("running", "started", "ok", "finished"):
@@ -817,7 +856,7 @@ class TreeExecutor:
             return []
         tree, node = found
         actions: list[Action] = []
-        if node.terminal:
+        if node.terminal or node.hold_until is not None:
             return actions
         if status == "failed" and task_uuid in node.refused:
             return actions  # the example agent's feedback next to a refusal we already handled
@@ -857,7 +896,8 @@ class TreeExecutor:
             if tree.done:
                 continue
             for node in tree.tasks():
-                if node.terminal or not node.sent or not node.attempt.answered:
+                if node.terminal or not node.sent or not node.attempt.answered \
+                        or node.hold_until is not None:
                     continue
                 if unit is not None and node.unit != unit:
                     continue
@@ -879,8 +919,7 @@ class TreeExecutor:
         tree = self.trees.get(root_uuid)
         if tree is None:
             return None
-        return [{"node-uuid": n.uuid, "status": n.status.value, "fail-reason": n.fail_reason}
-                for n in tree.nodes.values()]
+        return [_shown(n) for n in tree.nodes.values()]
 
     def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
         """A unit's answer to ``query-status`` in the seed's words (running, failed, success,
@@ -1021,7 +1060,7 @@ class TreeExecutor:
         queue = self._queue.get(old)
         if queue and node.uuid in queue:
             queue.remove(node.uuid)
-        if node.sent:
+        if node.sent and node.hold_until is None:
             # Detached from the node (no node uuid): its answer or its giving up changes nothing.
             com = self.new_uuid()
             self._signals[com] = _SignalOut(old, node.attempt.task_uuid, Signal.ABORT, "", 1, now)
@@ -1039,6 +1078,7 @@ class TreeExecutor:
         node.retry_at = None
         node.abort_sent = False
         node.abort_answered_at = None
+        node.hold_until = None
         released = node.vehicle and self._occupant.get(old) == node.uuid
         if released:
             del self._occupant[old]
@@ -1100,6 +1140,13 @@ class TreeExecutor:
                 self._set(tree, node, node.status, actions, why)
 
     def _tick_task(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
+        if node.hold_until is not None:
+            if now >= node.hold_until:  # no rebind came: its branch learns the end now
+                end, why = node.held_end
+                log.info("task %s (%s): no rebind within %g s", node.uuid, node.path,
+                         tree.hold_failed)
+                self._finish(tree, node, end, now, actions, why, release=True)
+            return
         opts = self.options
         attempt = node.attempt
         answered = node.abort_answered_at
@@ -1156,3 +1203,11 @@ class TreeExecutor:
                 self._task_node.pop(t, None)
             for c in node.known_coms:
                 self._com_node.pop(c, None)
+
+
+def _shown(node: ExecNode) -> dict[str, str]:
+    """A node as ``query-tst`` shows it: a held task (§12.7) with the end it was reported."""
+    if isinstance(node, TaskNode) and node.hold_until is not None:
+        return {"node-uuid": node.uuid, "status": node.held_end[0].value,
+                "fail-reason": node.held_end[1]}
+    return {"node-uuid": node.uuid, "status": node.status.value, "fail-reason": node.fail_reason}

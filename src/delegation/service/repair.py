@@ -7,10 +7,12 @@ told which task moved where (`delegation.service.redelegation` computes the rema
 A lost unit's tasks move within the running tree (``rebind-tst-nodes``): the other units' tasks
 go on untouched. A lost unit's search that ran is first reduced to what its reported positions had
 not swept (`delegation.service.sweep_progress`); the planner may share that remainder among the
-live units, and its pieces then run in the task's place (``rebind-tst-nodes`` ``subtrees``). A failed task (its branch already stopped by the engine), or a rebind the engine
-refuses, replaces the tree: the old one is aborted and the remaining one started. A task
-re-delegated ``max_retries`` times, or one nobody can take, fails the mission naming it. An engine
-lost or restarted does not fail its missions: they are caught up with
+live units, and its pieces then run in the task's place (``rebind-tst-nodes`` ``subtrees``).
+A failed task of a tree our engine holds (``hold-failed``, §12.7: its branch not stopped) moves
+alone the same way. A failed task of any other tree (its branch already stopped by the engine),
+or a rebind the engine refuses, replaces the tree: the old one is aborted and the remaining one
+started. A task re-delegated ``max_retries`` times, or one nobody can take, fails the mission
+naming it. An engine lost or restarted does not fail its missions: they are caught up with
 (`delegation.service.catch_up`), which gives a restarted engine the unfinished part of each tree
 again; a lost engine is waited for, at most ``engine_return_timeout``, then its missions fail
 saying so.
