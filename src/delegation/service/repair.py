@@ -73,6 +73,8 @@ class Replan:
     rebind: bool = False
     #: Freed searches reduced to what their lost unit had not swept: new uuid -> share swept.
     credited: dict[str, float] = field(default_factory=dict)
+    #: Failed tasks the engine holds for this rebind (their uuids in the running tree).
+    held: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,6 +87,8 @@ class Rebinding:
     tasks: list[dict[str, Any]]
     #: Task uuid -> the subtree run in its place (a lost unit's unswept remainder, shared).
     subtrees: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: Failed tasks the engine held, moved by it: their recorded failure is forgotten.
+    held: frozenset[str] = frozenset()
 
 
 @dataclass(eq=False)
@@ -100,6 +104,8 @@ class Repair(MissionPart):
     rebinds: dict[str, Rebinding] = field(default_factory=dict)
     #: Since when the engine is lost (its missions wait for it), or None.
     engine_away: float | None = None
+    #: Roots of the trees our engine said it holds failed tasks of (``hold-failed``, §12.7).
+    holding: set[str] = field(default_factory=set)
 
     def forget(self, root_uuid: str, now: float) -> Effects:
         """The mission ends while re-delegating (cancelled): abort its old tree, still running
@@ -172,12 +178,22 @@ class Repair(MissionPart):
                                                rebind=False if delegator else None))
         return effects
 
+    def failed(self, mission: Mission, node_uuid: str, unit: str, why: str, now: float
+               ) -> Effects:
+        """A task failed on its unit (or was aborted by it unasked). In a tree the engine holds
+        it for (``holding``) it alone moves, by rebind, its branch going on; otherwise the
+        engine already stopped its branch and the tree is replaced."""
+        if mission.current_root not in self.holding:
+            return self.redelegate(mission, unit, why, now, rebind=False)
+        return self.redelegate(mission, unit, why, now, rebind=True, only=node_uuid)
+
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
-                   *, rebind: bool | None = None) -> Effects:
+                   *, rebind: bool | None = None, only: str = "") -> Effects:
         """Plan what ``mission`` still has to do without ``unit`` (a job). With ``rebind``
         (``repair: rebind``, the default for a lost unit) the tree runs on meanwhile and the
         freed tasks then move within it; else the mission waits for a replacement tree
-        (``redelegating``: no root status ends it meanwhile)."""
+        (``redelegating``: no root status ends it meanwhile). ``only``: the one task to free (a
+        failed task the engine holds), ``unit``'s others stay on it."""
         if rebind is None:
             rebind = self.config.repair == "rebind"
         tree = parse_tree(mission.current_tst)
@@ -185,7 +201,8 @@ class Repair(MissionPart):
         lost = {unit} | {n.execunit.strip("/") for _, n in walk(tree) if not n.is_control
                          and isinstance(n.execunit, str) and n.execunit.startswith("/")
                          and not self.view.fleet.is_alive(n.execunit, now)}
-        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()))
+        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()),
+                                   only={only} if only else None)
         if remaining is None:
             return Effects()
         paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
@@ -210,8 +227,9 @@ class Repair(MissionPart):
         self.rebinds.pop(mission.root_uuid, None)  # a replacement supersedes a rebind in flight
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
         job_id = self.planning.next_id()
+        held = frozenset({only}) if only else frozenset()
         self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
-                                                 job_id, rebind, credited)
+                                                 job_id, rebind, credited, held)
         options = self.planning.options(mission.plan.get("strategy"),
                                         mission.plan.get("objective"), None)
         job = Job(id=job_id, kind="plan",
@@ -304,7 +322,8 @@ class Repair(MissionPart):
             first = first_origin(mission.origin, uid)
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = self.abort_tree(replan.old_root, now)
-        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"],
+                         hold_failed=self.config.hold_failed or None)
         effects.publish.append(self.engine.send("start", (INTERNAL, f"{new_root}#start"),
                                                 "delegation", start, now, mission.root_uuid,
                                                 plan_json))
@@ -329,7 +348,7 @@ class Repair(MissionPart):
             return self.abort_and_fail(mission, mission.current_root,
                                        f"{replan.why}; {problem}", now)
         self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks,
-                                                    subtrees)
+                                                    subtrees, replan.held)
         model = RebindTstNodes(execunits=execunits, subtrees=subtrees or None,
                                sender=self.config.name)
         key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
@@ -350,7 +369,7 @@ class Repair(MissionPart):
         tasks: list[dict[str, Any]] = []
         for uid in sorted(replan.remaining.freed):
             old = origin[uid]
-            if mission.node_status.get(old) in TERMINAL_NODE_STATUSES:
+            if mission.node_status.get(old) in TERMINAL_NODE_STATUSES and old not in replan.held:
                 continue
             info = mission.nodes[old]
             row: dict[str, Any] = {"node-uuid": old, "replaces": old, "name": info.name,
@@ -388,6 +407,9 @@ class Repair(MissionPart):
             why = f"{sent.why} (the engine did not move the tasks: {reason})"
             return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
                                    rebind=False)
+        for uid in sent.held:  # runs again: its failure, held, was not its end
+            mission.node_status.pop(uid, None)
+            mission.node_ended.pop(uid, None)
         self.book.rebind(mission, sent.execunits)
         if sent.subtrees:
             self.book.graft(mission, sent.subtrees)
