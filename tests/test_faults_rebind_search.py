@@ -25,7 +25,6 @@ from delegation.fleet import make_unit
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.runtime.broker import PrivateMosquitto
 from test_faults import (
-    MIN_TIMEOUT,
     SPEEDUP,
     Processes,
     final_status,
