@@ -474,6 +474,8 @@ class TreeExecutor:
         if not tree.run:
             return self.new_uuid(), self.new_uuid()
         attempt = f"{tree.run}/{node.uuid}/{len(node.known_uuids) + 1}"
+        if node.moves:  # not the ids its earlier unit got (§12.6: a new task-uuid)
+            attempt += f"/moved{node.moves}"
         return (str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/task")),
                 str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/start")))
 
@@ -1079,6 +1081,7 @@ class TreeExecutor:
         node.abort_sent = False
         node.abort_answered_at = None
         node.hold_until = None
+        node.moves += 1
         released = node.vehicle and self._occupant.get(old) == node.uuid
         if released:
             del self._occupant[old]

@@ -109,6 +109,8 @@ class TaskNode(ExecNode):
     known_coms: set[str] = field(default_factory=set)
     refused: set[str] = field(default_factory=set)
     """Task-uuids a busy unit refused."""
+    moves: int = 0
+    """How often it was moved to another unit (its start-task ids differ per move)."""
     hold_until: float | None = None
     """Failed (reported), its branch not told until then: waiting for a rebind (§12.7)."""
     held_end: tuple[NodeStatus, str] = (NodeStatus.FAILED, "")
