@@ -219,8 +219,14 @@ class Repair(MissionPart):
                                        now)
         credited: dict[str, float] = {}
         if rebind and self.config.repair_sweep == "remainder":
-            remaining, credited = self.subtract_swept(mission, remaining, now)
-            checked = validate_tree(remaining.tree, self.config.limits)
+            reduced, credited = self.subtract_swept(mission, remaining, now)
+            try:
+                checked, remaining = validate_tree(reduced.tree, self.config.limits), reduced
+            except InputError as exc:  # said, and the parts planned whole as without it
+                log.warning("mission %s: the unswept remainder is not a valid tree (%s): the "
+                            "lost parts are planned again whole", mission.root_uuid,
+                            exc.fail_reason)
+                credited = {}
         old_root = mission.current_root
         if not rebind:
             mission.current_root = ""  # re-delegating

@@ -37,6 +37,8 @@ _GEOMETRY = ("area", "areas", "geopoint", "radius")
 MIN_REMAINDER = 0.02
 #: A credit under this share of the part is the remainder's rounded corners, not progress.
 MIN_CREDIT = 0.02
+#: Tolerance (m) to which the remainder's outline is simplified.
+SIMPLIFY_M = 0.5
 #: Consecutive positions farther apart than this many sweep widths are a gap, not a flight.
 MAX_CHORD = 3.0
 
@@ -70,6 +72,9 @@ def remainder(node: TstNode, unit: UnitState, track: Sequence[GeoPoint]
     left = shapely.difference(region, swept)
     # Slivers thinner than half a lane are the swept strips' ragged edges, not work left.
     left = left.buffer(-width / 4.0).buffer(width / 4.0).intersection(region)
+    # The rounded edges' many points, simplified to 0.5 m and grown by as much (never less).
+    left = shapely.simplify(left, SIMPLIFY_M).buffer(SIMPLIFY_M, join_style="mitre")
+    left = left.intersection(region)
     done = 1.0 - float(left.area) / float(region.area)
     return max(0.0, min(1.0, done)), left, frame
 
