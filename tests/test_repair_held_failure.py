@@ -78,3 +78,22 @@ def test_a_rebind_refused_for_a_held_task_replaces_the_tree() -> None:
     done = run_jobs(core, refused, 102.8)
     assert [c["command"] for c in on(done, "op0/tst/command")] == ["signal-tst-tree",
                                                                    "start-tst"]
+
+
+def test_every_held_task_of_a_unit_moves_in_one_rebind() -> None:
+    # A rebooted unit: the engine fails each task it had accepted, one feedback each; each
+    # replan supersedes the last, and the last moves them all.
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    fleet(core, 100.0)
+    started(core, _tree("conc", "root-1", _task("n0", "/u0"), _task("n1", "/u1"),
+                        _task("n2", "/u1")), hold=True)
+    for uid in ("n0", "n1", "n2"):
+        feedback(core, uid, "running", 101.5)
+    fleet(core, 102.0)
+    why = "/u1 rebooted (a new agent-uuid in its heartbeat): the task it ran is gone"
+    first = feedback(core, "n1", "failed", 102.5, reason=why)
+    second = feedback(core, "n2", "failed", 102.5, reason=why)
+    planned = run_jobs(core, Effects(jobs=[*first.jobs, *second.jobs]), 102.6)
+    [cmd] = on(planned, "op0/tst/command")
+    assert cmd["command"] == "rebind-tst-nodes" and sorted(cmd["execunits"]) == ["n1", "n2"]
+    assert set(cmd["execunits"].values()) <= {"/u0", "/u2"}

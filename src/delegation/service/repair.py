@@ -57,6 +57,10 @@ from delegation.tst.validate import validate_tree
 
 log = logging.getLogger(__name__)
 
+#: The status of a task our engine holds for a rebind (docs/protocol.md §12.7; one its unit
+#: aborted unasked is held too, known by its feedback's fail-reason only).
+_HELD = frozenset({"failed"})
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,14 +189,19 @@ class Repair(MissionPart):
         engine already stopped its branch and the tree is replaced."""
         if mission.current_root not in self.holding:
             return self.redelegate(mission, unit, why, now, rebind=False)
-        return self.redelegate(mission, unit, why, now, rebind=True, only=node_uuid)
+        # Every held task of that unit (a rebooted unit fails them all, one feedback each: each
+        # replan supersedes the last, so the last covers them all).
+        held = {uid for uid in unfinished_on(parse_tree(mission.current_tst), mission.node_status,
+                                             unit)
+                if mission.node_status.get(uid) in _HELD} | {node_uuid}
+        return self.redelegate(mission, unit, why, now, rebind=True, only=held)
 
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
-                   *, rebind: bool | None = None, only: str = "") -> Effects:
+                   *, rebind: bool | None = None, only: set[str] | None = None) -> Effects:
         """Plan what ``mission`` still has to do without ``unit`` (a job). With ``rebind``
         (``repair: rebind``, the default for a lost unit) the tree runs on meanwhile and the
         freed tasks then move within it; else the mission waits for a replacement tree
-        (``redelegating``: no root status ends it meanwhile). ``only``: the one task to free (a
+        (``redelegating``: no root status ends it meanwhile). ``only``: the tasks to free (a
         failed task the engine holds), ``unit``'s others stay on it."""
         if rebind is None:
             rebind = self.config.repair == "rebind"
@@ -202,7 +211,7 @@ class Repair(MissionPart):
                          and isinstance(n.execunit, str) and n.execunit.startswith("/")
                          and not self.view.fleet.is_alive(n.execunit, now)}
         remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()),
-                                   only={only} if only else None)
+                                   only=only)
         if remaining is None:
             return Effects()
         paths = {n.node_uuid: where(p, n) for p, n in walk(parse_tree(mission.current_tst))}
@@ -233,7 +242,11 @@ class Repair(MissionPart):
         self.rebinds.pop(mission.root_uuid, None)  # a replacement supersedes a rebind in flight
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
         job_id = self.planning.next_id()
-        held = frozenset({only}) if only else frozenset()
+        # Failed tasks the engine holds for a rebind: moved although their status is final.
+        held = frozenset(only or ()) | frozenset(
+            uid for u in lost for uid in unfinished_on(tree, mission.node_status, u)
+            if mission.node_status.get(uid) in _HELD) \
+            if rebind and mission.current_root in self.holding else frozenset()
         self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
                                                  job_id, rebind, credited, held)
         options = self.planning.options(mission.plan.get("strategy"),
