@@ -55,7 +55,7 @@ class StartTst(Command):
     #: aborts unasked) is reported ``failed``/``aborted`` but held, its branch not stopped, for
     #: this many seconds, waiting for a ``rebind-tst-nodes`` of it; then its branch fails as
     #: usual. An engine that holds says so in its ``started`` answer. Others ignore the field.
-    hold_failed: float | None = Field(default=None, ge=0.0, le=3600.0)
+    hold_failed: float | None = Field(default=None, ge=0.0)
 
 
 class SignalTstNode(Command):
