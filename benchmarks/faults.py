@@ -16,7 +16,18 @@ planning); the first new ``start-task`` of u1's search on another unit; the miss
 counted on the healthy units' ``exec/command``, the signal-tasks and the start-tasks (distinct
 com-uuids) beyond their own first one.
 
+The shared-search case (``--case search``, issue 22 item 3 / issue 21 item 4): one
+``search-area`` (360 m x 330 m) shared by ``auction`` among u0..u2 (three ``delegation sim``
+processes, speed-up 10); u1 is killed once 12 of its reported positions lie in its part (about
+halfway). Compares ``repair_sweep: remainder`` (what u1's positions swept is subtracted, the rest
+shared among u0 and u2 in u1's part's place) with ``whole`` (u1's part planned again whole):
+kill -> mission end, the share credited as swept, and the healthy units' signal-tasks and own
+parts started again. Measured 2026-11-26 (2 runs each, load average 11-23 on 2 cores):
+remainder 64.5 s (19 % of u1's part credited as swept), whole 71.8 s; 0 signal-tasks and 0 own
+parts started again for u0/u2 in both.
+
     PYTHONPATH=src python benchmarks/faults.py [--runs 2] [--min-timeout 5] [--repair both]
+    PYTHONPATH=src python benchmarks/faults.py --case search [--runs 2]
 """
 
 from __future__ import annotations
@@ -183,13 +194,143 @@ def measure(service: DelegationService, watch: Watch,
             "signals": signals, "starts-again": starts}
 
 
+#: The shared-search case: three drones south of the area, one search shared among them.
+SEARCH_HOME = {"u0": (57.7590, 16.6800), "u1": (57.7590, 16.6830), "u2": (57.7590, 16.6860)}
+SEARCH_SW, SEARCH_SIZE = (57.7600, 16.6800), (0.0030, 0.0060)
+
+
+def search_sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[bytes]:
+    lat, lon = SEARCH_HOME[name]
+    here = {"latitude": lat, "longitude": lon, "altitude": 20.0}
+    path = workdir / f"{name}.json"
+    path.write_text(json.dumps({
+        "name": name, "description": "a searcher",
+        "agents": [{"name": name, "type": "air", "rate": 2.0, "position": here,
+                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
+                    "tasks": ["move-to", "search-area", "search-areas"]}],
+        "mission": {"name": "move-to", "common_params": {}, "params": {"waypoint": here}}}))
+    return subprocess.Popen(
+        [sys.executable, "-m", "delegation", "sim", str(path), "--speedup", "10", "--broker",
+         "127.0.0.1", "--port", str(port), "--prefix", prefix],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": SRC})
+
+
+def search_run(min_timeout: float, sweep: str) -> dict[str, Any]:
+    prefix = f"bench-{uuid.uuid4().hex[:8]}"
+    with PrivateMosquitto() as broker, tempfile.TemporaryDirectory() as tmp:
+        settings = broker.settings()
+        procs = {n: search_sim(n, settings.port, prefix, Path(tmp)) for n in SEARCH_HOME}
+        try:
+            config = ServiceConfig(prefix=prefix, min_heartbeat_timeout=min_timeout,
+                                   repair_sweep=sweep)
+            service = DelegationService(settings, config)
+            with TstEngine(settings, prefix=prefix), service:
+                if not service.wait_ready(list(SEARCH_HOME), timeout=30.0):
+                    raise TimeoutError("units not seen within 30 s")
+                watch = Watch(settings)
+                for topic in ("+/+/+/exec/#", "+/+/u1/sensor/position",
+                              "+/+/delegator0/delegation/#"):
+                    watch.client.subscribe(f"{prefix}/unit/{topic}")
+                watch.client.connect()
+                try:
+                    return measure_search(service, watch, procs)
+                finally:
+                    watch.client.disconnect()
+        finally:
+            for p in procs.values():
+                p.kill()
+                p.wait(10)
+
+
+def measure_search(service: DelegationService, watch: Watch,
+                   procs: dict[str, subprocess.Popen[bytes]]) -> dict[str, Any]:
+    import shapely  # here: the other case needs no geometry
+    from shapely.geometry import Polygon
+
+    from delegation.geo import GeoPoint, LocalFrame
+
+    (lat, lon), (dlat, dlon) = SEARCH_SW, SEARCH_SIZE
+    ring = [{"latitude": a, "longitude": b, "altitude": 20.0}
+            for a, b in ((lat, lon), (lat + dlat, lon), (lat + dlat, lon + dlon),
+                         (lat, lon + dlon))]
+    com = str(uuid.uuid4())
+    tree = {"name": "search-area", "common_params": {"execunit": "*"},
+            "params": {"area": ring, "speed": "standard"}}
+    watch.client.publish(f"{service.config.base_topic}/delegation/command", json.dumps(
+        {"com-uuid": com, "command": "delegate", "tst": tree, "start": True,
+         "strategy": "auction"}).encode(), qos=1)
+    _, m = watch.wait(lambda m: js(m).get("response-to") == com, 30.0)
+    answer = js(m)
+    if answer.get("response") != "started":
+        raise RuntimeError(f"not started: {answer}")
+    root = answer["plan"]["tst"]["common_params"]["node-uuid"]
+    parts = {c["common_params"]["execunit"].strip("/"): c
+             for c in answer["plan"]["tst"].get("children", [])}
+    if set(parts) != set(SEARCH_HOME):
+        raise RuntimeError(f"the search was not shared among three: {sorted(parts)}")
+    frame = LocalFrame(lat, lon)
+    mine = shapely.union_all([Polygon([frame.point_xy(GeoPoint.model_validate(p)) for p in r])
+                              for r in ([parts[LOST]["params"]["area"]]
+                                        if "area" in parts[LOST]["params"]
+                                        else parts[LOST]["params"]["areas"])]).buffer(5.0)
+
+    def inside(msg: Message) -> bool:
+        return msg.topic.endswith("/sensor/position") and mine.contains(
+            shapely.Point(frame.point_xy(GeoPoint.model_validate(js(msg)))))
+
+    watch.wait(lambda _m: sum(inside(x) for _, x in list(watch.messages)) >= 12, 120.0)
+    procs[LOST].send_signal(signal.SIGKILL)
+    killed = time.monotonic()
+    moved_at, m = watch.wait(lambda m: js(m).get("status") == "re-delegated", 30.0)
+    swept = max((t.get("swept", 0.0) for t in js(m).get("tasks", [])), default=0.0)
+    ended_at, m = watch.wait(lambda m: js(m).get("root-uuid") == root and js(m).get("status")
+                             in ("succeeded", "failed", "aborted"), 300.0)
+    signals = starts = 0
+    for unit in ("u0", "u2"):
+        sent = [js(x) for _, x in list(watch.messages)
+                if x.topic.endswith(f"/{unit}/exec/command")]
+        signals += sum(d.get("command") == "signal-task" for d in sent)
+        own = {d.get("com-uuid") for d in sent if d.get("command") == "start-task"
+               and d.get("task", {}).get("params") == parts[unit]["params"]}
+        starts += len(own) - 1
+    return {"re-delegated": moved_at - killed, "ended": ended_at - killed,
+            "status": js(m)["status"], "swept": swept, "signals": signals,
+            "starts-again": starts}
+
+
+def search_main(runs: int, min_timeout: float) -> None:
+    summary: dict[str, list[dict[str, Any]]] = {}
+    for sweep in ("remainder", "whole"):
+        rows = summary.setdefault(sweep, [])
+        for i in range(runs):
+            row = search_run(min_timeout, sweep)
+            rows.append(row)
+            print(f"search, {sweep} run {i + 1}: kill -> re-delegated {row['re-delegated']:.2f} s"
+                  f" (swept {100 * row['swept']:.0f} % credited), -> {row['status']} "
+                  f"{row['ended']:.2f} s; u0/u2: {row['signals']} signal-task, "
+                  f"{row['starts-again']} own part started again", flush=True)
+    for sweep, rows in summary.items():
+        print(f"search, {sweep}: median over {len(rows)} runs: kill -> mission end "
+              f"{statistics.median(r['ended'] for r in rows):.2f} s, credited swept "
+              f"{100 * statistics.median(r['swept'] for r in rows):.0f} %; signal-tasks to "
+              f"u0/u2 {sum(r['signals'] for r in rows)}, own parts started again "
+              f"{sum(r['starts-again'] for r in rows)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=2)
     parser.add_argument("--min-timeout", type=float, default=5.0,
                         help="the service's min_heartbeat_timeout (s; 3 periods at 2 Hz is 1.5)")
     parser.add_argument("--repair", choices=("rebind", "restart", "both"), default="both")
+    parser.add_argument("--case", choices=("tasks", "search"), default="tasks",
+                        help="four searches, one unit's moved (tasks); or one search shared by "
+                             "three units, the lost unit's remainder vs its whole part (search)")
     args = parser.parse_args()
+    if args.case == "search":
+        search_main(args.runs, args.min_timeout)
+        return
     modes = ("rebind", "restart") if args.repair == "both" else (args.repair,)
     summary = {}
     for mode in modes:

@@ -87,9 +87,9 @@ def test_a_unit_killed_mid_task_moves_alone_and_the_healthy_units_fly_on(
 def test_a_task_its_unit_aborts_unasked_is_re_delegated_and_the_operator_hears_the_end(
         mosquitto: PrivateMosquitto, procs: Processes, prefix: str) -> None:
     """Issue 20 items 2 and 5 on a real broker: u1's pilot aborts its task (a ``signal-task
-    $abort`` straight to u1, not through the engine); the service re-delegates it (the tree is
-    replaced) and the operator's TST face hears the replacement under their own root uuid, to
-    ``succeeded``, never the old tree's abort."""
+    $abort`` straight to u1, not through the engine); the service re-delegates it (moved alone:
+    the engine holds it, docs/protocol.md §12.7) and the operator's TST face hears the mission
+    under their own root uuid, to ``succeeded``, never an abort."""
     settings = mosquitto.settings()
     for name in ("u0", "u1", "u2"):
         procs.sim(name)
@@ -131,12 +131,15 @@ def test_after_the_tree_was_replaced_the_operators_signals_reach_the_new_tree(
     """Issue 20 item 2 on a real broker: u1's task is aborted by its pilot, so the tree is
     replaced (u0's task is started again in the new tree); the operator's ``$pause`` and
     ``$continue`` to u0's task, by the uuid the operator knows, reach u0 for the task it runs
-    now, are answered ``ok``, and the mission still ends ``succeeded``."""
+    now, are answered ``ok``, and the mission still ends ``succeeded``. The service does not
+    ask the engine to hold failed tasks (``hold_failed`` 0, as with an engine that cannot,
+    docs/protocol.md §12.7), so the tree is replaced."""
     settings = mosquitto.settings()
     procs.sim("u1")
     for name in ("u0", "u2"):
         procs.sim(name, speedup=SPEEDUP / 4)  # u0's task: about 15 s wall
-    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+    with TstEngine(settings, prefix=prefix), \
+            start_service(settings, prefix, hold_failed=0.0) as service:
         ready(service, ["u0", "u1", "u2"])
         col = Collector(settings, [f"{prefix}/unit/+/+/+/exec/#",
                                    f"{prefix}/unit/+/+/delegator0/delegation/#",

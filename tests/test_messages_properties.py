@@ -164,6 +164,9 @@ _BY_ANNOTATION: dict[str, st.SearchStrategy[Any]] = {
     "dict[str, Any]": json_objects,
     "dict[str, Any] | None": st.none() | json_objects,
     "list[dict[str, Any]] | None": st.none() | st.lists(json_objects, max_size=3),
+    # rebind-tst-nodes' subtrees (task uuid -> a tree).
+    "dict[str, dict[str, Any]] | None": st.none() | st.dictionaries(text, json_objects,
+                                                                    max_size=2),
     "list[TaskAvailable]": st.lists(
         st.builds(TaskAvailable, name=text, signals=st.lists(text, max_size=3)), max_size=3
     ),

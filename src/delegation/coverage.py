@@ -526,6 +526,16 @@ def turns_inside(cells: list[np.ndarray], width: float) -> list[np.ndarray]:
     return [_pull_back(cell, _check_width(width)) for cell in cells]
 
 
+def footprint(track_xy: np.ndarray, width: float) -> shapely.Geometry:
+    """What a camera ``width`` m wide (and about as long) sees along the track."""
+    if len(track_xy) == 0:
+        return shapely.Polygon()
+    if len(track_xy) == 1:
+        return shapely.Point(track_xy[0]).buffer(width / 2.0, cap_style="square")
+    return shapely.LineString(track_xy).buffer(width / 2.0, cap_style="square",
+                                               join_style="mitre", mitre_limit=1.5)
+
+
 def _pull_back(cell: np.ndarray, w: float) -> np.ndarray:
     vec = cell[:, 1] - cell[:, 0]
     length = np.hypot(vec[:, 0], vec[:, 1])

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
@@ -163,6 +164,9 @@ def make_unit(
 
 # --------------------------------------------------------------------------- the live registry
 
+#: Positions kept per unit (at 2 Hz, about half an hour of flight).
+TRACK = 4096
+
 #: Sensors that carry the battery's state of charge.
 _BATTERY_SENSORS: frozenset[str] = frozenset({"battery_state", "battery", "battery_level"})
 
@@ -241,6 +245,8 @@ class _Record:
     last_heartbeat: float | None = None
     last_seen: float | None = None
     position: GeoPoint | None = None
+    #: The last positions heard and when (what a lost unit had swept, `service.sweep_progress`).
+    track: deque[tuple[float, GeoPoint]] = field(default_factory=lambda: deque(maxlen=TRACK))
     battery: float | None = None
     tasks_available: frozenset[str] = frozenset()
     tasks_executing: tuple[tuple[str, str], ...] = ()
@@ -315,6 +321,7 @@ class FleetRegistry:
                 return  # not bound yet, and only a heartbeat binds
             rec.base_topic = base
             rec.position, rec.battery, rec.agent_type = None, None, None
+            rec.track.clear()
         rec.last_seen = now if rec.last_seen is None else max(rec.last_seen, now)
 
         if isinstance(message, HeartBeat):
@@ -330,6 +337,8 @@ class FleetRegistry:
             sensor = rest.split("/", 1)[1]
             value = message.value if isinstance(message, SensorReading) else message
             self._sensor(rec, sensor, value)
+            if sensor == "position" and rec.position is not None:
+                rec.track.append((now, rec.position))
         if rec.agent_type is None:
             rec.agent_type = type_from_base(base)
 
@@ -415,6 +424,11 @@ class FleetRegistry:
             lost.append(FleetEvent(FleetEventKind.LOST, rec.name, now))
         self._events.extend(lost)
         return lost
+
+    def track(self, name: str, since: float) -> list[GeoPoint]:
+        """The positions ``name`` reported from ``since`` on, oldest first (the last `TRACK`)."""
+        rec = self._units.get(name.strip("/"))
+        return [p for t, p in rec.track if t >= since] if rec is not None else []
 
     def is_alive(self, name: str, now: float) -> bool:
         """True while the unit's last heartbeat is fresher than its timeout."""

@@ -264,11 +264,14 @@ class EngineCore:
         if isinstance(command, StartTst):
             tree = parse_tree(command.tst)
             self._refuse_own_tasks(tree)
+            hold = float(command.hold_failed or 0.0)
             root_uuid, actions = self.executor.start_tree(self.delegated.fold(tree, now), now,
                                                           run=command.com_uuid,
-                                                          resume=bool(command.resume))
+                                                          resume=bool(command.resume),
+                                                          hold_failed=hold)
             log.info("%s: executing tree %s", self.name, root_uuid)
-            answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid)
+            answer = self._answer(key, command.com_uuid, "started", root_uuid=root_uuid,
+                                  hold_failed=hold or None)
             return answer.extend(self._carry_out(actions))
         if isinstance(command, SignalTstNode):
             actions = self.executor.signal_node(command.node_uuid, command.signal, now)
@@ -277,7 +280,8 @@ class EngineCore:
         elif isinstance(command, SignalUnit):
             actions = self.executor.signal_unit(command.unit, command.signal, now)
         elif isinstance(command, RebindTstNodes):
-            actions = self.executor.rebind(command.execunits, now)
+            subtrees = {uid: parse_tree(raw) for uid, raw in (command.subtrees or {}).items()}
+            actions = self.executor.rebind(command.execunits, now, subtrees)
         else:  # a tst command this engine does not implement (decode knows every tst command)
             name = getattr(command, "command", type(command).__name__)
             reason = f"{name} is not supported by the TST engine"
@@ -307,10 +311,12 @@ class EngineCore:
         fail_reason: str = "",
         root_uuid: str | None = None,
         nodes: list[dict[str, str]] | None = None,
+        hold_failed: float | None = None,
     ) -> Effects:
         """The ``tst/response``, remembered for re-sends of the command."""
         answer = TstResponse(fail_reason=fail_reason, response=response, response_to=com_uuid,
-                             root_uuid=root_uuid, nodes=list(nodes) if nodes else None)
+                             root_uuid=root_uuid, nodes=list(nodes) if nodes else None,
+                             hold_failed=hold_failed)
         out = Outgoing.of(self.identity.topic("tst/response"), answer, QOS_COMMAND)
         if key is not None:
             self.commands.finish(key, [out])

@@ -218,12 +218,14 @@ class TreeExecutor:
     # ---- starting
 
     def start_tree(
-        self, root: TstNode, now: float, run: str = "", resume: bool = False
+        self, root: TstNode, now: float, run: str = "", resume: bool = False,
+        hold_failed: float = 0.0,
     ) -> tuple[str, list[Action]]:
         """Start executing a parsed tree; raises `InputError` naming the nodes it cannot run.
 
         ``run`` (the start-tst's com-uuid) makes the start-task ids reproducible (`Tree.run`);
-        ``resume`` asks each task's unit for its status once its start-task is answered."""
+        ``resume`` asks each task's unit for its status once its start-task is answered;
+        ``hold_failed`` holds a failed task that long for a rebind (`Tree.hold_failed`)."""
         root = with_uuids(root, self.new_uuid)
         problems = check_instantiated(root)
         for path, node in walk(root):
@@ -242,6 +244,7 @@ class TreeExecutor:
         if problems:
             raise InputError(problems)
         tree = build_tree(root, now, run, resume)
+        tree.hold_failed = max(0.0, hold_failed)
         self._prune()
         self.trees[tree.root_uuid] = tree
         for uid in tree.nodes:
@@ -309,10 +312,19 @@ class TreeExecutor:
         now: float,
         actions: list[Action],
         reason: str = "",
+        *,
+        release: bool = False,
     ) -> None:
-        """A node reached a final status: tell its parent if it was waiting for it."""
+        """A node reached a final status: tell its parent if it was waiting for it (a failed
+        task of a holding tree is held first, `_hold`; ``release`` ends the hold)."""
         if node.terminal:
             return
+        if isinstance(node, TaskNode) and not release and (
+                node.hold_until is not None or self._hold(tree, node, status, reason, now,
+                                                          actions)):
+            return  # held: reported, its branch not told; a later end changes nothing
+        if isinstance(node, TaskNode):
+            node.hold_until = None
         self._set(tree, node, status, actions, reason)
         if isinstance(node, TaskNode):
             self._release_unit(node, now, actions)
@@ -325,6 +337,28 @@ class TreeExecutor:
             node.signals.clear()
         if node.turn and node.parent is not None:
             self._todo.append(("child", tree, node.parent, node.uuid))
+
+    def _hold(self, tree: Tree, node: TaskNode, status: NodeStatus, reason: str, now: float,
+              actions: list[Action]) -> bool:
+        """A task of a holding tree failed (or its unit aborted it unasked): report it, free its
+        unit, and keep its branch going until a rebind moves it or `Tree.hold_failed` runs out
+        (docs/protocol.md §12.7). False when the tree does not hold, or this end is not held."""
+        unasked = status is NodeStatus.ABORTED and reason.endswith(UNIT_ABORTED)
+        if tree.hold_failed <= 0.0 or not node.turn or not (
+                status is NodeStatus.FAILED or unasked):
+            return False
+        node.hold_until = now + tree.hold_failed
+        node.held_end = (status, reason)
+        self._release_unit(node, now, actions)
+        node.pending.clear()
+        for com in node.signals:
+            self._signals.pop(com, None)
+        node.signals.clear()
+        actions.append(NodeChanged(tree.root_uuid, node.uuid, status, node.uuid == tree.root_uuid,
+                                   reason))
+        log.info("task %s (%s) %s: held %g s for a rebind", node.uuid, node.path, status.value,
+                 tree.hold_failed)
+        return True
 
     def _note(
         self, tree: Tree, parent: ControlNode, child: ExecNode, now: float, actions: list[Action]
@@ -440,6 +474,8 @@ class TreeExecutor:
         if not tree.run:
             return self.new_uuid(), self.new_uuid()
         attempt = f"{tree.run}/{node.uuid}/{len(node.known_uuids) + 1}"
+        if node.moves:  # not the ids its earlier unit got (§12.6: a new task-uuid)
+            attempt += f"/moved{node.moves}"
         return (str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/task")),
                 str(uuid_module.uuid5(RUN_NAMESPACE, f"{attempt}/start")))
 
@@ -493,6 +529,11 @@ class TreeExecutor:
         """Deliver a signal to one task node, whatever state it is in (docs/protocol.md §12.1);
         a task-specific one only to a task the unit may be running (`_task_signal_targets`)."""
         if node.terminal:
+            return
+        if node.hold_until is not None:  # failed already: only an abort changes it (ends it)
+            if signal is Signal.ABORT:
+                end, why = node.held_end
+                self._finish(tree, node, end, now, actions, why, release=True)
             return
         if not isinstance(signal, Signal) and not node.sent:
             log.info("task %s: task-specific signal %r dropped: nothing runs", node.uuid, signal)
@@ -758,7 +799,7 @@ class TreeExecutor:
             return []
         tree, node = found
         actions: list[Action] = []
-        if node.terminal or node.attempt.answered:
+        if node.terminal or node.attempt.answered or node.hold_until is not None:
             return actions
         node.attempt.answered = True
         if response in ("running", "started", "ok", "finished"):
@@ -817,7 +858,7 @@ class TreeExecutor:
             return []
         tree, node = found
         actions: list[Action] = []
-        if node.terminal:
+        if node.terminal or node.hold_until is not None:
             return actions
         if status == "failed" and task_uuid in node.refused:
             return actions  # the example agent's feedback next to a refusal we already handled
@@ -857,7 +898,8 @@ class TreeExecutor:
             if tree.done:
                 continue
             for node in tree.tasks():
-                if node.terminal or not node.sent or not node.attempt.answered:
+                if node.terminal or not node.sent or not node.attempt.answered \
+                        or node.hold_until is not None:
                     continue
                 if unit is not None and node.unit != unit:
                     continue
@@ -879,8 +921,7 @@ class TreeExecutor:
         tree = self.trees.get(root_uuid)
         if tree is None:
             return None
-        return [{"node-uuid": n.uuid, "status": n.status.value, "fail-reason": n.fail_reason}
-                for n in tree.nodes.values()]
+        return [_shown(n) for n in tree.nodes.values()]
 
     def _status_answer(self, task_uuid: str, response: str, now: float) -> list[Action]:
         """A unit's answer to ``query-status`` in the seed's words (running, failed, success,
@@ -905,32 +946,35 @@ class TreeExecutor:
 
     # ---- re-binding tasks to other units (the service's repairs, docs/protocol.md §12.6)
 
-    def rebind(self, execunits: dict[str, str], now: float) -> list[Action]:
+    def rebind(self, execunits: dict[str, str], now: float,
+               subtrees: dict[str, TstNode] | None = None) -> list[Action]:
         """``rebind-tst-nodes``: each task node (uuid -> ``/unit``) runs on another unit from now
         on, in the same tree: one not started yet starts there when its turn comes; one waiting
         or running on its old unit is started again on the new one (the old unit, which may
         still fly it, is sent ``$abort`` for its old task-uuid, whose messages are ignored from
-        then). The rest of the tree is not touched. All or nothing: raises `InputError` naming
-        every node that cannot be re-bound (unknown, not a task, already ended, not a unit)."""
-        found: list[tuple[Tree, TaskNode, str]] = []
+        then). ``subtrees`` (uuid -> a fully instantiated tree whose root has that uuid or none)
+        replace task nodes the same way: the old task is stopped on its unit and the subtree
+        runs in its place (a lost unit's unswept remainder of a search shared among live
+        units). The rest of the tree is not touched. All or nothing: raises `InputError` naming
+        every node that cannot be re-bound (unknown, not a task, already ended, not a unit, a
+        subtree not instantiated or reusing a known node uuid)."""
+        subtrees = subtrees or {}
         problems: list[InputProblem] = []
+        found: list[tuple[Tree, TaskNode, str]] = []
         for uid, execunit in execunits.items():
-            field_name = f"execunits.{uid}"
-            tree = self.trees.get(self._node_tree.get(uid, ""))
-            node = tree.nodes.get(uid) if tree is not None else None
-            unit = execunit.strip("/") if isinstance(execunit, str) else ""
-            if tree is None or node is None:
-                problems.append(InputProblem("execunits", field_name, "no executing node"))
-            elif not isinstance(node, TaskNode):
-                problems.append(InputProblem(node.path, field_name, "not a task node"))
-            elif node.terminal:
-                problems.append(InputProblem(node.path, field_name,
-                                             f"already ended ({node.status.value})"))
-            elif not execunit.startswith("/") or not unit or "/" in unit:
-                problems.append(InputProblem(node.path, field_name,
-                                             f"{execunit!r} is not a unit (/name)"))
-            else:
-                found.append((tree, node, unit))
+            at = self._rebindable(uid, f"execunits.{uid}", problems)
+            unit = self._unit_named(at[1], uid, execunit, problems) if at else ""
+            if at and unit:
+                found.append((at[0], at[1], unit))
+        grafts: list[tuple[Tree, TaskNode, TstNode]] = []
+        for uid, raw in subtrees.items():
+            if uid in execunits:
+                problems.append(InputProblem("subtrees", f"subtrees.{uid}", "also in execunits"))
+                continue
+            at = self._rebindable(uid, f"subtrees.{uid}", problems)
+            sub = self._graftable(at[1], uid, raw, problems) if at else None
+            if at and sub is not None:
+                grafts.append((at[0], at[1], sub))
         if problems:
             raise InputError(problems)
         actions: list[Action] = []
@@ -938,20 +982,87 @@ class TreeExecutor:
         for tree, node, unit in found:
             if unit != node.unit:
                 freed += self._rebind_task(tree, node, unit, now, actions)
+        for tree, node, sub in grafts:
+            freed += self._graft(tree, node, sub, now, actions)
         for old in freed:  # its next queued task (if any) may start on it now
             self._wake(old, now, actions)
         self._drain(now, actions)
         return actions
 
-    def _rebind_task(
-        self, tree: Tree, node: TaskNode, unit: str, now: float, actions: list[Action]
-    ) -> list[str]:
-        """Move one task node to ``unit``; the old unit's name if the node occupied it."""
+    def _rebindable(self, uid: str, field_name: str, problems: list[InputProblem]
+                    ) -> tuple[Tree, TaskNode] | None:
+        """The executing task node ``uid`` that has not ended, else None (the problem noted)."""
+        tree = self.trees.get(self._node_tree.get(uid, ""))
+        node = tree.nodes.get(uid) if tree is not None else None
+        if tree is None or node is None:
+            problems.append(InputProblem("execunits", field_name, "no executing node"))
+        elif not isinstance(node, TaskNode):
+            problems.append(InputProblem(node.path, field_name, "not a task node"))
+        elif node.terminal:
+            problems.append(InputProblem(node.path, field_name,
+                                         f"already ended ({node.status.value})"))
+        else:
+            return tree, node
+        return None
+
+    @staticmethod
+    def _unit_named(node: TaskNode, uid: str, execunit: object,
+                    problems: list[InputProblem]) -> str:
+        """The unit name of ``/name``, else "" (the problem noted)."""
+        unit = execunit.strip("/") if isinstance(execunit, str) else ""
+        if not isinstance(execunit, str) or not execunit.startswith("/") or not unit \
+                or "/" in unit:
+            problems.append(InputProblem(node.path, f"execunits.{uid}",
+                                         f"{execunit!r} is not a unit (/name)"))
+            return ""
+        return unit
+
+    def _graftable(self, node: TaskNode, uid: str, sub: TstNode,
+                   problems: list[InputProblem]) -> TstNode | None:
+        """``sub`` with ``uid`` as its root's uuid, its other nodes given uuids, if it can run
+        in the task's place: instantiated, its root ``uid`` (or none), no uuid already known."""
+        field_name = f"subtrees.{uid}"
+        if sub.node_uuid not in (None, uid):
+            problems.append(InputProblem(node.path, field_name,
+                                         f"its root's node-uuid is {sub.node_uuid}, not {uid}"))
+            return None
+        sub = with_uuids(sub.with_common_values({"node-uuid": uid}), self.new_uuid)
+        mine = [InputProblem(node.path + q.where.removeprefix("root"),
+                             f"{field_name}.{q.field}", q.message)
+                for q in check_instantiated(sub)]
+        for path, n in walk(sub):
+            if n.node_uuid != uid and n.node_uuid in self._node_tree:
+                mine.append(InputProblem(f"{node.path}{path[len('root'):]}", field_name,
+                                         f"node-uuid {n.node_uuid} is already executing"))
+        problems += mine
+        return None if mine else sub
+
+    def _graft(self, tree: Tree, node: TaskNode, sub: TstNode, now: float,
+               actions: list[Action]) -> list[str]:
+        """Run ``sub`` (root uuid = the node's) in the task node's place; the task is stopped on
+        its unit as by a move. The old unit's name if the node occupied it."""
+        released = self._detach(node, now, actions)
+        part = build_tree(sub, now, tree.run, tree.resume)
+        for uid, new in part.nodes.items():
+            new.path = node.path + new.path[len("root"):]
+            if uid == node.uuid:
+                new.parent, new.turn, new.held = node.parent, False, node.held
+            tree.nodes[uid] = new
+            self._node_tree[uid] = tree.root_uuid
+        log.info("task %s (%s) on /%s replaced by a %s of %d node(s)", node.uuid, node.path,
+                 node.unit, sub.name, len(part.nodes))
+        if node.turn:
+            self._activate(tree, tree.nodes[node.uuid], now, actions)
+        return [node.unit] if released else []
+
+    def _detach(self, node: TaskNode, now: float, actions: list[Action]) -> bool:
+        """Take the node off its unit: ``$abort`` for what it was sent (its answer or giving up
+        changes nothing), its ids forgotten. True if it occupied the unit."""
         old = node.unit
         queue = self._queue.get(old)
         if queue and node.uuid in queue:
             queue.remove(node.uuid)
-        if node.sent:
+        if node.sent and node.hold_until is None:
             # Detached from the node (no node uuid): its answer or its giving up changes nothing.
             com = self.new_uuid()
             self._signals[com] = _SignalOut(old, node.attempt.task_uuid, Signal.ABORT, "", 1, now)
@@ -969,9 +1080,19 @@ class TreeExecutor:
         node.retry_at = None
         node.abort_sent = False
         node.abort_answered_at = None
+        node.hold_until = None
+        node.moves += 1
         released = node.vehicle and self._occupant.get(old) == node.uuid
         if released:
             del self._occupant[old]
+        return released
+
+    def _rebind_task(
+        self, tree: Tree, node: TaskNode, unit: str, now: float, actions: list[Action]
+    ) -> list[str]:
+        """Move one task node to ``unit``; the old unit's name if the node occupied it."""
+        old = node.unit
+        released = self._detach(node, now, actions)
         node.unit = unit
         log.info("task %s (%s) re-bound from /%s to /%s", node.uuid, node.path, old, unit)
         if node.turn:
@@ -1022,6 +1143,13 @@ class TreeExecutor:
                 self._set(tree, node, node.status, actions, why)
 
     def _tick_task(self, tree: Tree, node: TaskNode, now: float, actions: list[Action]) -> None:
+        if node.hold_until is not None:
+            if now >= node.hold_until:  # no rebind came: its branch learns the end now
+                end, why = node.held_end
+                log.info("task %s (%s): no rebind within %g s", node.uuid, node.path,
+                         tree.hold_failed)
+                self._finish(tree, node, end, now, actions, why, release=True)
+            return
         opts = self.options
         attempt = node.attempt
         answered = node.abort_answered_at
@@ -1078,3 +1206,11 @@ class TreeExecutor:
                 self._task_node.pop(t, None)
             for c in node.known_coms:
                 self._com_node.pop(c, None)
+
+
+def _shown(node: ExecNode) -> dict[str, str]:
+    """A node as ``query-tst`` shows it: a held task (§12.7) with the end it was reported."""
+    if isinstance(node, TaskNode) and node.hold_until is not None:
+        return {"node-uuid": node.uuid, "status": node.held_end[0].value,
+                "fail-reason": node.held_end[1]}
+    return {"node-uuid": node.uuid, "status": node.status.value, "fail-reason": node.fail_reason}

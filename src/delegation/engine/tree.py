@@ -109,6 +109,12 @@ class TaskNode(ExecNode):
     known_coms: set[str] = field(default_factory=set)
     refused: set[str] = field(default_factory=set)
     """Task-uuids a busy unit refused."""
+    moves: int = 0
+    """How often it was moved to another unit (its start-task ids differ per move)."""
+    hold_until: float | None = None
+    """Failed (reported), its branch not told until then: waiting for a rebind (§12.7)."""
+    held_end: tuple[NodeStatus, str] = (NodeStatus.FAILED, "")
+    """The status and fail-reason reported while held (its end when the hold runs out)."""
 
     @property
     def sent(self) -> bool:
@@ -135,6 +141,8 @@ class Tree:
     resume: bool = False
     """The unfinished part of a tree an earlier engine ran: each task is asked ``query-status``
     once its start-task is answered (it may have ended while no engine listened)."""
+    hold_failed: float = 0.0
+    """Seconds a failed task is held for a rebind before its branch is told (§12.7); 0: never."""
 
     @property
     def root(self) -> ExecNode:

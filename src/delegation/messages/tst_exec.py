@@ -51,6 +51,11 @@ class StartTst(Command):
     #: so each is asked ``query-status`` once its re-sent start-task is answered. Other engines
     #: ignore the field.
     resume: bool | None = None
+    #: Our extension (docs/protocol.md §12.7): a task of this tree that fails (or that its unit
+    #: aborts unasked) is reported ``failed``/``aborted`` but held, its branch not stopped, for
+    #: this many seconds, waiting for a ``rebind-tst-nodes`` of it; then its branch fails as
+    #: usual. An engine that holds says so in its ``started`` answer. Others ignore the field.
+    hold_failed: float | None = Field(default=None, ge=0.0)
 
 
 class SignalTstNode(Command):
@@ -84,6 +89,9 @@ class RebindTstNodes(Command):
 
     command: Literal["rebind-tst-nodes"] = "rebind-tst-nodes"
     execunits: dict[str, str]
+    #: Task node uuid -> a fully instantiated tree run in its place (its root has that uuid):
+    #: a lost unit's unswept remainder of a shared search, shared again among live units.
+    subtrees: dict[str, dict[str, Any]] | None = None
 
 
 class QueryTst(Command):
@@ -106,6 +114,8 @@ class TstResponse(Answer):
     #: The answer to ``query-tst``: every node of the tree, parents before children, each
     #: ``{"node-uuid", "status", "fail-reason"}``.
     nodes: list[dict[str, Any]] | None = None
+    #: The ``started`` answer of an engine that holds failed tasks (``StartTst.hold_failed``).
+    hold_failed: float | None = None
 
     def omit_when_empty(self) -> frozenset[str]:
         if self.response in ("ok", "pong"):

@@ -67,6 +67,15 @@ class ServiceConfig:
     #: ``restart`` replaces the tree (``$abort`` + ``start-tst``), as for an engine without it
     #: (a refused or unanswered rebind falls back to it anyway).
     repair: str = "rebind"
+    #: A lost unit's part of a search, moved by ``rebind``: ``remainder`` subtracts what its
+    #: reported positions had swept and shares the rest among the live units; ``whole`` flies
+    #: the part again whole (the comparison of benchmarks/faults.py).
+    repair_sweep: str = "remainder"
+    #: Seconds our engine holds a failed task (or one its unit aborted unasked) for a rebind,
+    #: its branch going on (``start-tst`` ``hold-failed``, docs/protocol.md §12.7), so that the
+    #: task alone moves; past it the branch fails. Above planning's time; 0: the tree is
+    #: replaced instead (as for an engine without the option).
+    hold_failed: float = 30.0
     #: Units busy in another running mission of this service: ``wait`` plans them from when and
     #: where they become free (by that mission's plan), ``exclude`` leaves them out, ``share``
     #: ignores commitments (the engine queues the tasks). Said in the plan's notes.

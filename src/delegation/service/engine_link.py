@@ -107,6 +107,8 @@ class EngineAnswer:
     confirm: bool = False
     #: The tree may run on the engine although the mission failed: ``$abort`` it.
     abort: bool = False
+    #: The engine started the tree holding failed tasks for a rebind (``hold-failed``, §12.7).
+    holds: bool = False
 
 
 class EngineLink:
@@ -261,7 +263,8 @@ class EngineLink:
             return self._confirmed(req, resp)
         if req.kind == "start":
             if resp.response == "started":
-                return EngineAnswer(req, self._started(req), MissionStatus.STARTED)
+                return EngineAnswer(req, self._started(req), MissionStatus.STARTED,
+                                    holds=bool(resp.hold_failed))
             reason = f"engine {engine} refused the tree: {resp.fail_reason or resp.response}"
             return EngineAnswer(req, failure(req.face, caller, reason), MissionStatus.FAILED,
                                 reason)

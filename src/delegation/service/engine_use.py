@@ -159,8 +159,9 @@ class EngineUse(MissionPart):
         effects = self.relay(mission, fb)
         effects.extend(self.lifecycle.publish(events))
         if retry is not None:
-            # The engine already ended the failed (or aborted) branch: the tree is replaced.
-            effects.extend(self.repair.redelegate(mission, retry[0], retry[1], now, rebind=False))
+            # Held by the engine (hold-failed): the task alone moves; else the engine already
+            # ended the failed (or aborted) branch and the tree is replaced.
+            effects.extend(self.repair.failed(mission, fb.node_uuid, retry[0], retry[1], now))
         return effects
 
     def relay(self, mission: Mission, fb: TstFeedback) -> Effects:
@@ -230,6 +231,8 @@ class EngineUse(MissionPart):
             return effects.extend(self.repair.rebind_answered(
                 req.root_uuid, getattr(answer, "response", "") == "ok",
                 getattr(answer, "fail_reason", "") or "no answer", now))
+        if req.kind == "start" and got.holds:
+            self.repair.holding.add(req.tree or req.root_uuid)  # §12.7: failed tasks held
         if got.response is not None:  # a confirmed start: what the tree did meanwhile
             effects.extend(self._caught_up(req.root_uuid, got, now))
         if got.abort:

@@ -326,6 +326,29 @@ def _with_execunits(tst: dict[str, Any], execunits: dict[str, str]) -> dict[str,
     return root
 
 
+def _with_subtrees(tst: dict[str, Any], subtrees: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """A copy of the JSON tree ``tst`` with the nodes named replaced by the subtrees given."""
+
+    def common(node: dict[str, Any]) -> dict[str, Any]:
+        got = node.get("common_params", node.get("common-params"))
+        return got if isinstance(got, dict) else {}
+
+    root = dict(tst)
+    if common(root).get("node-uuid") in subtrees:
+        return dict(subtrees[common(root)["node-uuid"]])
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        children = node.get("children")
+        if isinstance(children, list):
+            node["children"] = [
+                dict(subtrees.get(str(common(c).get("node-uuid")), c)) if isinstance(c, dict)
+                else c
+                for c in children]
+            stack.extend(c for c in node["children"] if isinstance(c, dict))
+    return root
+
+
 class MissionBook:
     """Every mission the service has planned or run, indexed by root and by node uuid."""
 
@@ -452,6 +475,23 @@ class MissionBook:
             if info is not None:
                 mission.nodes[uid] = NodeInfo(uid, info.name, unit, info.path, info.is_task)
         mission.current_tst = _with_execunits(mission.current_tst, execunits)
+        mission.redelegations += 1
+        self.touch(mission.root_uuid, Change.TREE | Change.STATE)
+
+    def graft(self, mission: Mission, subtrees: dict[str, dict[str, Any]]) -> None:
+        """Task nodes of the running tree replaced by subtrees under their uuids
+        (``rebind-tst-nodes`` ``subtrees``: a lost unit's unswept remainder shared again); the
+        subtrees' nodes join the mission, their paths under the node they replace."""
+        for uid, raw in subtrees.items():
+            info = mission.nodes.get(uid)
+            where_ = info.path if info is not None else "root"
+            for new_uid, new in node_infos(parse_tree(raw)).items():
+                path = where_ + new.path.removeprefix("root")
+                mission.nodes[new_uid] = NodeInfo(new_uid, new.name, new.execunit, path,
+                                                  new.is_task)
+                mission.current_nodes.add(new_uid)
+                self._node_root[new_uid] = mission.root_uuid
+        mission.current_tst = _with_subtrees(mission.current_tst, subtrees)
         mission.redelegations += 1
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 

@@ -258,7 +258,8 @@ class Planning(MissionPart):
         if problem:
             effects.extend(self.lifecycle.set_status(root_uuid, MissionStatus.FAILED, now, problem))
             return effects.extend(self.desk.fail(job.face, job.key, job.com_uuid, problem))
-        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"],
+                         hold_failed=self.config.hold_failed or None)
         effects.publish.append(self.engine.send("start", job.key, job.face, start, now, root_uuid,
                                                 plan_json))
         log.info("mission %s sent to engine %s", root_uuid, self.config.engine)

@@ -15,7 +15,7 @@ old tree is aborted and the remaining one started in its place.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,12 +60,19 @@ def remaining_tree(
     node_status: Mapping[str, str],
     free_units: Iterable[str],
     new_uuid: Callable[[], str],
+    only: Collection[str] | None = None,
 ) -> Remaining | None:
     """The tasks of ``tree`` that have not succeeded, in its structure, with new node uuids; the
-    tasks of ``free_units`` without a unit. None when nothing is left to do."""
+    tasks of ``free_units`` without a unit. With ``only``, just the tasks it names are freed and
+    the free units' other tasks are left out (a failed task moved alone, docs/protocol.md §12.7:
+    they stay on their unit in the running tree, and the plan only says where the freed go).
+    None when nothing is left to do."""
     free = set(free_units)
     origin: dict[str, str] = {}
     freed: set[str] = set()
+
+    def freeing(node: TstNode) -> bool:
+        return unit_of(node) in free and (only is None or (node.node_uuid or "") in only)
 
     def copy(node: TstNode) -> TstNode | None:
         old = node.node_uuid or ""
@@ -77,12 +84,14 @@ def remaining_tree(
         else:
             if node_status.get(old) in DONE:
                 return None
+            if only is not None and unit_of(node) in free and old not in only:
+                return None
             new = node
-            if unit_of(node) in free:
+            if freeing(node):
                 new = node.with_common_values({"execunit": ""})
         uid = new_uuid()
         origin[uid] = old
-        if not node.is_control and unit_of(node) in free:
+        if not node.is_control and freeing(node):
             freed.add(uid)
         return new.with_common_values({"node-uuid": uid})
 

@@ -5,10 +5,14 @@ A unit lost (heartbeat stopped, or a new agent-uuid) or answering ``failed`` has
 tasks re-delegated: what remains of the mission is planned without it (a job), and the operator is
 told which task moved where (`delegation.service.redelegation` computes the remaining tree).
 A lost unit's tasks move within the running tree (``rebind-tst-nodes``): the other units' tasks
-go on untouched. A failed task (its branch already stopped by the engine), or a rebind the engine
-refuses, replaces the tree: the old one is aborted and the remaining one started. A task
-re-delegated ``max_retries`` times, or one nobody can take, fails the mission naming it. An engine
-lost or restarted does not fail its missions: they are caught up with
+go on untouched. A lost unit's search that ran is first reduced to what its reported positions had
+not swept (`delegation.service.sweep_progress`); the planner may share that remainder among the
+live units, and its pieces then run in the task's place (``rebind-tst-nodes`` ``subtrees``).
+A failed task of a tree our engine holds (``hold-failed``, §12.7: its branch not stopped) moves
+alone the same way. A failed task of any other tree (its branch already stopped by the engine),
+or a rebind the engine refuses, replaces the tree: the old one is aborted and the remaining one
+started. A task re-delegated ``max_retries`` times, or one nobody can take, fails the mission
+naming it. An engine lost or restarted does not fail its missions: they are caught up with
 (`delegation.service.catch_up`), which gives a restarted engine the unfinished part of each tree
 again; a lost engine is waited for, at most ``engine_return_timeout``, then its missions fail
 saying so.
@@ -19,8 +23,10 @@ from __future__ import annotations
 import logging
 import uuid
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from delegation.allocation import Plan
+from delegation.allocation.sharing import SHAREABLE
 from delegation.errors import InputError
 from delegation.fleet import FleetEvent, FleetEventKind
 from delegation.messages import (
@@ -46,10 +52,15 @@ from delegation.service.redelegation import (
     unfinished_on,
     unit_of,
 )
-from delegation.tst.node import parse_tree, walk, where
+from delegation.service.sweep_progress import unswept
+from delegation.tst.node import TstNode, map_tree, parse_tree, to_dict, walk, where
 from delegation.tst.validate import validate_tree
 
 log = logging.getLogger(__name__)
+
+#: The status of a task our engine holds for a rebind (docs/protocol.md §12.7; one its unit
+#: aborted unasked is held too, known by its feedback's fail-reason only).
+_HELD = frozenset({"failed"})
 
 
 
@@ -68,6 +79,10 @@ class Replan:
     #: A lost delegator's part, offered to the other delegators: what goes whole to one of them
     #: moves within the running tree (`federated.handover`), else the tree is replaced.
     handover: bool = False
+    #: Freed searches reduced to what their lost unit had not swept: new uuid -> share swept.
+    credited: dict[str, float] = field(default_factory=dict)
+    #: Failed tasks the engine holds for this rebind (their uuids in the running tree).
+    held: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,10 +92,14 @@ class Rebinding:
     execunits: dict[str, str]
     why: str
     units: frozenset[str]
-    tasks: list[dict[str, str]]
+    tasks: list[dict[str, Any]]
     #: What the mission's tree records, when more than ``execunits`` (a handed-over subtree's
     #: nodes: the engine holds it as one node, our tree has them all).
     book: dict[str, str] = field(default_factory=dict)
+    #: Task uuid -> the subtree run in its place (a lost unit's unswept remainder, shared).
+    subtrees: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: Failed tasks the engine held, moved by it: their recorded failure is forgotten.
+    held: frozenset[str] = frozenset()
 
 
 @dataclass(eq=False)
@@ -96,6 +115,8 @@ class Repair(MissionPart):
     rebinds: dict[str, Rebinding] = field(default_factory=dict)
     #: Since when the engine is lost (its missions wait for it), or None.
     engine_away: float | None = None
+    #: Roots of the trees our engine said it holds failed tasks of (``hold-failed``, §12.7).
+    holding: set[str] = field(default_factory=set)
 
     def forget(self, root_uuid: str, now: float) -> Effects:
         """The mission ends while re-delegating (cancelled): abort its old tree, still running
@@ -169,13 +190,29 @@ class Repair(MissionPart):
                                                offers=delegator))
         return effects
 
+    def failed(self, mission: Mission, node_uuid: str, unit: str, why: str, now: float
+               ) -> Effects:
+        """A task failed on its unit (or was aborted by it unasked). In a tree the engine holds
+        it for (``holding``) it alone moves, by rebind, its branch going on; otherwise the
+        engine already stopped its branch and the tree is replaced."""
+        if mission.current_root not in self.holding:
+            return self.redelegate(mission, unit, why, now, rebind=False)
+        # Every held task of that unit (a rebooted unit fails them all, one feedback each: each
+        # replan supersedes the last, so the last covers them all).
+        held = {uid for uid in unfinished_on(parse_tree(mission.current_tst), mission.node_status,
+                                             unit)
+                if mission.node_status.get(uid) in _HELD} | {node_uuid}
+        return self.redelegate(mission, unit, why, now, rebind=True, only=held)
+
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
-                   *, rebind: bool | None = None, offers: bool = False) -> Effects:
+                   *, rebind: bool | None = None, offers: bool = False,
+                   only: set[str] | None = None) -> Effects:
         """Plan what ``mission`` still has to do without ``unit`` (a job). With ``rebind``
         (``repair: rebind``, the default for a lost unit) the tree runs on meanwhile and the
         freed tasks then move within it; else the mission waits for a replacement tree
         (``redelegating``: no root status ends it meanwhile). With ``offers`` (a lost delegator)
-        the other delegators are asked for offers first (docs/protocol.md §15.4)."""
+        the other delegators are asked for offers first (docs/protocol.md §15.4). ``only``: the
+        tasks to free (a failed task the engine holds), ``unit``'s others stay on it."""
         if rebind is None:
             rebind = self.config.repair == "rebind"
         tree = parse_tree(mission.current_tst)
@@ -183,7 +220,8 @@ class Repair(MissionPart):
         lost = {unit} | {n.execunit.strip("/") for _, n in walk(tree) if not n.is_control
                          and isinstance(n.execunit, str) and n.execunit.startswith("/")
                          and not self.view.fleet.is_alive(n.execunit, now)}
-        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()))
+        remaining = remaining_tree(tree, mission.node_status, lost, lambda: str(uuid.uuid4()),
+                                   only=only)
         if remaining is None:
             return Effects()
         if offers:  # the lost delegator's seq/conc are free for anyone too
@@ -200,14 +238,30 @@ class Repair(MissionPart):
         except InputError as exc:
             return self.abort_and_fail(mission, mission.current_root, f"{why}; {exc.fail_reason}",
                                        now)
+        credited: dict[str, float] = {}
+        if rebind and self.config.repair_sweep == "remainder":
+            reduced, credited = self.subtract_swept(mission, remaining, now)
+            try:
+                checked, remaining = validate_tree(reduced.tree, self.config.limits), reduced
+            except InputError as exc:  # said, and the parts planned whole as without it
+                log.warning("mission %s: the unswept remainder is not a valid tree (%s): the "
+                            "lost parts are planned again whole", mission.root_uuid,
+                            exc.fail_reason)
+                credited = {}
         old_root = mission.current_root
         if not rebind:
             mission.current_root = ""  # re-delegating
         self.rebinds.pop(mission.root_uuid, None)  # a replacement supersedes a rebind in flight
         units, notes = self.view.plannable(now, exclude=lost, mission=mission.root_uuid)
         job_id = self.planning.next_id()
+        # Failed tasks the engine holds for a rebind: moved although their status is final.
+        held = frozenset(only or ()) | frozenset(
+            uid for u in lost for uid in unfinished_on(tree, mission.node_status, u)
+            if mission.node_status.get(uid) in _HELD) \
+            if rebind and mission.current_root in self.holding else frozenset()
         self.replans[mission.root_uuid] = Replan(remaining, why, old_root, frozenset(lost),
-                                                 job_id, rebind, offers)
+                                                 job_id, rebind, handover=offers,
+                                                 credited=credited, held=held)
         options = self.planning.options(mission.plan.get("strategy"),
                                         mission.plan.get("objective"), None)
         job = Job(id=job_id, kind="plan",
@@ -219,9 +273,47 @@ class Repair(MissionPart):
                       now, alive_only=False)))
         log.info("mission %s: re-delegating %d task(s): %s", mission.root_uuid,
                  len(remaining.freed), why)
-        held = self.planning.offers.open(job, "", now, redelegation=True) \
+        opened = self.planning.offers.open(job, "", now, redelegation=True) \
             if offers and self.planning.offers is not None else None
-        return held if held is not None else Effects(jobs=[job])
+        return opened if opened is not None else Effects(jobs=[job])
+
+    def subtract_swept(self, mission: Mission, remaining: Remaining, now: float
+                       ) -> tuple[Remaining, dict[str, float]]:
+        """``remaining`` with each freed search that ran reduced to what its unit had not swept
+        (`sweep_progress`: the positions it reported since the task ran), and the share of each
+        credited as swept (new uuid -> share)."""
+        states = {u.name: u for u in self.view.fleet.snapshot(now)}
+        to_mono = now - self.lifecycle.epoch(now)  # node_started is in epoch seconds
+        reduced: dict[str, TstNode] = {}
+        credited: dict[str, float] = {}
+        for _, node in walk(remaining.tree):
+            uid = node.node_uuid or ""
+            old = remaining.origin.get(uid, "")
+            started = mission.node_started.get(old)
+            info = mission.nodes.get(old)
+            if uid not in remaining.freed or node.name not in SHAREABLE or started is None \
+                    or info is None:
+                continue
+            unit = states.get(info.execunit.strip("/"))
+            if unit is None:
+                continue
+            track = self.view.fleet.track(unit.name, started + to_mono)
+            left, done = unswept(node, unit, track)
+            if done > 0.0:
+                reduced[uid], credited[uid] = left, done
+                log.info("mission %s: %s had swept %.0f %% of %s (%d positions): the rest is "
+                         "shared again", mission.root_uuid, info.execunit, 100.0 * done,
+                         info.path, len(track))
+
+        def swap(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+            if node.is_control:
+                return replace(node, children=children)
+            return reduced.get(node.node_uuid or "", node)
+
+        if not reduced:
+            return remaining, {}
+        return Remaining(map_tree(remaining.tree, swap), remaining.origin,
+                         remaining.freed), credited
 
     def redelegated(self, job: Job, result: JobResult, now: float) -> Effects:
         """A re-delegation was planned: abort the old tree, start the new one, tell the operator;
@@ -270,7 +362,8 @@ class Repair(MissionPart):
             first = first_origin(mission.origin, uid)
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = self.abort_tree(replan.old_root, now)
-        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"])
+        start = StartTst(receiver=self.config.engine, sender=self.config.name, tst=plan_json["tst"],
+                         hold_failed=self.config.hold_failed or None)
         effects.publish.append(self.engine.send("start", (INTERNAL, f"{new_root}#start"),
                                                 "delegation", start, now, mission.root_uuid,
                                                 plan_json))
@@ -285,25 +378,19 @@ class Repair(MissionPart):
 
     def rebind(self, mission: Mission, replan: Replan, plan: Plan, now: float) -> Effects:
         """Send ``rebind-tst-nodes`` for the freed tasks that have not ended, each to the unit
-        the plan gave it (the rest of the running tree is not touched)."""
-        origin = replan.remaining.origin
-        unit_by_uuid = {n.node_uuid: unit_of(n) for _, n in walk(plan.tst) if not n.is_control}
-        execunits = {origin[uid]: f"/{unit_by_uuid[uid]}" for uid in sorted(replan.remaining.freed)
-                     if unit_by_uuid.get(uid)
-                     and mission.node_status.get(origin[uid]) not in TERMINAL_NODE_STATUSES}
-        if not execunits:
+        the plan gave it; a freed search the plan shared, or reduced to its unswept remainder,
+        is replaced by its parts (``subtrees``). The rest of the running tree is not touched."""
+        execunits, subtrees, tasks = self.moves(mission, replan, plan)
+        if not execunits and not subtrees:
             return Effects()
         problem = self.engine.problem(now)
         if problem:
             return self.abort_and_fail(mission, mission.current_root,
                                        f"{replan.why}; {problem}", now)
-        tasks = []
-        for old, unit in execunits.items():
-            info = mission.nodes[old]
-            tasks.append({"node-uuid": old, "replaces": old, "name": info.name,
-                          "path": info.path, "unit": unit})
-        self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks)
-        model = RebindTstNodes(execunits=execunits, sender=self.config.name)
+        self.rebinds[mission.root_uuid] = Rebinding(execunits, replan.why, replan.units, tasks,
+                                                    subtrees=subtrees, held=replan.held)
+        model = RebindTstNodes(execunits=execunits, subtrees=subtrees or None,
+                               sender=self.config.name)
         key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
         for note in plan.notes:
             log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
@@ -326,13 +413,49 @@ class Repair(MissionPart):
             return None
         mission.current_root = replan.old_root  # the tree runs on
         self.rebinds[mission.root_uuid] = Rebinding(moves.engine, replan.why, replan.units,
-                                                    moves.tasks, moves.book)
+                                                    moves.tasks, book=moves.book)
         key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
         for note in plan.notes:
             log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
         model = RebindTstNodes(execunits=moves.engine, sender=self.config.name)
         return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
                                                  mission.root_uuid)])
+
+    def moves(self, mission: Mission, replan: Replan, plan: Plan
+              ) -> tuple[dict[str, str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
+        """What the rebind moves: (task uuid -> its new unit, task uuid -> the subtree of parts
+        run in its place, the ``re-delegated`` rows) for the freed tasks that have not ended."""
+        origin = replan.remaining.origin
+        planned = {n.node_uuid: n for _, n in walk(plan.tst) if n.node_uuid}
+        parts = plan.part_map()
+        execunits: dict[str, str] = {}
+        subtrees: dict[str, dict[str, Any]] = {}
+        tasks: list[dict[str, Any]] = []
+        for uid in sorted(replan.remaining.freed):
+            old = origin[uid]
+            if mission.node_status.get(old) in TERMINAL_NODE_STATUSES and old not in replan.held:
+                continue
+            info = mission.nodes[old]
+            row: dict[str, Any] = {"node-uuid": old, "replaces": old, "name": info.name,
+                                   "path": info.path}
+            if uid in replan.credited:
+                row["swept"] = round(replan.credited[uid], 3)
+            pieces = [planned[p] for p in parts.get(uid, []) if p in planned]
+            node = planned.get(uid)
+            if pieces or uid in replan.credited:
+                pieces = pieces or ([node] if node is not None and not node.is_control else [])
+                if not pieces:
+                    continue
+                sub = TstNode(name="conc", children=tuple(pieces),
+                              common_params={"node-uuid": old})
+                subtrees[old] = to_dict(sub)
+                tasks += [{**row, "node-uuid": p.node_uuid or "", "name": p.name,
+                           "path": f"{info.path}/children[{i}]", "unit": p.execunit}
+                          for i, p in enumerate(pieces)]
+            elif node is not None and unit_of(node):
+                execunits[old] = f"/{unit_of(node)}"
+                tasks.append({**row, "unit": execunits[old]})
+        return execunits, subtrees, tasks
 
     def rebind_answered(self, root_uuid: str, ok: bool, reason: str, now: float) -> Effects:
         """The engine's answer to ``rebind-tst-nodes``: the tasks moved (the book follows, the
@@ -348,9 +471,17 @@ class Repair(MissionPart):
             why = f"{sent.why} (the engine did not move the tasks: {reason})"
             return self.redelegate(mission, next(iter(sorted(sent.units))), why, now,
                                    rebind=False)
+        for uid in sent.held:  # runs again: its failure, held, was not its end
+            mission.node_status.pop(uid, None)
+            mission.node_ended.pop(uid, None)
         self.book.rebind(mission, sent.book or sent.execunits)
-        for uid in {t["node-uuid"] for t in sent.tasks}:  # the retry budget counts per task
-            first = first_origin(mission.origin, uid)
+        if sent.subtrees:
+            self.book.graft(mission, sent.subtrees)
+        # The retry budget counts once per task first delegated (a handed-over subtree: each of
+        # its tasks; a search moved as parts: the search).
+        moved = set(sent.execunits) | set(sent.subtrees) | (
+            {t["node-uuid"] for t in sent.tasks} if sent.book else set())
+        for first in {first_origin(mission.origin, uid) for uid in moved}:
             mission.retries[first] = mission.retries.get(first, 0) + 1
         effects = Effects()
         effects.send(self.desk.topics.delegation_feedback, DelegationFeedback(

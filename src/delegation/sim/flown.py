@@ -22,6 +22,7 @@ import numpy as np
 import shapely
 
 from delegation.allocation.plan import Plan
+from delegation.coverage import footprint as footprint  # (re-exported: what was seen)
 from delegation.fleet import UnitState
 from delegation.geo import LocalFrame
 from delegation.sim.vehicle import SimVehicle
@@ -125,14 +126,6 @@ def fly_plan(plan: Plan, units: Sequence[UnitState], frame: LocalFrame, dt: floa
 # --------------------------------------------------------------------------- what was seen
 
 
-def footprint(track_xy: np.ndarray, width: float) -> shapely.Geometry:
-    """What a camera ``width`` m wide (and about as long) sees along the track."""
-    if len(track_xy) == 0:
-        return shapely.Polygon()
-    if len(track_xy) == 1:
-        return shapely.Point(track_xy[0]).buffer(width / 2.0, cap_style="square")
-    return shapely.LineString(track_xy).buffer(width / 2.0, cap_style="square",
-                                               join_style="mitre", mitre_limit=1.5)
 
 
 def swept(area: shapely.Geometry, prints: Sequence[shapely.Geometry]) -> tuple[float, float]:
