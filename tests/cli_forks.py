@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import gc
 import importlib
 import json
 import os
@@ -110,6 +111,10 @@ def serve() -> None:
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
 
+    # Every child would otherwise copy the pages of the preloaded heap as its collector and its
+    # interpreter's finalisation walk them: frozen objects are never collected nor traversed.
+    gc.collect()
+    gc.freeze()
     global _REPLIES
     _REPLIES = os.dup(1)
     replies = os.fdopen(_REPLIES, "w")

@@ -48,6 +48,18 @@ def _broker_kinds() -> list[Any]:
     return kinds
 
 
+def one_broker() -> pytest.MarkDecorator:
+    """Run a test on the first broker of `_broker_kinds` only (mosquitto where it exists).
+
+    For tests whose subject is not the broker (a service's store failing, ``kill -9`` of a
+    ``serve`` process): there both brokers run the same code path twice, and the MQTT client's
+    behaviour on each broker is what the MQTT tests check. Use as ``pytestmark = [one_broker()]``.
+    """
+    kinds = _broker_kinds()
+    runnable = [k for k in kinds if isinstance(k, str)]
+    return pytest.mark.parametrize("broker", runnable[:1] or kinds[:1], indirect=True)
+
+
 @pytest.fixture(scope="session", params=_broker_kinds())
 def broker(request: pytest.FixtureRequest) -> Iterator[LocalBroker]:
     """A broker for the whole session, on a free loopback port; stopped at the end."""

@@ -25,6 +25,7 @@ from delegation.scenario import scenario_from_dict
 from delegation.tst import TstNode, with_defaults, with_uuids
 
 
+@pytest.mark.slow  # searches for its time limit
 def test_optimal_searches_mixed_trees_within_its_time_limit_and_beats_the_auction() -> None:
     scenario = scenario_from_dict(generate_scenario(units=10, tasks=30, seed=0,
                                                     structure="mixed"))
@@ -53,6 +54,7 @@ def _mixed(units: int, tasks: int) -> tuple[TstNode, list[UnitState]]:
     return scenario.tree(), scenario.units()
 
 
+@pytest.mark.slow  # searches for its time limit
 def test_the_search_runs_on_both_cores_within_its_time_limit(second_core: None) -> None:
     """With a second core, a helper process searches with another seed; the better is kept."""
     tree, units = _mixed(10, 30)
@@ -65,6 +67,7 @@ def test_the_search_runs_on_both_cores_within_its_time_limit(second_core: None) 
     assert plan.makespan < auction.makespan
 
 
+@pytest.mark.slow  # searches for its time limit
 def test_the_helper_search_answers_a_valid_schedule_no_worse_than_its_start(
     second_core: None,
 ) -> None:

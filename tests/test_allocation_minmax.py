@@ -101,6 +101,7 @@ def test_sweep_starts_cover_every_task_once_and_keep_every_rule(restricted: bool
         assert sorted(len(r) for r in routes) == [6, 7, 7]
 
 
+@pytest.mark.slow  # a search to its limit
 def test_minmax_search_restarts_from_sweeps_and_stays_never_worse() -> None:
     """Enough perturbations for several runs: runs restart, every rule is still kept, and the
     result is never worse than the start."""

@@ -260,6 +260,7 @@ def test_evaluator_agrees_with_plan_times() -> None:
     assert np.allclose(again.end, s.end, equal_nan=True)
 
 
+@pytest.mark.slow  # every strategy on large trees
 def test_larger_mixed_trees_keep_the_invariants() -> None:
     # A conc of single move-tos and short seqs (some ending in a conc), 40 tasks, 5 units.
     import random

@@ -29,7 +29,7 @@ from delegation.runtime.core import Effects
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, ServiceConfig
 
-pytestmark = pytest.mark.mqtt
+pytestmark = [pytest.mark.mqtt, pytest.mark.slow]  # a backlog of seconds, by design
 
 FRAME = LocalFrame(57.7605, 16.6815)
 BURST = 400

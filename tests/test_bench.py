@@ -70,6 +70,7 @@ def test_every_reported_plan_passes_the_invariant_checks(result: BenchResult) ->
         assert check_invariants(plan, scenario.tree(), units) == []
 
 
+@pytest.mark.slow  # bench runs
 def test_ratio_compares_with_nearest_on_the_same_scenario(result: BenchResult) -> None:
     by_key = {(r.source, r.strategy, r.objective, r.repeat): r for r in result.records}
     for r in result.records:
@@ -84,6 +85,7 @@ def _number(text: str) -> float:
     return float(text.replace(",", "").rstrip("%"))
 
 
+@pytest.mark.slow  # bench runs
 def test_csv_json_and_table_carry_the_same_numbers(result: BenchResult, tmp_path: Path) -> None:
     records = result.records
     csv_rows = read_csv(write_csv(records, tmp_path / "results.csv"))

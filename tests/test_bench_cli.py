@@ -118,6 +118,7 @@ def test_bad_file_is_named_and_exit_code_is_1(
     assert "gen-granso-u2-t3-s0" in captured.out
 
 
+@pytest.mark.slow  # a scale sweep and its plot
 def test_scale_writes_csv_png_and_summary(tmp_path: Path) -> None:
     code = main(
         [
@@ -158,6 +159,7 @@ def test_usage_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.slow  # bench runs and a results page
 def test_results_page_is_made_from_the_same_records(tmp_path: Path) -> None:
     docs = tmp_path / "docs"
     assert (

@@ -31,6 +31,7 @@ def test_grid_runs_small_to_large() -> None:
         grid([0], [1])
 
 
+@pytest.mark.slow  # a whole scale sweep
 def test_generous_budget_runs_every_cell(tmp_path: Path) -> None:
     records = run_scale(
         ["nearest", "auction"],
@@ -63,6 +64,7 @@ def test_generous_budget_runs_every_cell(tmp_path: Path) -> None:
     assert matplotlib.image.imread(png).shape[0] > 100
 
 
+@pytest.mark.slow  # a scale sweep, per isolation
 @pytest.mark.parametrize("isolate", [True, False])
 def test_a_strategy_over_budget_skips_larger_sizes_and_says_so(
     tmp_path: Path, isolate: bool

@@ -117,6 +117,7 @@ def test_broker_process_refuses_other_interfaces() -> None:
         BrokerProcess(host="0.0.0.0")
 
 
+@pytest.mark.slow  # broker and parent processes
 @pytest.mark.mqtt
 def test_broker_process_exits_when_its_parent_is_killed() -> None:
     """A parent killed with -9 cannot stop its broker: the child sees its stdin close and exits

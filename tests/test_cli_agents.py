@@ -7,7 +7,10 @@ import subprocess
 import sys
 import time
 
+import pytest
 
+
+@pytest.mark.slow  # a fresh process waits out its bound
 def test_agents_against_a_silent_broker_is_bounded_by_wait() -> None:
     # A loopback socket that completes TCP handshakes (the kernel's backlog) and never speaks
     # MQTT: the client waits for a CONNACK that never comes.

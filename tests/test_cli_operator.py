@@ -22,12 +22,15 @@ from typing import Any
 import pytest
 
 import cli_forks
+from conftest import one_broker
 from delegation.local import LocalSystem
 from delegation.runtime.broker import LocalBroker
 from delegation.scenario import load_scenario
 from delegation.service import ServiceConfig
 
-pytestmark = pytest.mark.mqtt
+# The commands are under test, not the broker (on amqtt, in this process, the fleet and the
+# broker share one interpreter and every case took twice as long to test the same): one broker.
+pytestmark = [pytest.mark.mqtt, one_broker()]
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Simulated seconds per wall second: the usv0's 270 m move-to (90 s) takes under 2 s.
@@ -234,6 +237,7 @@ def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
     assert cli(live, ["cancel", root]).returncode == 0
 
 
+@pytest.mark.slow  # a fresh ``python -m delegation``, started and stopped
 def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
                                                         tmp_path: Path) -> None:
     root = str(uuid.uuid4())
@@ -282,6 +286,7 @@ def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
         assert expected in text, expected
 
 
+@pytest.mark.slow  # five fresh ``python -m delegation`` processes, started and stopped
 @pytest.mark.parametrize(("command", "sig", "code", "ready"), [
     (["engine"], signal.SIGTERM, 0, "TST engine"),
     (["sim", "demo"], signal.SIGINT, 130, "simulated units"),

@@ -110,6 +110,7 @@ def fresh_core() -> ServiceCore:
     return core
 
 
+@pytest.mark.slow  # hundreds of generated command sequences
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     st.lists(

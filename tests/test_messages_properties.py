@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic.fields import FieldInfo
@@ -104,6 +105,7 @@ def test_any_json_decodes_or_fails_cleanly(topic: str, data: Any) -> None:
     check_decode(topic, json.dumps(data).encode())
 
 
+@pytest.mark.slow  # hundreds of generated messages
 @SETTINGS
 @given(st.sampled_from(TOPICS), nearly_messages)
 def test_nearly_messages_decode_or_fail_cleanly(topic: str, data: dict[str, Any]) -> None:
@@ -131,6 +133,7 @@ def test_any_sensor_payload_parses_or_fails_cleanly(sensor: str, payload: bytes)
         assert isinstance(value, float)
 
 
+@pytest.mark.slow  # hundreds of generated payloads
 @SETTINGS
 @given(
     st.binary(max_size=200)

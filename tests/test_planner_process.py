@@ -60,6 +60,7 @@ def test_the_child_plans_what_the_thread_plans(planner: PlannerProcess) -> None:
     assert planner.pid != os.getpid() and planner.pid is not None and _alive(planner.pid)
 
 
+@pytest.mark.slow  # planner processes killed and started again
 def test_a_child_that_dies_answers_failed_and_is_replaced(planner: PlannerProcess) -> None:
     dead = planner.pid
     assert dead is not None
@@ -70,6 +71,7 @@ def test_a_child_that_dies_answers_failed_and_is_replaced(planner: PlannerProces
     assert isinstance(planner(_job()), PlanDone)
 
 
+@pytest.mark.slow  # a planner process started and stopped
 def test_close_ends_the_child() -> None:
     own = PlannerProcess()
     pid = own.pid
@@ -86,6 +88,7 @@ def _children(pid: int) -> list[int]:
     return found
 
 
+@pytest.mark.slow  # a real service killed -9
 def test_no_planner_outlives_a_service_killed_with_kill_9(mosquitto: PrivateMosquitto,
                                                           tmp_path: Path) -> None:
     settings = mosquitto.settings()

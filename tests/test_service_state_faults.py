@@ -22,13 +22,15 @@ from typing import Any
 
 import pytest
 
+from conftest import one_broker
 from delegation.fleet import make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import ServiceConfig
 
-pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
+# The store and the serve process are under test, not the broker: one broker (conftest).
+pytestmark = [pytest.mark.mqtt, pytest.mark.slow, one_broker()]
 
 FRAME = LocalFrame(57.7605, 16.6815)
 PG_BASE = "postgresql://127.0.0.1:5432/test"

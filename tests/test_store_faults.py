@@ -28,6 +28,7 @@ from typing import Any
 
 import pytest
 
+from conftest import one_broker
 from delegation.fleet import make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
@@ -35,7 +36,8 @@ from delegation.runtime.settings import BrokerSettings
 from delegation.service import ServiceConfig
 from delegation.service.store import PostgresStore, SqliteStore
 
-pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
+# The store and the serve process are under test, not the broker: one broker (conftest).
+pytestmark = [pytest.mark.mqtt, pytest.mark.slow, one_broker()]
 
 FRAME = LocalFrame(57.7605, 16.6815)
 PG_BASE = "postgresql://127.0.0.1:5432/test"
@@ -284,7 +286,9 @@ def test_postgres_backend_terminated_mid_mission_the_service_beats_holds_and_rec
         service = serves(name, role.dsn, "--store-bound", "60")
         agent = _wait_heartbeat(watch, base, set(), timeout=30)
         _wait_ready(watch, base, prefix, agent)
-        root = _start_mission(watch, base, prefix, 1200.0)  # ~15 s of wall time
+        # 700 m at 8 m/s x10: ~9 s of wall time; the outage (4 beats at 1 Hz, then the held answer)
+        # takes about 5 s of it.
+        root = _start_mission(watch, base, prefix, 700.0)
 
         cut = time.time()
         role.cut()  # the backend terminated, and no new session for now
@@ -366,7 +370,7 @@ def test_sqlite_disk_full_mid_mission_the_service_beats_holds_and_recovers(
         service = serves(name, str(state), "--store-bound", "60")
         agent = _wait_heartbeat(watch, base, set(), timeout=30)
         _wait_ready(watch, base, prefix, agent)
-        root = _start_mission(watch, base, prefix, 1200.0)
+        root = _start_mission(watch, base, prefix, 700.0)  # as above: ~9 s of flight
 
         full = time.time()
         filler = fill(small_disk)

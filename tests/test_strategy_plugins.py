@@ -154,6 +154,7 @@ def test_plan_cli_runs_the_example_plugin_by_spec() -> None:
     assert plan["strategy"] == SPEC and plan["feasible"] is True
 
 
+@pytest.mark.slow  # fresh plan and serve processes
 def test_plan_and_serve_refuse_an_unimportable_spec_with_its_reason() -> None:
     for command in (["plan", "scenarios/demo.yaml"], ["serve"]):
         done = _cli(*command, "--strategy", "no_such_module_xyz:fn")

@@ -7,6 +7,7 @@ import json
 import math
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -185,6 +186,7 @@ trees = st.recursive(
 ).map(number_uuids)
 
 
+@pytest.mark.slow  # hundreds of generated trees
 @SETTINGS
 @given(trees)
 def test_catalogue_trees_round_trip_exactly_and_validate(data: dict[str, Any]) -> None:
@@ -262,6 +264,7 @@ fuzzy_trees = st.recursive(
 )
 
 
+@pytest.mark.slow  # hundreds of generated trees
 @SETTINGS
 @given(fuzzy_trees)
 def test_nearly_right_trees_are_a_tree_or_an_input_error(data: Any) -> None:

@@ -198,6 +198,7 @@ def _console_script() -> list[str]:
     return [found] if found else [sys.executable, "-m", "delegation"]
 
 
+@pytest.mark.slow  # fresh processes of the installed script
 def test_console_script(tmp_path: Path) -> None:
     tree = good_tree()
     # A bow tie: the edges (57.76, 16.68)-(57.77, 16.69) and (57.76, 16.69)-(57.77, 16.68) cross.
