@@ -112,10 +112,13 @@ TERMINAL_COLUMNS: tuple[Column, ...] = tuple(
     replace(c, header=_TERMINAL_HEADERS[c.field]) for c in COLUMNS if c.field in _TERMINAL_HEADERS
 )
 
-#: The same per scenario when runs are repeated: the objective's statistics over the repeats.
+_TERMINAL = {c.field: c for c in TERMINAL_COLUMNS}
+
+#: The same per scenario when runs are repeated: the objective's statistics over the repeats
+#: (the columns a run has too are the terminal table's, so the two tables read alike).
 AGGREGATE_COLUMNS: tuple[Column, ...] = (
-    Column("objective", "objective", _text, numeric=False),
-    Column("label", "strategy", _text, numeric=False),
+    _TERMINAL["objective"],
+    _TERMINAL["label"],
     Column("runs", "n", _int),
     Column("mean", "mean", _fixed(1)),
     Column("median", "median", _fixed(1)),
@@ -123,10 +126,10 @@ AGGREGATE_COLUMNS: tuple[Column, ...] = (
     Column("ci95", "95% CI", _text),
     Column("span", "min-max", _text),
     Column("solve_time_mean", "solve s", _fixed(3)),
-    Column("unassigned", "unasg", _int),
-    Column("bound", "bound", _fixed(1)),
-    Column("ratio_to_baseline", "ratio", _ratio),
-    Column("gap_to_best_known", "vs best", _percent),
+    _TERMINAL["unassigned"],
+    _TERMINAL["bound"],
+    _TERMINAL["ratio_to_baseline"],
+    _TERMINAL["gap_to_best_known"],
 )
 
 
