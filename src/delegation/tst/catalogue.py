@@ -97,6 +97,17 @@ def _task(
 
 _TARGET_SIZE_DEFAULT = 2.0
 
+
+def _search_params(area_type: bool = True) -> list[ParamSpec]:
+    """What every search task takes after its area: speed, what it looks for and how big."""
+    kind = [_p("area-type", ParamType.STRING)] if area_type else []
+    return [
+        _speed(),
+        _p("target-type", ParamType.STRING),
+        *kind,
+        _p("target-size", ParamType.FLOAT64, "metres", default=_TARGET_SIZE_DEFAULT),
+    ]
+
 CATALOGUE: dict[str, TaskSpec] = {
     t.name: t
     for t in [
@@ -191,10 +202,7 @@ CATALOGUE: dict[str, TaskSpec] = {
             ("vehicle",),
             [
                 _p("area", ParamType.GEOPOINTS, "The area to search"),
-                _speed(),
-                _p("target-type", ParamType.STRING),
-                _p("area-type", ParamType.STRING),
-                _p("target-size", ParamType.FLOAT64, "metres", default=_TARGET_SIZE_DEFAULT),
+                *_search_params(),
             ],
             required=("area",),
         ),
@@ -204,10 +212,7 @@ CATALOGUE: dict[str, TaskSpec] = {
             ("vehicle",),
             [
                 _p("areas", ParamType.GEOPOINTARRAYS, "The areas to search"),
-                _speed(),
-                _p("target-type", ParamType.STRING),
-                _p("area-type", ParamType.STRING),
-                _p("target-size", ParamType.FLOAT64, "metres", default=_TARGET_SIZE_DEFAULT),
+                *_search_params(),
             ],
             required=("areas",),
         ),
@@ -218,9 +223,7 @@ CATALOGUE: dict[str, TaskSpec] = {
             [
                 _p("geopoint", ParamType.GEOPOINT, "The centre of the search"),
                 _p("radius", ParamType.FLOAT64, "metres", default=50.0),
-                _speed(),
-                _p("target-type", ParamType.STRING),
-                _p("target-size", ParamType.FLOAT64, "metres", default=_TARGET_SIZE_DEFAULT),
+                *_search_params(area_type=False),
             ],
             required=("geopoint",),
         ),
