@@ -637,12 +637,19 @@ class LiveView:
 
     def mission_summary(self, row: Mapping[str, Any], now: float) -> None:
         """One ``list-missions`` row (short form)."""
+        m = self._summarised(row, now)
+        if m is not None:
+            self._changed(m, now)
+
+    def _summarised(self, row: Mapping[str, Any], now: float) -> MissionRecord | None:
+        """The mission a row (a summary or a ``query-mission`` answer) names, its summary
+        fields taken; None when the row names none or one the operator hid."""
         root = row.get("root-uuid")
         if not isinstance(root, str) or not root or root in self.hidden:
-            return
+            return None
         m = self._mission(root, now)
         self._summary_fields(m, row)
-        self._changed(m, now)
+        return m
 
     def _summary_fields(self, m: MissionRecord, row: Mapping[str, Any]) -> None:
         m.name = str(row.get("name") or m.name)
@@ -661,11 +668,9 @@ class LiveView:
 
     def mission_answer(self, mission: Mapping[str, Any], now: float) -> None:
         """A ``query-mission`` answer's ``mission``: owner, plan, tree, node statuses."""
-        root = mission.get("root-uuid")
-        if not isinstance(root, str) or not root or root in self.hidden:
+        m = self._summarised(mission, now)
+        if m is None:
             return
-        m = self._mission(root, now)
-        self._summary_fields(m, mission)
         if m.plan is None or not m.detailed:
             plan = {k: mission.get(k) for k in ("strategy", "fallback", "makespan", "assignments",
                                                 "unassigned", "notes", "tst", "shared-searches")}
