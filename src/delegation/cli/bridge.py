@@ -13,7 +13,7 @@ import threading
 from typing import Any
 
 from delegation.cli.connect import add_broker_args, client_settings, require_ros2
-from delegation.cli.options import positive_float
+from delegation.cli.options import add_duration_arg, positive_float
 from delegation.topics import AGENT_TYPES, ROLES
 
 log = logging.getLogger(__name__)
@@ -36,8 +36,7 @@ def register(subparsers: Any) -> None:
                         "for the heartbeat)")
     bridge.add_argument("--units", default="", metavar="NAME,...",
                         help="bridge only these units (default: every unit either side shows)")
-    bridge.add_argument("--duration", type=positive_float, default=None,
-                        help="stop after this many seconds (default: run)")
+    add_duration_arg(bridge)
     bridge.add_argument("--report", type=positive_float, default=60.0, metavar="SECONDS",
                         help="log the counts every SECONDS (default 60)")
     add_broker_args(bridge)

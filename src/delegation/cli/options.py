@@ -158,6 +158,12 @@ def positive_float(value: str) -> float:
     return number
 
 
+def add_duration_arg(parser: argparse.ArgumentParser) -> None:
+    """``--duration``, for the commands that otherwise run until stopped (engine, sim, bridge)."""
+    parser.add_argument("--duration", type=positive_float, default=None,
+                        help="stop after this many seconds (default: run)")
+
+
 def fraction(value: str) -> float:
     """An argparse ``type`` for a number in 0..1."""
     number = _number(value)

@@ -13,7 +13,7 @@ from typing import Any
 
 from delegation.cli.connect import add_broker_args, client_settings
 from delegation.cli.inputs import find_scenario
-from delegation.cli.options import positive_float
+from delegation.cli.options import add_duration_arg
 from delegation.errors import InputError, InputProblem
 from delegation.topics import AGENT_TYPES, ROLES
 
@@ -32,7 +32,7 @@ def register(subparsers: Any) -> None:
                         help="agent-type in its topics (default ground)")
     engine.add_argument("--role", default="simulation", choices=ROLES,
                         help="role level of its topics (default simulation)")
-    _run_args(engine)
+    add_duration_arg(engine)
     add_broker_args(engine)
     engine.set_defaults(func=_engine)
 
@@ -53,16 +53,9 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="behave like the public WARA-PS example agent (message shapes and quirks)",
     )
-    _run_args(sim)
+    add_duration_arg(sim)
     add_broker_args(sim)
     sim.set_defaults(func=_sim)
-
-
-def _run_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--duration", type=positive_float, default=None,
-        help="stop after this many seconds (default: run)",
-    )
 
 
 def _settings(args: argparse.Namespace) -> Any:
