@@ -611,18 +611,21 @@ def _command_line(args: argparse.Namespace) -> str:
     return " ".join(words)
 
 
-_SCALE_HEADERS = (
-    "strategy",
-    "objective",
-    "largest ok",
-    "time s",
-    "over at",
-    "skipped",
-    "failed",
-    "vs best",
-    "best on",
-    "copied",
+#: The scale summary's columns, in `_scale_cells` order: the terminal header, the markdown
+#: header, and whether the markdown column is right-aligned (numbers).
+_SCALE_COLUMNS: tuple[tuple[str, str, bool], ...] = (
+    ("strategy", "strategy", False),
+    ("objective", "objective", False),
+    ("largest ok", "largest cell within budget", False),
+    ("time s", "its time s", True),
+    ("over at", "exceeded the budget at", False),
+    ("skipped", "skipped cells", True),
+    ("failed", "failed", True),
+    ("vs best", "median objective / best", True),
+    ("best on", "strictly best on", True),
+    ("copied", "returned an earlier strategy's plan", True),
 )
+_SCALE_HEADERS = tuple(short for short, _, _ in _SCALE_COLUMNS)
 
 
 def _scale_cells(row: dict[str, Any]) -> list[str]:
@@ -641,21 +644,8 @@ def _scale_cells(row: dict[str, Any]) -> list[str]:
 
 
 def _scale_markdown(rows: list[dict[str, Any]]) -> str:
-    headers = [
-        "strategy",
-        "objective",
-        "largest cell within budget",
-        "its time s",
-        "exceeded the budget at",
-        "skipped cells",
-        "failed",
-        "median objective / best",
-        "strictly best on",
-        "returned an earlier strategy's plan",
-    ]
-    lines = [
-        "| " + " | ".join(headers) + " |",
-        "|---|---|---|---:|---|---:|---:|---:|---:|---:|",
-    ]
+    headers = [long for _, long, _ in _SCALE_COLUMNS]
+    rule = ["---:" if numeric else "---" for _, _, numeric in _SCALE_COLUMNS]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(rule) + "|"]
     lines += ["| " + " | ".join(_scale_cells(row)) + " |" for row in rows]
     return "\n".join(lines)
