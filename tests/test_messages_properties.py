@@ -200,6 +200,8 @@ def models_of(model: type[WireModel]) -> st.SearchStrategy[WireModel]:
     }
     if "com_uuid" in fields:
         fields["com_uuid"] = st.text(min_size=1, max_size=10)  # an empty one is refused
+    if "preview_id" in fields:  # (delegate's preview-id: absent, or not empty)
+        fields["preview_id"] = st.none() | st.text(min_size=1, max_size=10)
     return st.builds(model, **fields)
 
 
