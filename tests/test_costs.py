@@ -375,6 +375,33 @@ def test_search_width_depends_on_the_unit() -> None:
     assert t.end_xy[0] == pytest.approx(low_path[-1], abs=0.01)
 
 
+def test_each_unit_starts_a_search_where_its_own_sweep_starts() -> None:
+    """Issue 21: the plan's travel to a search is to where that unit's sweep starts (its width
+    sets the lanes), and the checker, which rebuilds the tables from the tree sent, agrees."""
+    from delegation.allocation import check_invariants, plan_mission
+    from delegation.allocation.problem import build_problem
+    from delegation.allocation.schedule import evaluate
+
+    low = unit("low", x=-300.0, y=-200.0, sweep_altitude=20.0)
+    high = unit("high", x=900.0, y=700.0, sweep_altitude=80.0)
+    area = [wire(0, 0, 30.0), wire(600, 0, 30.0), wire(600, 410, 30.0), wire(0, 410, 30.0)]
+    node = make_node("search-area", params={"area": area})
+    t = cost_tables([low, high], [node], frame=GRANSO)
+    for u, who in enumerate((low, high)):
+        path = GRANSO.points_xy(task_path(node, who, GRANSO))
+        assert t.start_for(u, 0) == pytest.approx(path[0], abs=0.01)
+        assert t.end_for(u, 0) == pytest.approx(path[-1], abs=0.01)
+    assert float(np.hypot(*(t.end_for(0, 0) - t.end_for(1, 0)))) > 20.0  # the ends differ
+    problem = build_problem(make_node("seq", children=[node]), [low, high], t)
+    schedule = evaluate(problem, np.array([1]), [[], [0]])
+    want = float(np.hypot(*(t.start_for(1, 0) - t.unit_xy[1]))) / float(t.speed[1, 0])
+    assert schedule.travel_time[0] == pytest.approx(want, rel=1e-9)
+    fixed = make_node("seq", children=[make_node("search-area", params={"area": area},
+                                                 execunit="/high")])
+    plan = plan_mission(fixed, [low, high], strategy="auction")
+    assert plan.feasible and check_invariants(plan, fixed, [low, high]) == []
+
+
 def test_large_tables_are_consistent() -> None:
     rng = np.random.default_rng(0)
     units = [
