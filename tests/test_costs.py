@@ -463,3 +463,42 @@ def test_coverage_properties_on_random_convex_polygons(
     unit_dirs = directions[long_enough] / np.hypot(*directions[long_enough].T)[:, None]
     assert np.allclose(np.abs(unit_dirs @ unit_dirs[0]), 1.0)
     assert coverage_length(poly, width, along=long_axis) == pytest.approx(path_length(path))
+
+
+def test_route_costs_use_each_units_own_search_ends() -> None:
+    """Issue 21: the auction's first bids, its insertion costs, the routes' times and the
+    schedule agree where searches start and end per unit."""
+    from delegation.allocation.auction import auction
+    from delegation.allocation.auction.improve import route_time
+    from delegation.allocation.problem import build_problem
+    from delegation.allocation.routes import first_insertion_costs, insertion_costs
+    from delegation.bench.generate import generate_scenario
+    from delegation.scenario import scenario_from_dict
+    from delegation.tst import with_defaults, with_uuids
+
+    scenario = scenario_from_dict(generate_scenario(units=10, tasks=30, seed=0,
+                                                    structure="mixed"))
+    problem = build_problem(with_defaults(with_uuids(scenario.tree())), scenario.units())
+    assert problem.unit_start_xy is not None  # some unit's sweep starts elsewhere
+    first = first_insertion_costs(problem)
+    assert first is not None
+    for u in range(problem.n_units):
+        alone = insertion_costs(problem, u, [], np.arange(problem.n_tasks))[0]
+        assert first[u] == pytest.approx(alone, rel=1e-9, abs=1e-9)
+    schedule = auction(problem, "makespan")
+    rng = np.random.default_rng(0)
+    for u, route in enumerate(schedule.orders):
+        spent = sum(float(schedule.travel_time[t] + schedule.work_time[t]) for t in route)
+        home = 0.0
+        if route and problem.has_home[u]:
+            home = float(np.hypot(*(problem.home_xy[u] - problem.end_at(u, route[-1])))
+                         / problem.home_speed[u])
+        assert route_time(problem, u, list(route)) == pytest.approx(spent + home, abs=1e-6)
+        for t in rng.choice(np.flatnonzero(problem.vehicle), 5).tolist():
+            if t in route:
+                continue
+            k = int(rng.integers(len(route) + 1))
+            added = route_time(problem, u, [*route[:k], t, *route[k:]]) - route_time(
+                problem, u, list(route))
+            cost = insertion_costs(problem, u, list(route), np.array([t]))[k, 0]
+            assert added == pytest.approx(cost, abs=1e-6)
