@@ -303,7 +303,9 @@ class CostTables:
     ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
     For search tasks ``start_xy``/``end_xy`` are the ends of the sweep at the narrowest sweep width
     among the units that offer the task (the end lane depends on how many lanes a unit needs, and
-    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width).
+    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width): the
+    reference points; each unit's own are ``unit_start_xy``/``unit_end_xy``, which
+    ``start_for``/``end_for``, ``dist_unit_to_start``, ``dist_end_to_home`` and the planner use.
     Open-ended tasks have ``work_time`` 0.
     """
 
