@@ -375,6 +375,33 @@ def test_search_width_depends_on_the_unit() -> None:
     assert t.end_xy[0] == pytest.approx(low_path[-1], abs=0.01)
 
 
+def test_each_unit_starts_a_search_where_its_own_sweep_starts() -> None:
+    """Issue 21: the plan's travel to a search is to where that unit's sweep starts (its width
+    sets the lanes), and the checker, which rebuilds the tables from the tree sent, agrees."""
+    from delegation.allocation import check_invariants, plan_mission
+    from delegation.allocation.problem import build_problem
+    from delegation.allocation.schedule import evaluate
+
+    low = unit("low", x=-300.0, y=-200.0, sweep_altitude=20.0)
+    high = unit("high", x=900.0, y=700.0, sweep_altitude=80.0)
+    area = [wire(0, 0, 30.0), wire(600, 0, 30.0), wire(600, 410, 30.0), wire(0, 410, 30.0)]
+    node = make_node("search-area", params={"area": area})
+    t = cost_tables([low, high], [node], frame=GRANSO)
+    for u, who in enumerate((low, high)):
+        path = GRANSO.points_xy(task_path(node, who, GRANSO))
+        assert t.start_for(u, 0) == pytest.approx(path[0], abs=0.01)
+        assert t.end_for(u, 0) == pytest.approx(path[-1], abs=0.01)
+    assert float(np.hypot(*(t.end_for(0, 0) - t.end_for(1, 0)))) > 20.0  # the ends differ
+    problem = build_problem(make_node("seq", children=[node]), [low, high], t)
+    schedule = evaluate(problem, np.array([1]), [[], [0]])
+    want = float(np.hypot(*(t.start_for(1, 0) - t.unit_xy[1]))) / float(t.speed[1, 0])
+    assert schedule.travel_time[0] == pytest.approx(want, rel=1e-9)
+    fixed = make_node("seq", children=[make_node("search-area", params={"area": area},
+                                                 execunit="/high")])
+    plan = plan_mission(fixed, [low, high], strategy="auction")
+    assert plan.feasible and check_invariants(plan, fixed, [low, high]) == []
+
+
 def test_large_tables_are_consistent() -> None:
     rng = np.random.default_rng(0)
     units = [
@@ -437,3 +464,42 @@ def test_coverage_properties_on_random_convex_polygons(
     unit_dirs = directions[long_enough] / np.hypot(*directions[long_enough].T)[:, None]
     assert np.allclose(np.abs(unit_dirs @ unit_dirs[0]), 1.0)
     assert coverage_length(poly, width, along=long_axis) == pytest.approx(path_length(path))
+
+
+def test_route_costs_use_each_units_own_search_ends() -> None:
+    """Issue 21: the auction's first bids, its insertion costs, the routes' times and the
+    schedule agree where searches start and end per unit."""
+    from delegation.allocation.auction import auction
+    from delegation.allocation.auction.improve import route_time
+    from delegation.allocation.problem import build_problem
+    from delegation.allocation.routes import first_insertion_costs, insertion_costs
+    from delegation.bench.generate import generate_scenario
+    from delegation.scenario import scenario_from_dict
+    from delegation.tst import with_defaults, with_uuids
+
+    scenario = scenario_from_dict(generate_scenario(units=10, tasks=30, seed=0,
+                                                    structure="mixed"))
+    problem = build_problem(with_defaults(with_uuids(scenario.tree())), scenario.units())
+    assert problem.unit_start_xy is not None  # some unit's sweep starts elsewhere
+    first = first_insertion_costs(problem)
+    assert first is not None
+    for u in range(problem.n_units):
+        alone = insertion_costs(problem, u, [], np.arange(problem.n_tasks))[0]
+        assert first[u] == pytest.approx(alone, rel=1e-9, abs=1e-9)
+    schedule = auction(problem, "makespan")
+    rng = np.random.default_rng(0)
+    for u, route in enumerate(schedule.orders):
+        spent = sum(float(schedule.travel_time[t] + schedule.work_time[t]) for t in route)
+        home = 0.0
+        if route and problem.has_home[u]:
+            home = float(np.hypot(*(problem.home_xy[u] - problem.end_at(u, route[-1])))
+                         / problem.home_speed[u])
+        assert route_time(problem, u, list(route)) == pytest.approx(spent + home, abs=1e-6)
+        for t in rng.choice(np.flatnonzero(problem.vehicle), 5).tolist():
+            if t in route:
+                continue
+            k = int(rng.integers(len(route) + 1))
+            added = route_time(problem, u, [*route[:k], t, *route[k:]]) - route_time(
+                problem, u, list(route))
+            cost = insertion_costs(problem, u, list(route), np.array([t]))[k, 0]
+            assert added == pytest.approx(cost, abs=1e-6)

@@ -303,7 +303,9 @@ class CostTables:
     ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
     For search tasks ``start_xy``/``end_xy`` are the ends of the sweep at the narrowest sweep width
     among the units that offer the task (the end lane depends on how many lanes a unit needs, and
-    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width).
+    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width): the
+    reference points; each unit's own are ``unit_start_xy``/``unit_end_xy``, which
+    ``start_for``/``end_for``, ``dist_unit_to_start``, ``dist_end_to_home`` and the planner use.
     Open-ended tasks have ``work_time`` 0.
     """
 
@@ -334,6 +336,11 @@ class CostTables:
     #: (T,) per search task its polygons in ``frame`` (east/north m), () for other tasks: the
     #: sharing of searches reads them again and again (DESIGN 3.11).
     polygons: tuple[tuple[np.ndarray, ...], ...] = ()
+    #: (U, T, 2) where each unit starts and ends each task: for searches the ends of its own
+    #: sweep (its width: the lanes, their direction and the last lane depend on it), elsewhere
+    #: ``start_xy``/``end_xy``. None: those for every unit.
+    unit_start_xy: np.ndarray | None = None
+    unit_end_xy: np.ndarray | None = None
 
     @property
     def n_units(self) -> int:
@@ -381,20 +388,29 @@ class CostTables:
         return self._point_for(u, t, self.end_xy)
 
     def _point_for(self, u: int, t: int, table: np.ndarray) -> np.ndarray | None:
-        """Row ``t`` of ``table``, the unit's home for ``go-home``, None for in-place tasks."""
+        """Row ``t`` of ``table`` (the unit's own where it has one), the unit's home for
+        ``go-home``, None for in-place tasks."""
         if not self.travels[t]:
             return None
         if self.to_home[t]:
             home = self.home_xy[u]
             return None if np.isnan(home).any() else home
+        per_unit = self.unit_start_xy if table is self.start_xy else self.unit_end_xy
+        if per_unit is not None:
+            return np.asarray(per_unit[u, t])
         return np.asarray(table[t])
 
     def dist_unit_to_start(self) -> np.ndarray:
         """(U, T) metres from each unit's position to each task's start.
 
         0 for in-place tasks; for ``go-home`` the distance to the unit's home (0 when unknown).
+        Searches start where the unit's own sweep starts.
         """
-        d = pairwise_xy_distances(self.unit_xy, self.start_xy)
+        if self.unit_start_xy is not None:
+            gap = self.unit_start_xy - self.unit_xy[:, None, :]
+            d = np.asarray(np.hypot(gap[..., 0], gap[..., 1]))
+        else:
+            d = pairwise_xy_distances(self.unit_xy, self.start_xy)
         d[:, ~self.travels] = 0.0
         if self.to_home.any():
             home_d = np.hypot(*(self.home_xy - self.unit_xy).T)
@@ -405,9 +421,10 @@ class CostTables:
     def dist_end_to_start(self) -> np.ndarray:
         """(T, T) metres from the end of task i to the start of task j.
 
-        Column j is 0 when j is done in place; row i is NaN when i is done in place or is
-        ``go-home`` (the unit's position then depends on the unit or on what it did before), and
-        column j is NaN when j is ``go-home``.
+        The reference points (a search's sweep at the narrowest width): see ``unit_start_xy``
+        for each unit's own. Column j is 0 when j is done in place; row i is NaN when i is done
+        in place or is ``go-home`` (the unit's position then depends on the unit or on what it
+        did before), and column j is NaN when j is ``go-home``.
         """
         d = pairwise_xy_distances(self.end_xy, self.start_xy)
         d[:, ~self.travels] = 0.0
@@ -417,8 +434,13 @@ class CostTables:
 
     def dist_end_to_home(self) -> np.ndarray:
         """(T, U) metres from the end of task t to unit u's home; NaN where u has no home or the
-        end is not a fixed point (in-place tasks); 0 for ``go-home``."""
-        d = pairwise_xy_distances(self.end_xy, self.home_xy)
+        end is not a fixed point (in-place tasks); 0 for ``go-home``. A search ends where the
+        unit's own sweep ends."""
+        if self.unit_end_xy is not None:
+            gap = self.unit_end_xy - self.home_xy[:, None, :]
+            d = np.asarray(np.hypot(gap[..., 0], gap[..., 1]).T)
+        else:
+            d = pairwise_xy_distances(self.end_xy, self.home_xy)
         no_home = np.isnan(self.home_xy).any(axis=1)
         d[self.to_home, :] = 0.0
         d[:, no_home] = np.nan
@@ -448,8 +470,8 @@ def cost_tables(
     speed = _speed_table(units_t, tasks_t)
     listed = _listed_table(units_t, tasks_t)
     width = _width_table(units_t, geoms)
-    start_xy, end_xy, work_distance, polygons = _task_ends_and_work(geoms, task_xy, width,
-                                                                    listed)
+    start_xy, end_xy, work_distance, polygons, unit_ends = _task_ends_and_work(
+        geoms, task_xy, width, listed)
     open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(len(geoms))
     fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(len(geoms))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -473,6 +495,8 @@ def cost_tables(
         width=width,
         exclude_busy=exclude_busy,
         polygons=polygons,
+        unit_start_xy=unit_ends[0] if unit_ends is not None else None,
+        unit_end_xy=unit_ends[1] if unit_ends is not None else None,
     )
     _fill_capability(tables)
     return tables
@@ -545,16 +569,21 @@ def _width_table(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> n
 def _task_ends_and_work(
     geoms: Sequence[TaskGeometry], task_xy: Sequence[np.ndarray], width: np.ndarray,
     listed: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[tuple[np.ndarray, ...], ...]]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[tuple[np.ndarray, ...], ...],
+           tuple[np.ndarray, np.ndarray] | None]:
     """(T, 2) where each task starts and ends (NaN: depends on the unit, or in place), (U, T)
-    the distance its work covers (inf: a search the unit cannot sweep) and each search's
-    polygons (``CostTables.polygons``)."""
+    the distance its work covers (inf: a search the unit cannot sweep), each search's
+    polygons (``CostTables.polygons``) and (U, T, 2) each unit's start and end (None without
+    searches: ``CostTables.unit_start_xy``)."""
     n_t = len(geoms)
     start_xy = np.full((n_t, 2), np.nan)
     end_xy = np.full((n_t, 2), np.nan)
     path_len = np.zeros(n_t)
     work_distance = np.zeros(width.shape)
     polygons: list[tuple[np.ndarray, ...]] = [()] * n_t
+    searches = np.array([g.kind == "areas" for g in geoms], dtype=bool).reshape(n_t)
+    unit_ends = (np.full((width.shape[0], n_t, 2), np.nan), np.full((width.shape[0], n_t, 2),
+                                                                    np.nan))
     for t, g in enumerate(geoms):
         if g.kind == "point":
             start_xy[t] = end_xy[t] = task_xy[t][0]
@@ -565,30 +594,38 @@ def _task_ends_and_work(
         elif g.kind == "areas":
             polygons[t] = tuple(_polygons_from(g, task_xy[t]))
             start_xy[t], end_xy[t] = _sweep_work(g, polygons[t], width[:, t], listed[:, t],
-                                                 work_distance[:, t])
+                                                 work_distance[:, t],
+                                                 (unit_ends[0][:, t], unit_ends[1][:, t]))
     work_distance += path_len[None, :]
-    searches = np.array([g.kind == "areas" for g in geoms], dtype=bool).reshape(n_t)
     work_distance[np.isnan(width) & searches[None, :]] = np.inf
-    return start_xy, end_xy, work_distance, tuple(polygons)
+    if not searches.any():
+        return start_xy, end_xy, work_distance, tuple(polygons), None
+    for ends, ref in zip(unit_ends, (start_xy, end_xy), strict=True):
+        ends[:, ~searches] = ref[None, ~searches]
+    return start_xy, end_xy, work_distance, tuple(polygons), unit_ends
 
 
 def _sweep_work(
     g: TaskGeometry, polygons: Sequence[np.ndarray], col: np.ndarray, listed: np.ndarray,
-    out: np.ndarray,
+    out: np.ndarray, unit_ends: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One search task: each unit's sweep length into ``out`` (one coverage path per distinct
-    width ``col``); the start and end of the sweep at the reference width (``CostTables``)."""
+    """One search task: each unit's sweep length into ``out`` and where it starts and ends into
+    ``unit_ends`` ((U, 2) each; one coverage path per distinct width ``col``; a unit that cannot
+    sweep gets the reference ends); the start and end of the sweep at the reference width
+    (``CostTables``)."""
     polygons = list(polygons)
     ref = _reference_width(col, listed)
     ends: tuple[np.ndarray, np.ndarray] | None = None
     for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
         path = _sweep_xy(polygons, w)
         out[col == w] = path_length(path)
+        unit_ends[0][col == w], unit_ends[1][col == w] = path[0], path[-1]
         if w == ref:
             ends = path[0], path[-1]
     if ends is None:  # no unit at all: a nominal sweep for the geometry
         path = _sweep_xy(polygons, detection_width(g.target_size))
         ends = path[0], path[-1]
+    unit_ends[0][~np.isfinite(col)], unit_ends[1][~np.isfinite(col)] = ends
     return ends
 
 

@@ -28,11 +28,11 @@ def makespan_lower_bound(problem: Problem) -> float:
     vehicle = problem.vehicle
     every = np.arange(n_tasks)
     if problem.to_home is None or not problem.to_home.any():
-        # Task points do not depend on the unit: every unit at once (the same arithmetic).
-        start, _, travels = problem.points_for(0, every)
+        # Every unit at once (the same arithmetic; a search starts where the unit's sweep does).
+        start, travels = problem.unit_points()[0], problem.travels
         xy = problem.unit_xy
-        d = np.hypot(start[:, 0][None, :] - xy[:, 0][:, None],
-                     start[:, 1][None, :] - xy[:, 1][:, None]) * (travels & vehicle)
+        d = np.hypot(start[..., 0] - xy[:, 0][:, None],
+                     start[..., 1] - xy[:, 1][:, None]) * (travels & vehicle)[None, :]
         first[:] = d / problem.speed + problem.work_time
         units: range = range(0)
     else:

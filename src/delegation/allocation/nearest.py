@@ -39,7 +39,7 @@ def nearest(problem: Problem, objective: Objective | str = Objective.MAKESPAN) -
         if not allowed.any():
             continue
         if travels[t]:
-            dist = np.hypot(*(problem.unit_xy - problem.start_xy[t]).T)
+            dist = np.hypot(*(problem.unit_xy - problem.start_at(np.arange(n_units), t)).T)
         else:
             dist = np.zeros(n_units)
         busy = np.array([bool(r) for r in routes])

@@ -172,6 +172,11 @@ class Problem:
     #: Plan for the old instantiation rule (``schedule.evaluate`` wraps conc children sharing a
     #: unit whole in a seq) instead of the precedence graph: for benchmarks comparing the two.
     wrap_subtrees: bool = False
+    #: (U,T,2) where each unit starts and ends each task when that differs between units (a
+    #: search: each unit sweeps at its own width, DESIGN 3.11); None when every unit's points are
+    #: ``start_xy``/``end_xy`` (those stay the reference points of heuristics).
+    unit_start_xy: np.ndarray | None = None
+    unit_end_xy: np.ndarray | None = None
     _before: np.ndarray | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)  # derived data, per problem
 
@@ -297,8 +302,11 @@ class Problem:
         done in place are 0 (never used: they do not travel).
         """
         cand = np.asarray(cand, dtype=int).reshape(-1)
-        start = self.start_xy[cand]  # (indexing by an array copies)
-        end = self.end_xy[cand]
+        if self.unit_start_xy is not None and self.unit_end_xy is not None:
+            start, end = self.unit_start_xy[u, cand], self.unit_end_xy[u, cand]
+        else:
+            start = self.start_xy[cand]  # (indexing by an array copies)
+            end = self.end_xy[cand]
         travels = self.travels[cand]
         if self._any_home_task():
             home = self.home_task()[cand]
@@ -313,6 +321,27 @@ class Problem:
             start[~travels] = 0.0
             end[~travels] = 0.0
         return start, end, travels
+
+    def start_at(self, units: np.ndarray | int, tasks: np.ndarray | int) -> np.ndarray:
+        """(..., 2) where ``units`` start ``tasks`` (broadcast), go-home and in-place aside:
+        the per-unit points where they differ, else the task's."""
+        if self.unit_start_xy is None:
+            return np.asarray(self.start_xy[np.broadcast_arrays(units, tasks)[1]])
+        return np.asarray(self.unit_start_xy[units, tasks])
+
+    def end_at(self, units: np.ndarray | int, tasks: np.ndarray | int) -> np.ndarray:
+        """(..., 2) where ``units`` end ``tasks`` (broadcast), as ``start_at``."""
+        if self.unit_end_xy is None:
+            return np.asarray(self.end_xy[np.broadcast_arrays(units, tasks)[1]])
+        return np.asarray(self.unit_end_xy[units, tasks])
+
+    def unit_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """(U,T,2) start and end of every task for every unit (``start_at``/``end_at``)."""
+        if self.unit_start_xy is not None and self.unit_end_xy is not None:
+            return self.unit_start_xy, self.unit_end_xy
+        shape = (self.n_units, self.n_tasks, 2)
+        return (np.broadcast_to(self.start_xy[None], shape),
+                np.broadcast_to(self.end_xy[None], shape))
 
     def _any_home_task(self) -> bool:
         value = self.cache.get("any-home-task")
@@ -407,6 +436,7 @@ def problem_from_arrays(
             reasons[t] = (
                 _summarise(why[t]) if why[t] else "no live unit in the fleet"
             )
+    unit_start, unit_end = _unit_points(tables, n_units, n_tasks)
     alias_groups = list(groups.values())
     for alias, members in groups.items():
         joint = np.asarray(allowed[:, members].all(axis=1), dtype=bool)
@@ -433,7 +463,25 @@ def problem_from_arrays(
         alias_groups=alias_groups,
         structure=structure,
         to_home=_to_home(tables, n_tasks),
+        unit_start_xy=unit_start,
+        unit_end_xy=unit_end,
     )
+
+
+def _unit_points(tables: Any, n_units: int, n_tasks: int
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``unit_start_xy``/``unit_end_xy`` from tables that have them and where some unit's
+    points differ from the task's (else nothing: the fast uniform paths stay)."""
+    start = getattr(tables, "unit_start_xy", None)
+    end = getattr(tables, "unit_end_xy", None)
+    if start is None or end is None or not n_units or not n_tasks:
+        return None, None
+    start = np.asarray(start, dtype=float).reshape(n_units, n_tasks, 2)
+    end = np.asarray(end, dtype=float).reshape(n_units, n_tasks, 2)
+    ref_s = np.asarray(tables.start_xy, dtype=float).reshape(1, n_tasks, 2)
+    ref_e = np.asarray(tables.end_xy, dtype=float).reshape(1, n_tasks, 2)
+    same = np.allclose(start, ref_s, equal_nan=True) and np.allclose(end, ref_e, equal_nan=True)
+    return (None, None) if same else (start, end)
 
 
 def _to_home(tables: Any, n_tasks: int) -> np.ndarray:

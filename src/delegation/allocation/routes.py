@@ -76,20 +76,22 @@ def insertion_costs(
 
 def first_insertion_costs(problem: Problem) -> np.ndarray | None:
     """(U, T) ``insertion_costs`` of every task into every unit's empty route, for all units at
-    once (the same arithmetic, over units x tasks): the auctions' first bids. None where task
-    points depend on the unit (``go-home``) or there are no units: then unit by unit."""
+    once (the same arithmetic, over units x tasks, each unit's own search ends): the auctions'
+    first bids. None with ``go-home`` (its points are the unit's home) or no units: then unit
+    by unit."""
     if not problem.n_units or (problem.to_home is not None and bool(problem.to_home.any())):
         return None
-    start, end, travels = problem.points_for(0, np.arange(problem.n_tasks))
+    start, end = problem.unit_points()  # (U, T, 2): searches start where each unit's sweep does
+    travels = problem.travels
     prev = problem.unit_xy
     # The way home comes next, at home speed (else nothing), as ``route_points`` says.
     has_next = problem.has_home & np.isfinite(problem.home_speed)
     after = np.where(problem.has_home[:, None], problem.home_xy, 0.0)
     speed = np.where(has_next, problem.home_speed, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        dx, dy = prev[:, 0][:, None] - start[:, 0][None, :], prev[:, 1][:, None] - start[:, 1]
+        dx, dy = prev[:, 0][:, None] - start[..., 0], prev[:, 1][:, None] - start[..., 1]
         into = np.sqrt(dx * dx + dy * dy) / problem.speed
-        dx, dy = after[:, 0][:, None] - end[:, 0][None, :], after[:, 1][:, None] - end[:, 1]
+        dx, dy = after[:, 0][:, None] - end[..., 0], after[:, 1][:, None] - end[..., 1]
         out = np.where(has_next[:, None], np.sqrt(dx * dx + dy * dy) / speed[:, None], 0.0)
         old = np.where(has_next, np.hypot(after[:, 0] - prev[:, 0], after[:, 1] - prev[:, 1])
                        / speed, 0.0)

@@ -144,10 +144,10 @@ class _Static:
     Python: list indexing is several times cheaper than numpy scalars), made once per problem."""
 
     vehicle: list[bool]  # per task
-    sx: list[float]  # per task: start and end point
-    sy: list[float]
-    ex: list[float]
-    ey: list[float]
+    sx: list[list[float]]  # per unit, per task: start and end point (its own sweep's)
+    sy: list[list[float]]
+    ex: list[list[float]]
+    ey: list[list[float]]
     travels: list[bool]
     to_home: list[bool]
     ux: list[float]  # per unit: where it is, its home, how fast it flies home, its battery
@@ -166,10 +166,11 @@ class _Static:
 def _static_for(problem: Problem) -> _Static:
     static: _Static | None = problem.cache.get("static")
     if static is None:
+        starts, ends = problem.unit_points()
         static = problem.cache["static"] = _Static(
             vehicle=[t.vehicle for t in problem.tasks],
-            sx=problem.start_xy[:, 0].tolist(), sy=problem.start_xy[:, 1].tolist(),
-            ex=problem.end_xy[:, 0].tolist(), ey=problem.end_xy[:, 1].tolist(),
+            sx=_per_unit(problem, starts[..., 0]), sy=_per_unit(problem, starts[..., 1]),
+            ex=_per_unit(problem, ends[..., 0]), ey=_per_unit(problem, ends[..., 1]),
             travels=problem.travels.tolist(), to_home=problem.home_task().tolist(),
             ux=problem.unit_xy[:, 0].tolist(), uy=problem.unit_xy[:, 1].tolist(),
             has_home=problem.has_home.tolist(),
@@ -181,6 +182,13 @@ def _static_for(problem: Problem) -> _Static:
             work_distance=problem.work_distance.tolist(),
         )
     return static
+
+
+def _per_unit(problem: Problem, table: np.ndarray) -> list[list[float]]:
+    """(U, T) ``table`` as lists: one row shared by every unit where points are uniform."""
+    if problem.unit_start_xy is None and problem.n_units:
+        return [table[0].tolist()] * problem.n_units
+    return list(table.tolist())
 
 
 def restructured(problem: Problem, structure: Structure) -> Problem:
@@ -386,9 +394,9 @@ def _simulate(
                         tt = d / speed_rows[u][t]
                         pos_x[t], pos_y[t] = hx, hy
                     elif travels[t] and not to_home[t]:
-                        d = hypot(sx[t] - px, sy[t] - py)
+                        d = hypot(sx[u][t] - px, sy[u][t] - py)
                         tt = d / speed_rows[u][t]
-                        pos_x[t], pos_y[t] = ex[t], ey[t]
+                        pos_x[t], pos_y[t] = ex[u][t], ey[u][t]
                     else:
                         d, tt = 0.0, 0.0
                         pos_x[t], pos_y[t] = px, py

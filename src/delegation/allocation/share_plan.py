@@ -321,8 +321,8 @@ def share_searches(
 
 def measured(shared: SharedTree, tables: CostTables) -> Fits:
     """Per shared search, per unit index: its part's real sweep length over ``A / w`` (at the
-    unit's width) and where its sweep starts (at the narrowest width of the units offering the
-    search, as the cost tables place a search's start), for sizing the shares again. ``tables``
+    unit's width) and where its own sweep starts (as the cost tables place a unit's start of a
+    search), for sizing the shares again. ``tables``
     are those of the tree before sharing (the parts' widths are their search's)."""
     from delegation.coverage import coverage_path, multi_coverage_path, path_length
 
@@ -334,8 +334,6 @@ def measured(shared: SharedTree, tables: CostTables) -> Fits:
         if t is None:
             continue
         col = tables.width[:, t]
-        offered = col[np.isfinite(col) & tables.listed[:, t]]
-        ref = float(offered.min()) if len(offered) else math.nan
         per: dict[int, Fit] = {}
         for part in search.parts:
             u = names.get(part.unit)
@@ -343,13 +341,10 @@ def measured(shared: SharedTree, tables: CostTables) -> Fits:
             if u is None or not width > 0.0 or part.area_m2 <= 0.0:
                 continue
 
-            def sweep(w: float, pieces: tuple[np.ndarray, ...] = part.polygons_xy) -> np.ndarray:
-                if len(pieces) == 1:
-                    return coverage_path(pieces[0], w)
-                return multi_coverage_path(list(pieces), w)
-
-            path = sweep(width)
-            start = path[0] if not (ref > 0.0) or ref == width else sweep(ref)[0]
+            pieces = part.polygons_xy
+            path = (coverage_path(pieces[0], width) if len(pieces) == 1
+                    else multi_coverage_path(list(pieces), width))
+            start = path[0]
             per[u] = Fit(max(1.0, path_length(path) / (part.area_m2 / width)),
                          (float(start[0]), float(start[1])))
         out[search.node_uuid] = per

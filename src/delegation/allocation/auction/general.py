@@ -104,9 +104,9 @@ class _GeneralAuction:
         """One unit's share of the work (s), roughly: each task from its nearest capable unit."""
         problem = self.problem
         with np.errstate(invalid="ignore", divide="ignore"):
-            start_xy = np.where(problem.travels[:, None], problem.start_xy, np.nan)
+            start_xy = np.where(problem.travels[None, :, None], problem.unit_points()[0], np.nan)
             leg = np.hypot(
-                *(problem.unit_xy[:, None, :] - start_xy[None, :, :]).transpose(2, 0, 1)
+                *(problem.unit_xy[:, None, :] - start_xy).transpose(2, 0, 1)
             )
             first = np.where(
                 self.allowed, np.nan_to_num(leg / problem.speed) + problem.work_time, np.inf

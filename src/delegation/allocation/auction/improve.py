@@ -318,9 +318,10 @@ class _FlatRoutes:
         """Travel + work time of travelling task(s) ``t`` on ``units`` put between the points
         before and after route position(s) ``f`` (broadcast)."""
         p = self.problem
-        into = np.hypot(*(self.prev[f] - p.start_xy[t]).T) / p.speed[units, t]
+        into = np.hypot(*(self.prev[f] - p.start_at(units, t)).T) / p.speed[units, t]
         out = np.where(self.has_next[f + 1],
-                       np.hypot(*(self.next[f + 1] - p.end_xy[t]).T) / self.speed[f + 1], 0.0)
+                       np.hypot(*(self.next[f + 1] - p.end_at(units, t)).T) / self.speed[f + 1],
+                       0.0)
         return np.asarray(into + p.work_time[units, t] + out)
 
     def swap_costs(self, s: int, i: int, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -348,10 +349,14 @@ class _FlatRoutes:
         else:
             first, last = int(moving[0]), int(moving[-1])
             for a, b in itertools.pairwise(moving.tolist()):
-                extra = extra + math.hypot(*(p.start_xy[b] - p.end_xy[a])) / p.speed[:, b]
-            into = np.hypot(*(self.prev - p.start_xy[first]).T) / p.speed[self.owner, first]
+                every = np.arange(p.n_units)
+                gap = p.start_at(every, b) - p.end_at(every, a)  # (U, 2): each unit's own
+                extra = extra + np.hypot(gap[:, 0], gap[:, 1]) / p.speed[:, b]
+            into = np.hypot(*(self.prev - p.start_at(self.owner, first)).T) \
+                / p.speed[self.owner, first]
             out = np.where(self.has_next,
-                           np.hypot(*(self.next - p.end_xy[last]).T) / self.speed, 0.0)
+                           np.hypot(*(self.next - p.end_at(self.owner, last)).T) / self.speed,
+                           0.0)
             cost = into + out - self.old
         if self.ordered:
             cost = np.where(self._in_order(idx), cost, np.inf)

@@ -83,8 +83,9 @@ def candidates(problem: Problem, tasks: list[int], base: Schedule) -> np.ndarray
     idx = np.asarray(tasks, dtype=int)
     keep = max(2, int(math.sqrt(CP_EXACT_ARCS * problem.n_units) / len(tasks)))
     with np.errstate(invalid="ignore"):
-        start = np.where(problem.travels[idx, None], problem.start_xy[idx], 0.0)
-        travel = xy_distances(problem.unit_xy, start) / problem.speed[:, idx]
+        start = np.where(problem.travels[idx, None], problem.unit_points()[0][:, idx], 0.0)
+        gap = problem.unit_xy[:, None, :] - start  # (U, C, 2): each unit's own start
+        travel = np.hypot(gap[..., 0], gap[..., 1]) / problem.speed[:, idx]
         reach = travel + problem.work_time[:, idx]
     reach = np.where(allowed[:, idx], reach, np.inf)
     reach = np.nan_to_num(reach, nan=np.inf)

@@ -192,6 +192,8 @@ def _setup(
                 np.float64(problem.home_speed[u]).tobytes(),
                 problem.home_xy[u].tobytes() if problem.home_task()[idx].any() else b"",
                 problem.unit_xy[u].tobytes() if not problem.travels[idx].all() else b"",
+                *([] if problem.unit_start_xy is None or problem.unit_end_xy is None else
+                  [problem.unit_start_xy[u, idx].tobytes(), problem.unit_end_xy[u, idx].tobytes()]),
             ]
         )
         classes.setdefault(key, []).append(u)
