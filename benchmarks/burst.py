@@ -130,6 +130,18 @@ def start_service(settings: BrokerSettings, tmp: Path, planner: str
         stdout=log, stderr=subprocess.STDOUT)
 
 
+def plans_made(log: Path, missions: int) -> str:
+    """How many plans the service made (its ``planned:`` and ``planned again:`` log lines):
+    more than one per mission when a start plan is made again around a unit that got busy
+    meanwhile."""
+    try:
+        plans = sum(" planned: " in line or " planned again: " in line
+                    for line in log.read_text().splitlines())
+    except FileNotFoundError:
+        return "plans: no service log"
+    return f"plans: {plans} for {missions} missions ({plans / max(1, missions):.2f} per mission)"
+
+
 def profiler(pid: int, out: str, gil: bool = False) -> subprocess.Popen[bytes] | None:
     """``py-spy record`` on ``pid`` until stopped with SIGINT (None if py-spy is missing); with
     ``gil`` only the thread holding the GIL is sampled (where the CPU goes, not where threads
@@ -281,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
             system.stop()
             watch.client.disconnect()
     ok = report(args, watch, sent, cpu, t0)
+    print(plans_made(tmp / "serve.log", len(sent)))
     shutil.rmtree(tmp, ignore_errors=True)
     return 0 if ok else 1
 
