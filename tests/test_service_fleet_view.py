@@ -81,6 +81,22 @@ def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
     assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
 
 
+def test_when_a_busy_unit_becomes_free_follows_the_clock_and_its_mission() -> None:
+    """What a mission says of its unit is kept between plans (issue 19), but the wait counts
+    down with ``now`` and a task that ended moves it."""
+    view = _view()
+    _feed(view, "u0", 57.76, 0.0)
+    _busy_mission(view, "u0")
+    assert view.plannable(20.0)[0][0].available_at == 100.0
+    assert view.plannable(50.0)[0][0].available_at == 70.0
+    view.book.observe_feedback("t1", "running", True, "", 5.0)
+    mission = view.book.find("t1")
+    assert mission is not None
+    mission.plan = {"assignments": [{"node-uuid": "t1", "execunit": "/u0", "end": 200.0}]}
+    view.book.touch("t1")  # changed in place: said to the book
+    assert view.plannable(50.0)[0][0].available_at == 150.0
+
+
 def test_commitments_follow_every_change_of_the_book() -> None:
     """`committed` is kept between changes: a task ending, a mission ending or forgotten, a
     new one, each shows at once."""

@@ -57,6 +57,10 @@ class FleetView:
         #: Per mission: the units its unfinished tasks hold, and the (change, starting) it was
         #: read at (a burst changes one mission between two plans: the others are not walked).
         self._holds: dict[str, tuple[tuple[int, bool], tuple[str, ...]]] = {}
+        #: Per (mission, unit): `_last_end`'s answer and the (mission, unit, change, record) it
+        #: was read at.
+        self._ends: dict[tuple[str, str], tuple[tuple[str, str, int, int],
+                                                tuple[float, GeoPoint | None] | None]] = {}
 
     # ---- what the units say
 
@@ -198,10 +202,28 @@ class FleetView:
     def free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
         """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
         that mission's plan; None when the plan does not say (a re-delegated tree, or a task
-        moved onto the unit since)."""
+        moved onto the unit since). Asked for every busy unit per plan: what the mission says
+        is kept until it changes (`MissionBook.changed_at`)."""
         m = self.book.find(root)
         if m is None:
             return None
+        key = (root, unit.execunit, self.book.changed_at.get(root, 0), id(m))
+        ends = self._ends.get(key[:2])
+        if ends is None or ends[0] != key:
+            ends = (key, self._last_end(m, unit))
+            self._ends[key[:2]] = ends
+            if len(self._ends) > 4 * len(self.book) + 100:  # forget the missions that left
+                self._ends = {k: v for k, v in self._ends.items() if k[0] in self.book}
+        if ends[1] is None:
+            return None
+        end, where_then = ends[1]
+        began = m.started_at if m.started_at is not None else self.epoch(now)
+        wait = max(0.0, began + end - self.epoch(now))
+        return wait, where_then if where_then is not None else unit.position
+
+    def _last_end(self, m: Mission, unit: UnitState) -> tuple[float, GeoPoint | None] | None:
+        """(end of ``unit``'s last task in ``m``'s plan, where that task ends: None for where the
+        unit is), or None when the plan does not say (see `free_at`)."""
         mine = [a for a in m.plan.get("assignments", [])
                 if a.get("execunit") == unit.execunit and m.node_status.get(
                     a.get("node-uuid", "")) not in TERMINAL]
@@ -213,16 +235,14 @@ class FleetView:
                for uid in m.current_nodes):
             return None  # a task moved onto it (re-delegated in place): its end is not known
         last = max(mine, key=lambda a: float(a.get("end", 0.0)))
-        began = m.started_at if m.started_at is not None else self.epoch(now)
-        wait = max(0.0, began + float(last.get("end", 0.0)) - self.epoch(now))
         name, params = _node_in(m.current_tst, str(last.get("node-uuid")))
         points = ([params.get("waypoint")] if name == "move-to"
                   else list(params.get("waypoints", [])) if name == "move-path" else [])
         try:
-            where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
+            where_then = GeoPoint.model_validate(points[-1]) if points else None
         except ValueError:
-            where_then = unit.position
-        return wait, where_then
+            where_then = None
+        return float(last.get("end", 0.0)), where_then
 
     def committed(self, but: str = "") -> dict[str, str]:
         """Unit -> a running mission (other than ``but``) with a task on it not yet ended.
@@ -241,17 +261,19 @@ class FleetView:
         if len(self._holds) > 2 * len(missions) + 100:  # forget the missions that left
             roots = {m.root_uuid for m in missions}
             self._holds = {r: h for r, h in self._holds.items() if r in roots}
-        for m in missions:
-            if m.root_uuid == but:
-                continue
+        changed_at, starting, holds = self.book.changed_at, self.engine.starting, self._holds
+        for m in missions:  # in book order: a unit held twice names the older mission
             root = m.root_uuid
-            key = (self.book.changed_at.get(root, 0), self.engine.starting(root))
-            held = self._holds.get(root)
+            if root == but:
+                continue
+            key = (changed_at.get(root, 0), starting(root))
+            held = holds.get(root)
             if held is None or held[0] != key:
                 held = (key, _held_units(m, key[1]))
-                self._holds[root] = held
+                holds[root] = held
             for unit in held[1]:
-                busy.setdefault(unit, root)
+                if unit not in busy:
+                    busy[unit] = root
         return busy
 
 
