@@ -187,3 +187,34 @@ def test_a_node_is_found_in_the_stored_tree_under_either_common_key() -> None:
          "params": {"waypoints": [1, 2]}}]}
     assert _node_in(tree, "p") == ("move-path", {"waypoints": [1, 2]})
     assert _node_in(tree, "r") == ("seq", {}) and _node_in(tree, "x") == ("", {})
+
+
+def test_commitments_read_per_change_match_a_walk_of_the_whole_book() -> None:
+    """`committed` reads only the missions changed since it was last asked (issue 19); after
+    every change it names what a walk of every mission in book order names."""
+    from delegation.service.fleet_view import _held_units
+
+    def walked(view: FleetView, but: str = "") -> dict[str, str]:
+        busy: dict[str, str] = {}
+        for m in view.book:
+            for unit in _held_units(m, view.engine.starting(m.root_uuid)):
+                if m.root_uuid != but:
+                    busy.setdefault(unit, m.root_uuid)
+        return busy
+
+    view = _view()
+    for i, unit in enumerate(("u0", "u1", "u0", "u2", "u1", "u0")):
+        tree = {"name": "move-to", "common_params": {"node-uuid": f"m{i}", "execunit": f"/{unit}"},
+                "params": {"waypoint": {"latitude": 57.8, "longitude": 16.7, "altitude": 20.0}}}
+        view.book.add(Mission(root_uuid=f"m{i}", source="delegate", created=1000.0, tst=tree,
+                              plan={}, nodes=node_infos(parse_tree(tree)),
+                              status=MissionStatus.RUNNING, started_at=1000.0))
+        assert view.committed() == walked(view) and view.committed("m0") == walked(view, "m0")
+    changes = [lambda: view.book.observe_feedback("m0", "succeeded", True, "", 6.0),
+               lambda: view.book.set_status("m2", MissionStatus.FAILED, 7.0),
+               lambda: view.book.rebind(view.book.find("m4"), {"m4": "/u2"}),  # type: ignore[arg-type]
+               lambda: view.book.forget_ended(10_000.0)]
+    for change in changes:
+        change()
+        assert view.committed() == walked(view) and view.committed("m1") == walked(view, "m1")
+    assert view.committed() == {"u1": "m1", "u2": "m3", "u0": "m5"}

@@ -9,6 +9,7 @@ every task whose speed class is known.
 
 from __future__ import annotations
 
+import bisect
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import replace
@@ -54,9 +55,13 @@ class FleetView:
         self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
         #: `committed`'s last answer and the revisions it was computed at.
         self._committed: tuple[tuple[int, int, str, int], dict[str, str]] | None = None
-        #: Per mission: the units its unfinished tasks hold, and the (change, starting) it was
-        #: read at (a burst changes one mission between two plans: the others are not walked).
-        self._holds: dict[str, tuple[tuple[int, bool], tuple[str, ...]]] = {}
+        #: Per mission: the units its unfinished tasks hold (none: not kept); read again only
+        #: when it changed (a burst changes one mission between two plans).
+        self._held: dict[str, frozenset[str]] = {}
+        #: Per unit: (place in the book, root) of every mission holding it, in book order; and
+        #: the book they were read from.
+        self._holders: dict[str, list[tuple[int, str]]] = {}
+        self._holds_of: MissionBook | None = None
         #: Per (mission, unit): `_last_end`'s answer and the (mission, unit, change, record) it
         #: was read at.
         self._ends: dict[tuple[str, str], tuple[tuple[str, str, int, int],
@@ -256,25 +261,41 @@ class FleetView:
         return dict(busy)
 
     def _busy(self, but: str) -> dict[str, str]:
+        """Unit -> the mission earliest in the book (other than ``but``) holding it. Only the
+        missions changed since the last call are read again (`MissionBook.touched`,
+        `EngineLink.touched`): a burst adds one mission between two plans."""
+        book = self.book
+        if self._holds_of is not book:  # a new book (restored): read every mission
+            self._holds_of, self._held, self._holders = book, {}, {}
+            changed: set[str] = {m.root_uuid for m in book}
+        else:
+            changed = book.touched | self.engine.touched
+        book.touched.clear()
+        self.engine.touched.clear()
+        for root in changed:
+            self._rehold(root)
         busy: dict[str, str] = {}
-        missions = list(self.book)
-        if len(self._holds) > 2 * len(missions) + 100:  # forget the missions that left
-            roots = {m.root_uuid for m in missions}
-            self._holds = {r: h for r, h in self._holds.items() if r in roots}
-        changed_at, starting, holds = self.book.changed_at, self.engine.starting, self._holds
-        for m in missions:  # in book order: a unit held twice names the older mission
-            root = m.root_uuid
-            if root == but:
-                continue
-            key = (changed_at.get(root, 0), starting(root))
-            held = holds.get(root)
-            if held is None or held[0] != key:
-                held = (key, _held_units(m, key[1]))
-                holds[root] = held
-            for unit in held[1]:
-                if unit not in busy:
-                    busy[unit] = root
+        for unit, holders in self._holders.items():
+            first = holders[0][1] if holders[0][1] != but else \
+                holders[1][1] if len(holders) > 1 else None
+            if first is not None:
+                busy[unit] = first
         return busy
+
+    def _rehold(self, root: str) -> None:
+        """Read again which units mission ``root`` holds (none once it left the book)."""
+        m = self.book.in_memory(root)
+        now_held = frozenset(_held_units(m, self.engine.starting(root))) if m else frozenset()
+        for unit in self._held.pop(root, frozenset()):  # its place may have moved: re-added
+            holders = self._holders[unit]
+            holders.remove(next(h for h in holders if h[1] == root))
+            if not holders:
+                del self._holders[unit]
+        if now_held:
+            self._held[root] = now_held
+        place = (self.book.order.get(root, 0), root)
+        for unit in now_held:
+            bisect.insort(self._holders.setdefault(unit, []), place)
 
 
 def _held_units(m: Mission, starting: bool) -> tuple[str, ...]:
