@@ -12,8 +12,9 @@ Printed: answers/s (missions / first send -> last answer), p50/p99/max seconds f
 answer, the service's CPU per mission up to the last answer and up to the end of the run (all
 missions ended, or ``--settle`` seconds; also net of what the idle service spends per second on
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
-kinds, and whether every command was answered exactly once on its client's topic (exit 1
-otherwise). ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
+kinds, whether every command was answered exactly once on its client's topic (exit 1
+otherwise), and how many plans the service made (more than one per mission: plans made again).
+``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
 the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
 ``--profile-gil`` only the thread holding the GIL:
 collapsed stacks, one line per stack with its sample count).
