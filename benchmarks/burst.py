@@ -12,8 +12,9 @@ Printed: answers/s (missions / first send -> last answer), p50/p99/max seconds f
 answer, the service's CPU per mission up to the last answer and up to the end of the run (all
 missions ended, or ``--settle`` seconds; also net of what the idle service spends per second on
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
-kinds, and whether every command was answered exactly once on its client's topic (exit 1
-otherwise). ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
+kinds, whether every command was answered exactly once on its client's topic (exit 1
+otherwise), and how many plans the service made (more than one per mission: plans made again).
+``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
 the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
 ``--profile-gil`` only the thread holding the GIL:
 collapsed stacks, one line per stack with its sample count).
@@ -128,6 +129,18 @@ def start_service(settings: BrokerSettings, tmp: Path, planner: str
          str(settings.port), "--prefix", PREFIX, "--name", NAME, "--state",
          str(tmp / "state.sqlite"), "--planner", planner],
         stdout=log, stderr=subprocess.STDOUT)
+
+
+def plans_made(log: Path, missions: int) -> str:
+    """How many plans the service made (its ``planned:`` and ``planned again:`` log lines):
+    more than one per mission when a start plan is made again around a unit that got busy
+    meanwhile."""
+    try:
+        plans = sum(" planned: " in line or " planned again: " in line
+                    for line in log.read_text().splitlines())
+    except FileNotFoundError:
+        return "plans: no service log"
+    return f"plans: {plans} for {missions} missions ({plans / max(1, missions):.2f} per mission)"
 
 
 def profiler(pid: int, out: str, gil: bool = False) -> subprocess.Popen[bytes] | None:
@@ -281,6 +294,7 @@ def main(argv: list[str] | None = None) -> int:
             system.stop()
             watch.client.disconnect()
     ok = report(args, watch, sent, cpu, t0)
+    print(plans_made(tmp / "serve.log", len(sent)))
     shutil.rmtree(tmp, ignore_errors=True)
     return 0 if ok else 1
 

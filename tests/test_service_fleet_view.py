@@ -81,6 +81,22 @@ def test_a_busy_unit_is_planned_from_when_and_where_it_becomes_free() -> None:
     assert view.plannable(20.0, mission="t1")[0][0].available_at == 0.0  # its own mission
 
 
+def test_when_a_busy_unit_becomes_free_follows_the_clock_and_its_mission() -> None:
+    """What a mission says of its unit is kept between plans (issue 19), but the wait counts
+    down with ``now`` and a task that ended moves it."""
+    view = _view()
+    _feed(view, "u0", 57.76, 0.0)
+    _busy_mission(view, "u0")
+    assert view.plannable(20.0)[0][0].available_at == 100.0
+    assert view.plannable(50.0)[0][0].available_at == 70.0
+    view.book.observe_feedback("t1", "running", True, "", 5.0)
+    mission = view.book.find("t1")
+    assert mission is not None
+    mission.plan = {"assignments": [{"node-uuid": "t1", "execunit": "/u0", "end": 200.0}]}
+    view.book.touch("t1")  # changed in place: said to the book
+    assert view.plannable(50.0)[0][0].available_at == 150.0
+
+
 def test_commitments_follow_every_change_of_the_book() -> None:
     """`committed` is kept between changes: a task ending, a mission ending or forgotten, a
     new one, each shows at once."""
@@ -171,3 +187,34 @@ def test_a_node_is_found_in_the_stored_tree_under_either_common_key() -> None:
          "params": {"waypoints": [1, 2]}}]}
     assert _node_in(tree, "p") == ("move-path", {"waypoints": [1, 2]})
     assert _node_in(tree, "r") == ("seq", {}) and _node_in(tree, "x") == ("", {})
+
+
+def test_commitments_read_per_change_match_a_walk_of_the_whole_book() -> None:
+    """`committed` reads only the missions changed since it was last asked (issue 19); after
+    every change it names what a walk of every mission in book order names."""
+    from delegation.service.fleet_view import _held_units
+
+    def walked(view: FleetView, but: str = "") -> dict[str, str]:
+        busy: dict[str, str] = {}
+        for m in view.book:
+            for unit in _held_units(m, view.engine.starting(m.root_uuid)):
+                if m.root_uuid != but:
+                    busy.setdefault(unit, m.root_uuid)
+        return busy
+
+    view = _view()
+    for i, unit in enumerate(("u0", "u1", "u0", "u2", "u1", "u0")):
+        tree = {"name": "move-to", "common_params": {"node-uuid": f"m{i}", "execunit": f"/{unit}"},
+                "params": {"waypoint": {"latitude": 57.8, "longitude": 16.7, "altitude": 20.0}}}
+        view.book.add(Mission(root_uuid=f"m{i}", source="delegate", created=1000.0, tst=tree,
+                              plan={}, nodes=node_infos(parse_tree(tree)),
+                              status=MissionStatus.RUNNING, started_at=1000.0))
+        assert view.committed() == walked(view) and view.committed("m0") == walked(view, "m0")
+    changes = [lambda: view.book.observe_feedback("m0", "succeeded", True, "", 6.0),
+               lambda: view.book.set_status("m2", MissionStatus.FAILED, 7.0),
+               lambda: view.book.rebind(view.book.find("m4"), {"m4": "/u2"}),  # type: ignore[arg-type]
+               lambda: view.book.forget_ended(10_000.0)]
+    for change in changes:
+        change()
+        assert view.committed() == walked(view) and view.committed("m1") == walked(view, "m1")
+    assert view.committed() == {"u1": "m1", "u2": "m3", "u0": "m5"}

@@ -3,11 +3,13 @@ plan answered or recorded, a clash planned again around the busy unit."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from delegation.errors import InputError
 from delegation.messages import MissionStatus
-from delegation.runtime.core import Effects
+from delegation.runtime.core import Effects, JobDone
 from delegation.service import ServiceConfig, ServiceCore, run_job
 from delegation.service.jobs import JobFailed, PlanDone
 from delegation.service.planning import MAX_REPLANS
@@ -99,3 +101,43 @@ def test_a_tree_of_control_nodes_only_is_answered_clearly(tree: dict[str, object
     assert isinstance(result, JobFailed)
     assert result.reason == (f"root: children: the tree has no task node ({nodes} control "
                              "nodes only): there is nothing to plan")
+
+
+def _one_move(root: str, lat: float) -> dict[str, object]:
+    return {"name": "conc", "common_params": {"node-uuid": root},
+            "children": [{"name": "move-to", "common_params": {"execunit": "*"},
+                          "params": {"waypoint": {"latitude": lat, "longitude": 16.6815,
+                                                  "altitude": 20.0}}}]}
+
+
+@pytest.mark.parametrize("commitments", ["exclude", "wait"])
+def test_a_burst_of_start_plans_is_planned_one_at_a_time_with_the_units_then(
+        commitments: str) -> None:
+    """Start plans that arrive together are handed to the planner one after another, each with
+    the units as they are when the one before it is done: none is planned twice around a unit
+    the one before it took (issue 19: a burst's plans were made up to four times)."""
+    core = _core(commitments=commitments)
+    topic = core.topics.delegation_command
+    first = Effects()
+    for i in range(3):
+        body = {"com-uuid": f"b-{i}", "command": "delegate", "start": True,
+                "tst": _one_move(f"root-b{i}", 57.7610 + 0.001 * i)}
+        first.extend(core.on_message(topic, json.dumps(body).encode(), 102.0))
+    assert [j.id for j in first.jobs] == [1] and core.planner_jobs == 3
+    jobs, sent, now = list(first.jobs), 0, 102.1
+    while jobs:
+        job = jobs.pop(0)
+        out = core.on_job_done(JobDone(job, run_job(job)), now)
+        sent += len(on(out, "op0/tst/command"))
+        jobs.extend(out.jobs)
+        if out.jobs:  # the next one knows the unit the one just started holds
+            [nxt] = out.jobs
+            busy = set(core.view.committed())
+            assert busy and nxt.id == job.id + 1
+            if commitments == "exclude":
+                assert busy.isdisjoint(u.name for u in nxt.units)
+            else:
+                assert all(u.available_at > 0 for u in nxt.units if u.name in busy)
+        now += 0.1
+    assert sent == (2 if commitments == "exclude" else 3) and core.planner_jobs == 0
+    assert core.planning.next_id() == 4  # three plans in all: none made again

@@ -231,7 +231,7 @@ def test_units_busy_in_a_running_mission_or_low_on_battery_are_left_out_and_said
     assert [n.execunit for _, n in walk(parse_tree(plan)) if not n.is_control] == ["/u1"]
 
 
-def test_a_plan_using_a_unit_that_got_busy_meanwhile_is_made_again() -> None:
+def test_a_start_plan_waiting_behind_another_is_made_around_the_unit_it_took() -> None:
     core = ServiceCore(ServiceConfig(prefix=PREFIX, commitments="exclude"))
     fleet(core, 100.0, ("u0", "u1"))
     first = core.on_message(f"{BASE}/tst/command",
@@ -241,10 +241,9 @@ def test_a_plan_using_a_unit_that_got_busy_meanwhile_is_made_again() -> None:
     one = run_jobs(core, first, 101.1)
     used = [n.execunit for _, n in walk(parse_tree(on(one, "op0/tst/command")[0]["tst"]))
             if not n.is_control]
-    two = run_jobs(core, second, 101.2)  # planned with both units: uses the same one
-    if not on(two, "op0/tst/command"):
-        assert len(two.jobs) == 1  # planned again around the busy unit
-        two = run_jobs(core, two, 101.3)
+    # the second start plan waits for the first, then is made with the units as they are then
+    assert second.jobs == [] and [j.com_uuid for j in one.jobs] == ["c-2"]
+    two = run_jobs(core, Effects(jobs=one.jobs), 101.2)
     again = [n.execunit for _, n in walk(parse_tree(on(two, "op0/tst/command")[0]["tst"]))
              if not n.is_control]
     assert set(again).isdisjoint(used)

@@ -121,6 +121,10 @@ class ServiceCore:
         #: Jobs handed to the planner whose results have not come back (`ServiceConfig.
         #: planner_queue` bounds the ones commands add).
         self.planner_jobs = 0
+        #: Start plans waiting for the one being made (`Planning.holds_units`): each is handed
+        #: out when the one before it is done, with the units as they are then.
+        self._start_queue: deque[Job] = deque()
+        self._start_running = False
         #: ``now`` as epoch seconds (the offset learnt from `status`): mission records' stamps.
         self._epoch = Epoch()
         self.topics = Topics.under(c.base_topic)
@@ -246,7 +250,28 @@ class ServiceCore:
     def _counted(self, effects: Effects) -> Effects:
         """Count the jobs ``effects`` hands to the planner (each comes back as one `JobDone`)."""
         self.planner_jobs += len(effects.jobs)
+        if not any(self.planning.holds_units(j) for j in effects.jobs if isinstance(j, Job)):
+            return effects
+        jobs = []
+        for job in effects.jobs:
+            if not (isinstance(job, Job) and self.planning.holds_units(job)):
+                jobs.append(job)
+            elif self._start_running:
+                self._start_queue.append(job)
+            else:
+                self._start_running = True
+                jobs.append(job)
+        effects.jobs = jobs
         return effects
+
+    def _next_start(self, done: JobDone, now: float) -> list[Job]:
+        """The next waiting start plan, with the units as they are now, once ``done`` ended the
+        one being made."""
+        if not (isinstance(done.job, Job) and self.planning.holds_units(done.job)):
+            return []
+        self._start_running = bool(self._start_queue)
+        return [self.planning.refreshed(self._start_queue.popleft(), now)] \
+            if self._start_queue else []
 
     def _message(self, topic: str, payload: bytes, now: float) -> Effects:
         faces: tuple[tuple[Face, str], ...] = (("tst", self.topics.tst_command),
@@ -422,7 +447,9 @@ class ServiceCore:
     def on_job_done(self, done: JobDone, now: float) -> Effects:
         """A planning job finished: answer it, and with ``start`` send the tree to the engine."""
         self.planner_jobs = max(0, self.planner_jobs - 1)
-        return self._counted(self._job_done(done, now))
+        effects = self._counted(self._job_done(done, now))
+        effects.jobs.extend(self._next_start(done, now))  # counted when it came
+        return effects
 
     def _job_done(self, done: JobDone, now: float) -> Effects:
         job: Job = done.job

@@ -123,6 +123,8 @@ class EngineLink:
         self._starting: Counter[str] = Counter()
         #: Counts changes of `starting` (see `MissionBook.revision`).
         self.revision = 0
+        #: Missions whose `starting` changed since `FleetView` last read them (it empties it).
+        self.touched: set[str] = set()
         #: Root uuid -> the engine base topic its tree was sent to (bounded, oldest forgotten).
         self.sent_to: OrderedDict[str, str] = OrderedDict()
 
@@ -158,12 +160,14 @@ class EngineLink:
         if request.kind in STARTING:
             self._starting[request.root_uuid] += 1
             self.revision += 1
+            self.touched.add(request.root_uuid)
 
     def _forget(self, com: str) -> EngineRequest | None:
         """Stop waiting for the answer to ``com``; the request, if one waited."""
         request = self.pending.pop(com, None)
         if request is not None and request.kind in STARTING:
             self.revision += 1
+            self.touched.add(request.root_uuid)
             self._starting[request.root_uuid] -= 1
             if self._starting[request.root_uuid] <= 0:
                 del self._starting[request.root_uuid]

@@ -9,6 +9,7 @@ every task whose speed class is known.
 
 from __future__ import annotations
 
+import bisect
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import replace
@@ -54,9 +55,17 @@ class FleetView:
         self._alive: set[str] = set()  # units alive at the last tick (to log the silent ones)
         #: `committed`'s last answer and the revisions it was computed at.
         self._committed: tuple[tuple[int, int, str, int], dict[str, str]] | None = None
-        #: Per mission: the units its unfinished tasks hold, and the (change, starting) it was
-        #: read at (a burst changes one mission between two plans: the others are not walked).
-        self._holds: dict[str, tuple[tuple[int, bool], tuple[str, ...]]] = {}
+        #: Per mission: the units its unfinished tasks hold (none: not kept); read again only
+        #: when it changed (a burst changes one mission between two plans).
+        self._held: dict[str, frozenset[str]] = {}
+        #: Per unit: (place in the book, root) of every mission holding it, in book order; and
+        #: the book they were read from.
+        self._holders: dict[str, list[tuple[int, str]]] = {}
+        self._holds_of: MissionBook | None = None
+        #: Per (mission, unit): `_last_end`'s answer and the (mission, unit, change, record) it
+        #: was read at.
+        self._ends: dict[tuple[str, str], tuple[tuple[str, str, int, int],
+                                                tuple[float, GeoPoint | None] | None]] = {}
 
     # ---- what the units say
 
@@ -198,10 +207,28 @@ class FleetView:
     def free_at(self, unit: UnitState, root: str, now: float) -> tuple[float, GeoPoint] | None:
         """(seconds from now, position) when ``unit`` ends its last task in mission ``root``, by
         that mission's plan; None when the plan does not say (a re-delegated tree, or a task
-        moved onto the unit since)."""
+        moved onto the unit since). Asked for every busy unit per plan: what the mission says
+        is kept until it changes (`MissionBook.changed_at`)."""
         m = self.book.find(root)
         if m is None:
             return None
+        key = (root, unit.execunit, self.book.changed_at.get(root, 0), id(m))
+        ends = self._ends.get(key[:2])
+        if ends is None or ends[0] != key:
+            ends = (key, self._last_end(m, unit))
+            self._ends[key[:2]] = ends
+            if len(self._ends) > 4 * len(self.book) + 100:  # forget the missions that left
+                self._ends = {k: v for k, v in self._ends.items() if k[0] in self.book}
+        if ends[1] is None:
+            return None
+        end, where_then = ends[1]
+        began = m.started_at if m.started_at is not None else self.epoch(now)
+        wait = max(0.0, began + end - self.epoch(now))
+        return wait, where_then if where_then is not None else unit.position
+
+    def _last_end(self, m: Mission, unit: UnitState) -> tuple[float, GeoPoint | None] | None:
+        """(end of ``unit``'s last task in ``m``'s plan, where that task ends: None for where the
+        unit is), or None when the plan does not say (see `free_at`)."""
         mine = [a for a in m.plan.get("assignments", [])
                 if a.get("execunit") == unit.execunit and m.node_status.get(
                     a.get("node-uuid", "")) not in TERMINAL]
@@ -213,16 +240,14 @@ class FleetView:
                for uid in m.current_nodes):
             return None  # a task moved onto it (re-delegated in place): its end is not known
         last = max(mine, key=lambda a: float(a.get("end", 0.0)))
-        began = m.started_at if m.started_at is not None else self.epoch(now)
-        wait = max(0.0, began + float(last.get("end", 0.0)) - self.epoch(now))
         name, params = _node_in(m.current_tst, str(last.get("node-uuid")))
         points = ([params.get("waypoint")] if name == "move-to"
                   else list(params.get("waypoints", [])) if name == "move-path" else [])
         try:
-            where_then = GeoPoint.model_validate(points[-1]) if points else unit.position
+            where_then = GeoPoint.model_validate(points[-1]) if points else None
         except ValueError:
-            where_then = unit.position
-        return wait, where_then
+            where_then = None
+        return float(last.get("end", 0.0)), where_then
 
     def committed(self, but: str = "") -> dict[str, str]:
         """Unit -> a running mission (other than ``but``) with a task on it not yet ended.
@@ -236,23 +261,41 @@ class FleetView:
         return dict(busy)
 
     def _busy(self, but: str) -> dict[str, str]:
+        """Unit -> the mission earliest in the book (other than ``but``) holding it. Only the
+        missions changed since the last call are read again (`MissionBook.touched`,
+        `EngineLink.touched`): a burst adds one mission between two plans."""
+        book = self.book
+        if self._holds_of is not book:  # a new book (restored): read every mission
+            self._holds_of, self._held, self._holders = book, {}, {}
+            changed: set[str] = {m.root_uuid for m in book}
+        else:
+            changed = book.touched | self.engine.touched
+        book.touched.clear()
+        self.engine.touched.clear()
+        for root in changed:
+            self._rehold(root)
         busy: dict[str, str] = {}
-        missions = list(self.book)
-        if len(self._holds) > 2 * len(missions) + 100:  # forget the missions that left
-            roots = {m.root_uuid for m in missions}
-            self._holds = {r: h for r, h in self._holds.items() if r in roots}
-        for m in missions:
-            if m.root_uuid == but:
-                continue
-            root = m.root_uuid
-            key = (self.book.changed_at.get(root, 0), self.engine.starting(root))
-            held = self._holds.get(root)
-            if held is None or held[0] != key:
-                held = (key, _held_units(m, key[1]))
-                self._holds[root] = held
-            for unit in held[1]:
-                busy.setdefault(unit, root)
+        for unit, holders in self._holders.items():
+            first = holders[0][1] if holders[0][1] != but else \
+                holders[1][1] if len(holders) > 1 else None
+            if first is not None:
+                busy[unit] = first
         return busy
+
+    def _rehold(self, root: str) -> None:
+        """Read again which units mission ``root`` holds (none once it left the book)."""
+        m = self.book.in_memory(root)
+        now_held = frozenset(_held_units(m, self.engine.starting(root))) if m else frozenset()
+        for unit in self._held.pop(root, frozenset()):  # its place may have moved: re-added
+            holders = self._holders[unit]
+            holders.remove(next(h for h in holders if h[1] == root))
+            if not holders:
+                del self._holders[unit]
+        if now_held:
+            self._held[root] = now_held
+        place = (self.book.order.get(root, 0), root)
+        for unit in now_held:
+            bisect.insort(self._holders.setdefault(unit, []), place)
 
 
 def _held_units(m: Mission, starting: bool) -> tuple[str, ...]:

@@ -365,12 +365,18 @@ class MissionBook:
         #: Root uuid -> the `revision` of its last change (what is derived per mission is kept
         #: until it moves).
         self.changed_at: dict[str, int] = {}
+        #: Root uuid -> its place in the book (added later, greater), and the missions changed
+        #: or forgotten since `FleetView` last read them (`touched`; it empties the set).
+        self.order: dict[str, int] = {}
+        self.touched: set[str] = set()
+        self._added = 0
 
     def touch(self, root_uuid: str, change: Change = Change.STATE) -> None:
         """Note what of a mission changed (every mutating method does, only when something did;
         code that changes a `Mission` in place must call it too)."""
         self.revision += 1
         self.changed_at[root_uuid] = self.revision
+        self.touched.add(root_uuid)
         if self.archive is not None and root_uuid in self._missions:
             self.dirty[root_uuid] = self.dirty.get(root_uuid, Change(0)) | change
 
@@ -403,6 +409,8 @@ class MissionBook:
         if old is not None:
             self.revision += 1
             self.changed_at.pop(root_uuid, None)
+            self.order.pop(root_uuid, None)
+            self.touched.add(root_uuid)
             for uid in old.nodes:
                 if self._node_root.get(uid) == old.root_uuid:
                     del self._node_root[uid]
@@ -446,6 +454,8 @@ class MissionBook:
         """Record a new mission; an ended mission with the same uuids is replaced."""
         self._remove(mission.root_uuid)
         self._missions[mission.root_uuid] = mission
+        self._added += 1
+        self.order[mission.root_uuid] = self._added
         for uid in mission.nodes:
             self._node_root[uid] = mission.root_uuid
         self.touch(mission.root_uuid, Change.NEW)
@@ -501,6 +511,10 @@ class MissionBook:
         if mission is None:
             raise InputError(InputProblem("command", "root-uuid", f"unknown mission {root_uuid!r}"))
         return mission
+
+    def in_memory(self, root_uuid: str) -> Mission | None:
+        """The mission if it is in memory (the archive is not asked)."""
+        return self._missions.get(root_uuid)
 
     def find(self, root_uuid: str) -> Mission | None:
         """In memory, else in the archive (a mission past its retention; not brought back)."""

@@ -155,6 +155,25 @@ class Planning(MissionPart):
                 return held
         return Effects(jobs=[job])
 
+    def holds_units(self, job: Job) -> bool:
+        """Whether ``job`` is a start plan of the own fleet that commits units: such plans are
+        made one at a time, each with the fleet as it is when it begins (`refreshed`), so that
+        a burst's plans do not all use the same free units and get planned again."""
+        return (job.kind == "plan" and job.start and not job.redelegate and not job.offers
+                and self.config.commitments != "share")
+
+    def refreshed(self, job: Job, now: float) -> Job:
+        """``job`` with the units as they are ``now`` (the missions started since it arrived
+        hold theirs), as `planned` would plan it again around a clash."""
+        units, notes = self.view.plannable(now)
+        unpreviewed = self._unpreviewed.get(job.key)
+        if unpreviewed is not None:
+            notes = (f"preview {unpreviewed[0]} not started, planned again: {unpreviewed[1]}",
+                     *notes)
+        warnings = tuple(input_warnings(job.tree.root, units, self.view.fleet.names()))
+        return replace(job, units=units, notes=notes, warnings=warnings,
+                       speed_sources=self.view.speed_sources(units))
+
     def _trusted(self, key: CommandKey, now: float) -> None:
         """``InputError`` when another delegator (or a TST engine: one of theirs handing us a
         subtree) asks us to plan and is neither a partner nor an operator of ours."""
@@ -176,6 +195,8 @@ class Planning(MissionPart):
         if clash and self._replanned.get(job.key, 0) < MAX_REPLANS:
             # A unit it uses got busy in a mission started meanwhile: plan again around it.
             self._replanned[job.key] = self._replanned.get(job.key, 0) + 1
+            log.info("mission %s planned again: %s got busy meanwhile", plan.tst.node_uuid,
+                     ", ".join(sorted(clash)))
             job_id = self.next_id()
             units, notes = self.view.plannable(now)
             return Effects(jobs=[replace(job, id=job_id, units=units, notes=notes)])
