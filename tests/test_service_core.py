@@ -408,3 +408,11 @@ def test_list_missions_pages(core: ServiceCore) -> None:
     bad = on(delegation(core, {"command": "list-missions", "limit": 0}, com="l3"),
              "delegation/response")[0]
     assert bad["response"] == "failed" and "limit" in bad["fail-reason"]
+
+
+@pytest.mark.parametrize("field,value", [("repair", "rebnd"), ("repair_sweep", "all"),
+                                         ("commitments", "queue"), ("hold_failed", -1.0),
+                                         ("hold_failed", float("nan"))])
+def test_a_service_setting_with_no_meaning_is_refused_by_name(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=f"ServiceConfig.{field}"):
+        ServiceConfig(**{field: value})  # type: ignore[arg-type]

@@ -10,6 +10,11 @@ from delegation.topics import DEFAULT_PREFIX, MAX_PAYLOAD, unit_base_topic
 from delegation.tst.validate import Limits
 
 
+_REPAIRS = ("rebind", "restart")
+_REPAIR_SWEEPS = ("remainder", "whole")
+_COMMITMENTS = ("wait", "exclude", "share")
+
+
 @dataclass(frozen=True, slots=True)
 class ServiceConfig:
     """How the service names itself, finds its engine and plans by default."""
@@ -99,6 +104,17 @@ class ServiceConfig:
     #: accepts (``serve --partner``); an ``operators`` name is trusted too. A command from any
     #: other delegator or TST engine that plans is refused (docs/protocol.md §15.4).
     partners: frozenset[str] = frozenset()
+
+    def __post_init__(self) -> None:
+        """A setting with no meaning is refused by name (it would silently act as the default)."""
+        for field, value, allowed in (("repair", self.repair, _REPAIRS),
+                                      ("repair_sweep", self.repair_sweep, _REPAIR_SWEEPS),
+                                      ("commitments", self.commitments, _COMMITMENTS)):
+            if value not in allowed:
+                raise ValueError(f"ServiceConfig.{field}: {value!r} is not one of "
+                                 f"{', '.join(allowed)}")
+        if not self.hold_failed >= 0.0:  # (NaN too)
+            raise ValueError(f"ServiceConfig.hold_failed: {self.hold_failed!r} s is not >= 0")
 
     @property
     def limits(self) -> Limits:
