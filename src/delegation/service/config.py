@@ -9,7 +9,6 @@ from delegation.runtime.core import Identity
 from delegation.topics import DEFAULT_PREFIX, MAX_PAYLOAD, unit_base_topic
 from delegation.tst.validate import Limits
 
-
 _REPAIRS = ("rebind", "restart")
 _REPAIR_SWEEPS = ("remainder", "whole")
 _COMMITMENTS = ("wait", "exclude", "share")
