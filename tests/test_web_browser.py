@@ -268,8 +268,13 @@ def test_a_submitted_mission_shows_its_plan_and_succeeds(page: Any, served: Serv
             "redelegations": m.redelegations, "fail-reason": m.fail_reason})(
                 core.book.get(mission_id))) if service is not None else {}
         page_nodes = page.evaluate("fetch('/api/state').then((r) => r.json())")
+        # The page's server (its view) and its browser side (the timeline's DOM), told apart.
+        view = page.evaluate(f"fetch('/api/missions/{mission_id}').then((r) => r.json())")
+        dom = page.evaluate("Array.from(document.querySelectorAll('#gantt g[data-node-uuid]'))"
+                            ".map((g) => [g.dataset.nodeUuid, g.dataset.status])")
         raise AssertionError(f"not every task succeeded: service {known}; page missions "
-                             f"{page_nodes.get('missions')}") from None
+                             f"{page_nodes.get('missions')}; page view {view}; "
+                             f"timeline {dom}") from None
     expect(page.locator("#tree li[data-status='running'] > .node-name").filter(
         has_text="look-at-position")).to_have_count(1)
     page.click("#btn-enough")
