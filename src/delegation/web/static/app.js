@@ -79,6 +79,10 @@ class Store {
       node["actual-end"] = n["actual-end"];
       if (n.mission === this.selected) this.dirty.detail = true;
       this.schedule();
+      // A detail being fetched was read before this event: when it lands it replaces the
+      // detail just updated, so fetch once more after it (else the event is lost for good).
+      const f = this.fetching.get(n.mission);
+      if (f && f.busy) this.fetchDetail(n.mission);
     } else if (this.missions.has(n.mission)) {
       this.fetchDetail(n.mission);
     }
