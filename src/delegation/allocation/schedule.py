@@ -495,7 +495,11 @@ def _unit_totals(
 
 def better(a: Schedule, b: Schedule, objective: Objective | str, rel: float = 1e-9) -> bool:
     """True when ``a`` is strictly better than ``b`` (beyond float noise)."""
-    ka, kb = a.key(objective), b.key(objective)
+    return better_key(a.key(objective), b.key(objective), rel)
+
+
+def better_key(ka: tuple[float, ...], kb: tuple[float, ...], rel: float = 1e-9) -> bool:
+    """Key ``ka`` strictly better than ``kb``, compared in order, beyond float noise."""
     for x, y in zip(ka, kb, strict=True):
         if x < y - rel * max(1.0, abs(y)):
             return True

@@ -26,7 +26,7 @@ import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
-from delegation.allocation.schedule import Schedule, evaluate
+from delegation.allocation.schedule import Schedule, better_key, evaluate
 from delegation.allocation.series_parallel import (
     best_decomposition,
     precedence_graph,
@@ -120,10 +120,10 @@ class _Search:
         start_key: tuple[float, float, float] | None = None
         for schedule in reversed(kept[1:][-GUARDED:]):
             key = self._sent_key(schedule)
-            if _better(key, floor):
+            if better_key(key, floor):
                 return schedule
             start_key = start_key or self._sent_key(start)
-            if _better(key, start_key):
+            if better_key(key, start_key):
                 return schedule
         return start
 
@@ -145,7 +145,7 @@ class _Search:
     def _round(self) -> bool:
         """Simulate the best-estimated moves that keep subtrees whole; True when one was kept."""
         now = self.best_key[1:]
-        moves = sorted((m for m in self._moves() if _better(m[0], now)),
+        moves = sorted((m for m in self._moves() if better_key(m[0], now)),
                        key=lambda m: (m[0], m[1]))
         tries = 0
         for _, _, move in moves:
@@ -163,7 +163,7 @@ class _Search:
                 assign[route] = v
             trial = evaluate(self.problem, assign, orders)
             key = trial.key(self.objective)
-            if trial.valid and _better(key, self.best_key):
+            if trial.valid and better_key(key, self.best_key):
                 self.best, self.best_key = trial, key
                 return True
         return False
@@ -378,13 +378,3 @@ class _FlatRoutes:
         np.minimum.at(high, self.owner_at[succ], self.k_at[succ])
         place = np.arange(self.owner.size) - self.offsets[self.owner]
         return np.asarray((place >= low[self.owner]) & (place <= high[self.owner]))
-
-
-def _better(ka: tuple[float, ...], kb: tuple[float, ...], rel: float = 1e-9) -> bool:
-    """``ka`` strictly better than ``kb`` beyond float noise."""
-    for x, y in zip(ka, kb, strict=True):
-        if x < y - rel * max(1.0, abs(y)):
-            return True
-        if x > y + rel * max(1.0, abs(y)):
-            return False
-    return False

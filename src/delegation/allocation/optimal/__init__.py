@@ -42,7 +42,6 @@ from dataclasses import dataclass, field
 from delegation.allocation.auction import auction
 from delegation.allocation.optimal.cpsat import CP_EXACT_ARCS, candidates, solve_cpsat
 from delegation.allocation.optimal.cpsat_subtrees import CP_EXACT_CHILDREN
-from delegation.allocation.optimal.lns import better_key as _better_key
 from delegation.allocation.optimal.lns import lns, tree_key
 from delegation.allocation.optimal.parallel import HelperLns, second_core
 from delegation.allocation.optimal.routing import (
@@ -53,6 +52,7 @@ from delegation.allocation.optimal.routing import (
 from delegation.allocation.optimal.shared import TICKS
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule, better, evaluate
+from delegation.allocation.schedule import better_key as _better_key
 from delegation.allocation.strategies import Objective
 
 log = logging.getLogger(__name__)

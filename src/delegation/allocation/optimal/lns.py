@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from delegation.allocation.problem import Problem
-from delegation.allocation.schedule import Schedule, better, evaluate
+from delegation.allocation.schedule import Schedule, better, better_key, evaluate
 from delegation.allocation.series_parallel import tree_makespan
 from delegation.allocation.strategies import Objective
 
@@ -206,15 +206,6 @@ def _within(ka: tuple[float, ...], kb: tuple[float, ...], threshold: float) -> b
     if ka[0] != kb[0]:
         return ka[0] < kb[0]
     return ka[1] <= kb[1] * (1.0 + threshold) + 1e-9
-
-
-def better_key(ka: tuple[float, ...], kb: tuple[float, ...], rel: float = 1e-9) -> bool:
-    for x, y in zip(ka, kb, strict=True):
-        if x < y - rel * max(1.0, abs(y)):
-            return True
-        if x > y + rel * max(1.0, abs(y)):
-            return False
-    return False
 
 
 def lns(
