@@ -174,8 +174,17 @@ def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t:
 
 def _part_node(original: TstNode, polygons: list[np.ndarray], frame: LocalFrame, unit: str,
                uuid: str) -> TstNode:
-    """One unit's part: a ``search-area`` (one piece) or ``search-areas`` (several), the
-    original's other parameters copied, the unit fixed."""
+    """One unit's part: the original over ``polygons`` (`searched_over`), the unit fixed."""
+    name, params = searched_over(original, polygons, frame)
+    return TstNode(name=name, common_params={"execunit": "/" + unit, "node-uuid": uuid},
+                   params=params)
+
+
+def searched_over(original: TstNode, polygons: list[np.ndarray], frame: LocalFrame
+                  ) -> tuple[str, dict[str, Any]]:
+    """(name, params) of the search ``original`` over ``polygons`` (east/north m in ``frame``):
+    a ``search-area`` (one piece) or ``search-areas`` (several), its other parameters copied,
+    flown at its altitude. A unit's part, or a lost unit's unswept remainder."""
     altitude = _altitude(original)
     rings = []
     for poly in polygons:
@@ -184,11 +193,8 @@ def _part_node(original: TstNode, polygons: list[np.ndarray], frame: LocalFrame,
                       for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon), strict=True)])
     params: dict[str, Any] = {k: v for k, v in original.params.items() if k not in _GEOMETRY}
     if len(rings) == 1:
-        name, params["area"] = "search-area", rings[0]
-    else:
-        name, params["areas"] = "search-areas", rings
-    return TstNode(name=name, common_params={"execunit": "/" + unit, "node-uuid": uuid},
-                   params=params)
+        return "search-area", {**params, "area": rings[0]}
+    return "search-areas", {**params, "areas": rings}
 
 
 def _altitude(node: TstNode) -> float:

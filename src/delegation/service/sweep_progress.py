@@ -15,14 +15,13 @@ joined (a gap in the reports: what lies between is not credited).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 import shapely
 
+from delegation.allocation.share_plan import searched_over
 from delegation.allocation.sharing import pieces_xy, region_of
 from delegation.costs import search_polygons_xy, sweep_width, task_geometry
 from delegation.coverage import footprint
@@ -30,8 +29,6 @@ from delegation.fleet import UnitState
 from delegation.geo import GeoPoint, LocalFrame
 from delegation.tst.node import TstNode
 
-#: Parameters that say where a search is: replaced by the remainder's own.
-_GEOMETRY = ("area", "areas", "geopoint", "radius")
 #: A remainder under this share of the part is not worth a flight: nothing is subtracted (the
 #: part is flown again whole) rather than leaving a task of nothing.
 MIN_REMAINDER = 0.02
@@ -91,29 +88,5 @@ def unswept(node: TstNode, unit: UnitState, track: Sequence[GeoPoint]) -> tuple[
     pieces = pieces_xy(left)
     if done < MIN_CREDIT or not pieces or 1.0 - done < MIN_REMAINDER:
         return node, 0.0
-    return _with_pieces(node, pieces, frame), done
-
-
-def _with_pieces(node: TstNode, pieces: list[np.ndarray], frame: LocalFrame) -> TstNode:
-    """``node`` as a ``search-area`` over one piece, or a ``search-areas`` over several, its
-    other parameters and common fields (uuid, unit) kept."""
-    altitude = _altitude(node)
-    rings = []
-    for poly in pieces:
-        lat, lon = frame.to_geo(poly[:, 0], poly[:, 1])
-        rings.append([{"latitude": float(a), "longitude": float(b), "altitude": altitude}
-                      for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon), strict=True)])
-    params: dict[str, Any] = {k: v for k, v in node.params.items() if k not in _GEOMETRY}
-    if len(rings) == 1:
-        name, params["area"] = "search-area", rings[0]
-    else:
-        name, params["areas"] = "search-areas", rings
-    return replace(node, name=name, params=params, key_order=())
-
-
-def _altitude(node: TstNode) -> float:
-    """The altitude the search is flown at: its first point's (or its centre's)."""
-    geometry = task_geometry(node)
-    first = geometry.areas[0][0] if geometry.areas else geometry.points[0]
-    value = first.altitude
-    return float(value) if math.isfinite(value) else 0.0
+    name, params = searched_over(node, pieces, frame)
+    return replace(node, name=name, params=params, key_order=()), done
