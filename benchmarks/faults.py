@@ -107,21 +107,29 @@ def search(unit: str) -> dict[str, Any]:
             "params": {"area": area_of(unit), "speed": "standard"}}
 
 
-def sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[bytes]:
-    lat, lon = HOME[name]
+def spawn_sim(name: str, port: int, prefix: str, workdir: Path, home: tuple[float, float],
+              tasks: list[str], mission: dict[str, Any] | None = None
+              ) -> subprocess.Popen[bytes]:
+    """``delegation sim`` of one air unit at ``home`` doing ``tasks`` (its scenario's mission:
+    ``mission``, else a move-to where it is), at speed-up 10 on the private broker."""
+    here = {"latitude": home[0], "longitude": home[1], "altitude": 20.0}
     path = workdir / f"{name}.json"
     path.write_text(json.dumps({
-        "name": name, "description": "one unit",
-        "agents": [{"name": name, "type": "air", "rate": 2.0,
-                    "position": {"latitude": lat, "longitude": lon, "altitude": 20.0},
-                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
-                    "tasks": ["move-to", "search-area"]}],
-        "mission": search(name)}))
+        "name": name, "description": f"{name}, simulated",
+        "agents": [{"name": name, "type": "air", "rate": 2.0, "position": here,
+                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0}, "tasks": tasks}],
+        "mission": mission or {"name": "move-to", "common_params": {},
+                               "params": {"waypoint": here}}}))
     return subprocess.Popen(
         [sys.executable, "-m", "delegation", "sim", str(path), "--speedup", "10", "--broker",
          "127.0.0.1", "--port", str(port), "--prefix", prefix],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         env={**os.environ, "PYTHONPATH": SRC})
+
+
+def sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[bytes]:
+    return spawn_sim(name, port, prefix, workdir, HOME[name], ["move-to", "search-area"],
+                     search(name))
 
 
 def one_run(min_timeout: float, repair: str) -> dict[str, Any]:
@@ -200,20 +208,8 @@ SEARCH_SW, SEARCH_SIZE = (57.7600, 16.6800), (0.0030, 0.0060)
 
 
 def search_sim(name: str, port: int, prefix: str, workdir: Path) -> subprocess.Popen[bytes]:
-    lat, lon = SEARCH_HOME[name]
-    here = {"latitude": lat, "longitude": lon, "altitude": 20.0}
-    path = workdir / f"{name}.json"
-    path.write_text(json.dumps({
-        "name": name, "description": "a searcher",
-        "agents": [{"name": name, "type": "air", "rate": 2.0, "position": here,
-                    "speeds": {"slow": 2.0, "standard": 4.0, "fast": 8.0},
-                    "tasks": ["move-to", "search-area", "search-areas"]}],
-        "mission": {"name": "move-to", "common_params": {}, "params": {"waypoint": here}}}))
-    return subprocess.Popen(
-        [sys.executable, "-m", "delegation", "sim", str(path), "--speedup", "10", "--broker",
-         "127.0.0.1", "--port", str(port), "--prefix", prefix],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": SRC})
+    return spawn_sim(name, port, prefix, workdir, SEARCH_HOME[name],
+                     ["move-to", "search-area", "search-areas"])
 
 
 def search_run(min_timeout: float, sweep: str) -> dict[str, Any]:
