@@ -28,6 +28,7 @@ from delegation.allocation.sharing import (
     SHAREABLE,
     Sharer,
     divide,
+    fill_time,
     lower_bound,
     pieces_xy,
     region_of,
@@ -49,6 +50,10 @@ _GEOMETRY = ("area", "areas", "geopoint", "radius")
 WORTH_SHARING = 0.6
 #: How many times the shares are sized again from the parts' real sweeps.
 REFINEMENTS = 2
+#: The parts are sized again for what the plan with them has the units do before the search
+#: (``seen_in``) when that would end a search at least this much sooner (``lateness``): each
+#: try costs a plan (0.05-0.1 s), and below a few per cent it seldom shortens the makespan.
+RESEAT_GAIN = 1.05
 #: How many times at most the parts are cut again when a unit cannot fly its part within its
 #: endurance (``overrun``): each time the units that fell short get a smaller share.
 ENDURANCE_ROUNDS = 4
@@ -114,16 +119,67 @@ def shareable(node: TstNode) -> bool:
     return kind is ExecUnitKind.FREE
 
 
-def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
+@dataclass(frozen=True, slots=True)
+class Busy:
+    """What a unit does before a search in some schedule: until when (``free``, s from mission
+    start), how much of its endurance that took (``used``, s) and where it is then (``here``,
+    east/north m; None: where it starts). A part sized for a unit free sooner than it is in the
+    plan that flies it makes the whole search late."""
+
+    free: float
+    used: float = 0.0
+    here: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Before:
+    """What the units do before one search in some schedule: when the search is activated and,
+    per unit index, its ``Busy`` (a unit not listed is free from ``act`` where it starts)."""
+
+    act: float
+    units: dict[int, Busy]
+
+
+#: Nothing before the search: every unit free at once (the bound's default).
+FREE = Before(0.0, {})
+
+
+def before_search(problem: Problem, tables: CostTables, schedule: Schedule | None,
+                  own: list[int]) -> Before:
+    """What each unit does before the search whose tasks in ``problem`` are ``own`` (the search
+    itself, or its parts in a tree where it is shared) in ``schedule`` (None: nothing,
+    ``FREE``): a unit with a task of the search, what precedes it in its order; another, every
+    task in its order that need not wait for the search (it could be done after, but the plan
+    gave it that unit)."""
+    if schedule is None or not own:
+        return FREE
+    first = own[0]
+    act = 0.0
+    if schedule.node_act is not None:
+        node_act = float(schedule.node_act[problem.structure.node_of_task[first]])
+        act = node_act if math.isfinite(node_act) else 0.0
+    mine, after = set(own), problem.before[first]
+    ends, travel, work = schedule.end, schedule.travel_time, schedule.work_time
+    units: dict[int, Busy] = {}
+    for u, order in enumerate(schedule.orders):
+        first_own = next((i for i, k in enumerate(order) if k in mine), len(order))
+        prior = [k for k in order[:first_own] if not after[k]]
+        if not prior:
+            continue
+        last = max(prior, key=lambda k: float(ends[k]))
+        end = tables.end_for(u, last)
+        units[u] = Busy(float(ends[last]), sum(float(travel[k] + work[k]) for k in prior),
+                        None if end is None else (float(end[0]), float(end[1])))
+    return Before(act, units)
+
+
+def _sharers(problem: Problem, tables: CostTables, before: Before, t: int,
              region: shapely.Geometry, fits: dict[int, Fit], margin: float = ENDURANCE_MARGIN
              ) -> list[Sharer]:
-    """The units that could sweep part of task ``t``'s area, read from ``schedule`` (None:
-    every unit free at the start); ``margin``: the share of what endurance is left that a
-    part may be sized to use."""
-    act = 0.0
-    if schedule is not None and schedule.node_act is not None:
-        node_act = float(schedule.node_act[problem.structure.node_of_task[t]])
-        act = node_act if math.isfinite(node_act) else 0.0
+    """The units that could sweep part of task ``t``'s area, free after what ``before`` says
+    they do first; ``margin``: the share of what endurance is left that a part may be sized to
+    use."""
+    act = before.act
     width_col, speed_col = tables.width[:, t].tolist(), tables.speed[:, t].tolist()
     listed = tables.listed[:, t].tolist()
     ready = None if problem.ready is None else problem.ready.tolist()
@@ -137,14 +193,10 @@ def _sharers(problem: Problem, tables: CostTables, schedule: Schedule | None, t:
             continue
         free = act if ready is None else max(act, ready[u])
         used, here = 0.0, tables.unit_xy[u]
-        if schedule is not None:
-            prior = [k for k in schedule.orders[u] if k != t and not problem.before[t, k]]
-            if prior:
-                ends = schedule.end
-                free = max(free, max(float(ends[k]) for k in prior))
-                used = sum(float(schedule.travel_time[k] + schedule.work_time[k]) for k in prior)
-                end = tables.end_for(u, max(prior, key=lambda k: float(ends[k])))
-                here = here if end is None else end
+        busy = before.units.get(u)
+        if busy is not None:
+            free, used = max(free, busy.free), busy.used
+            here = here if busy.here is None else busy.here
         rows.append((u, free, used, (float(here[0]), float(here[1]))))
     if not rows:
         return []
@@ -225,7 +277,8 @@ def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None
     area's nearest point (free of what it does first in ``schedule``; None: free at once)."""
     region = region_of(_polygons(tables, t))
     raw = [Sharer(s.key, s.arrive, s.rate * PLAN_OVERHEAD)
-           for s in _sharers(problem, tables, schedule, t, region, {})]
+           for s in _sharers(problem, tables, before_search(problem, tables, schedule, [t]),
+                             t, region, {})]
     return lower_bound(float(region.area), raw)
 
 
@@ -277,12 +330,15 @@ def share_searches(
     new_uuid: Callable[[], str],
     fits: Fits | None = None,
     margin: float = ENDURANCE_MARGIN,
+    seen: dict[str, Before] | None = None,
 ) -> SharedTree | None:
     """``tree`` (the tree ``problem`` and ``tables`` were built from) with every search worth
     sharing replaced by its parts (None when none is): a search is shared when at least two units
     get a part, or when the one unit that can cover it is another than ``schedule``'s (or it had
     none: endurance). ``fits``: what earlier parts measured (the refinement); ``margin``: the
-    share of each unit's endurance left that its part may be sized to use."""
+    share of each unit's endurance left that its part may be sized to use. The parts are sized
+    for what the units do before each search in ``schedule``, or in ``seen`` (per search uuid:
+    what a plan with the parts had them do, ``seen_in``); the bound is always ``schedule``'s."""
     frame = tables.frame
     replaced: dict[str, TstNode] = {}
     searches: list[SharedSearch] = []
@@ -296,7 +352,8 @@ def share_searches(
         if region.is_empty or region.area <= 0.0:
             continue
         fit = (fits or {}).get(task.uuid, {})
-        sharers = _sharers(problem, tables, schedule, t, region, fit, margin)
+        before = (seen or {}).get(task.uuid) or before_search(problem, tables, schedule, [t])
+        sharers = _sharers(problem, tables, before, t, region, fit, margin)
         wanted = shares(float(region.area), sharers)
         if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
             continue
@@ -323,6 +380,46 @@ def share_searches(
         return replace(node, children=children) if node.is_control else node
 
     return SharedTree(map_tree(tree, swap), searches)
+
+
+def seen_in(shared: SharedTree, problem: Problem, tables: CostTables, schedule: Schedule
+            ) -> dict[str, Before]:
+    """Per shared search uuid: what the units do before it in ``schedule``, a plan of
+    ``shared.tree`` (``problem`` and ``tables`` are that tree's). The other tasks of the tree are
+    allocated around the parts, not always as in the plan the parts were sized from: a unit
+    that now does a task first is late for its part, and the parts are sized again from this."""
+    index = {task.uuid: t for t, task in enumerate(problem.tasks)}
+    out: dict[str, Before] = {}
+    for search in shared.searches:
+        own = [index[p.node_uuid] for p in search.parts if p.node_uuid in index]
+        if own:
+            out[search.node_uuid] = before_search(problem, tables, schedule, own)
+    return out
+
+
+def lateness(shared: SharedTree, seen: dict[str, Before], planned: Problem, schedule: Schedule,
+             problem: Problem, tables: CostTables, fits: Fits) -> float:
+    """The largest, over ``shared``'s searches, of when the search ends in ``schedule`` (a plan
+    of ``shared.tree``, whose problem is ``planned``) over when parts sized for ``seen`` (what
+    that plan has the units do first, ``seen_in``) would end it (the water filling's ``T``,
+    with each unit's measured sweep in ``fits``): above 1 when sizing the parts again would end
+    a search sooner. ``problem`` and ``tables`` are the tree's before sharing. 0 when no search
+    can be judged (none seen, or no parts could cover it)."""
+    index = {task.uuid: t for t, task in enumerate(problem.tasks)}
+    planned_index = {task.uuid: t for t, task in enumerate(planned.tasks)}
+    worst = 0.0
+    for search in shared.searches:
+        before, t = seen.get(search.node_uuid), index.get(search.node_uuid)
+        if before is None or t is None:
+            continue
+        region = region_of(_polygons(tables, t))
+        sharers = _sharers(problem, tables, before, t, region, fits.get(search.node_uuid, {}))
+        refill = fill_time(float(region.area), sharers)
+        ends = [float(schedule.end[planned_index[p.node_uuid]]) for p in search.parts]
+        end = max(math.inf if math.isnan(e) else e for e in ends)
+        if math.isfinite(refill) and refill > 0.0:
+            worst = max(worst, end / refill)
+    return worst
 
 
 def measured(shared: SharedTree, tables: CostTables) -> Fits:
