@@ -143,3 +143,26 @@ def test_with_repair_sweep_whole_the_part_moves_whole() -> None:
     done = engine_answers(core, planned, "ok", 200.0)
     [moved] = on(done, "delegation/feedback")
     assert not [t for t in moved["tasks"] if "swept" in t]
+
+
+def test_query_mission_shows_the_tree_that_runs_once_a_remainder_runs_in_place() -> None:
+    """The operator page draws a re-shared part's pieces (issue 21): ``query-mission`` carries
+    ``current-tst`` once the tree running differs from the one sent, and only then."""
+    from test_service_core import delegation
+
+    def query(core: ServiceCore, com: str) -> dict[str, Any]:
+        [answer] = on(delegation(core, {"command": "query-mission", "root-uuid": "root-1"},
+                                 now=300.0, com=com), "delegation/response")
+        assert answer["response"] == "ok"
+        return dict(answer["mission"])
+
+    core, planned = lost_u1(ServiceConfig(prefix=PREFIX))
+    assert "current-tst" not in query(core, "q1")  # (the rebind is not answered yet)
+    [cmd] = on(planned, "op0/tst/command")
+    engine_answers(core, planned, "ok", 200.0)
+    mission = query(core, "q2")
+    running = {n.node_uuid: n for _, n in walk(parse_tree(mission["current-tst"]))}
+    assert running["s1"].name == "conc" and running["s1"].children
+    assert {c.node_uuid for c in running["s1"].children} == {
+        n.node_uuid for _, n in walk(parse_tree(cmd["subtrees"]["s1"])) if not n.is_control}
+    assert mission["tst"]["children"][1]["name"] == "search-area"  # the tree sent, as sent

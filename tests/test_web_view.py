@@ -433,3 +433,95 @@ def test_a_parts_status_and_times_come_from_its_engines_feedback() -> None:
     view.engine_feedback("op0", {"node-uuid": root, "status": "failed"}, 51.0)
     shown = view.node_tree(root)
     assert shown is not None and shown["status"] == "running"
+
+
+def _reshare(plan: dict[str, Any], part: str, units: tuple[str, str]) -> tuple[
+        dict[str, Any], list[dict[str, Any]]]:
+    """(the tree the engine runs once the part ``part`` of ``plan``'s shared search was re-shared
+    between ``units``, the ``re-delegated`` feedback's rows): the part cut in two halves, each a
+    search of one unit, in a ``conc`` under the part's uuid (docs/protocol.md §12.6
+    ``subtrees``, as ``service.repair`` builds it)."""
+    import numpy as np
+
+    from delegation.allocation.share_plan import searched_over
+    from delegation.allocation.sharing import cut, pieces_xy, region_of
+    from delegation.costs import search_polygons_xy
+    from delegation.geo import LocalFrame
+    from delegation.tst import TstNode, map_tree
+    from delegation.tst.node import parse_tree, to_dict, walk
+
+    sent = parse_tree(plan["tst"])
+    node = next(n for _, n in walk(sent) if n.node_uuid == part)
+    frame = LocalFrame(57.76, 16.68)
+    halves = cut(region_of(search_polygons_xy(node, frame)), np.array([1.0, 0.0]), 0.5)
+    pieces = []
+    for i, (half, unit) in enumerate(zip(halves, units, strict=True)):
+        name, params = searched_over(node, pieces_xy(half), frame)
+        pieces.append(TstNode(name=name, params=params, common_params={
+            "execunit": f"/{unit}", "node-uuid": f"{part}-piece{i}"}))
+    conc = TstNode(name="conc", children=tuple(pieces), common_params={"node-uuid": part})
+
+    def swap(n: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+        if n.is_control:
+            from dataclasses import replace
+            return replace(n, children=children)
+        return conc if n.node_uuid == part else n
+
+    rows = [{"node-uuid": p.node_uuid, "replaces": part, "name": p.name, "unit": p.execunit,
+             "path": f"root/children[{i}]", "swept": 0.4} for i, p in enumerate(pieces)]
+    return to_dict(map_tree(sent, swap)), rows
+
+
+def test_a_lost_units_part_re_shared_shows_as_its_pieces_on_the_timeline_and_map() -> None:
+    """Issue 21: once a lost unit's part is re-shared (its remainder runs as pieces in its place,
+    rebind ``subtrees``), the page shows the parts as they are: the pieces on their units, with
+    their engine's feedback, drawn on the map; not the lost unit's part."""
+    plan, tree = _shared_plan()
+    plan["tst"]["common_params"]["execunit"] = "/op0"
+    (search,) = plan["shared-searches"]
+    lost = search["parts"][0]
+    live = sorted({p["execunit"].strip("/") for p in search["parts"][1:]})[:2]
+    view = LiveView()
+    root = str(node_uuid_of(plan["tst"]))
+    view.mission_planned(root, plan, tree, "alice", 1.0)
+    view.node_feedback({"node-uuid": root, "status": "running"}, 10.0)
+    current, rows = _reshare(plan, lost["node-uuid"], (live[0], live[1]))
+    view.mission_feedback({"root-uuid": root, "status": "re-delegated", "tasks": rows,
+                           "fail-reason": f"{lost['execunit']} lost (no heartbeat)"}, 20.0)
+    # A piece's feedback before the page has the tree that runs now is kept for it.
+    view.engine_feedback("op0", {"node-uuid": rows[0]["node-uuid"], "status": "running"}, 21.0)
+    view.mission_answer({"root-uuid": root, "status": "running", "received": tree,
+                         "current-tst": current, "nodes": []}, 22.0)
+
+    shown = view.node_tree(root)
+    assert shown is not None
+    (node,) = [n for n in _flat(shown) if n["uuid"] == search["node-uuid"]]
+    parts = {p["uuid"]: p for p in node["parts"]}
+    pieces = [r["node-uuid"] for r in rows]
+    assert lost["node-uuid"] not in parts
+    assert set(parts) == {p["node-uuid"] for p in search["parts"][1:]} | set(pieces)
+    for row in rows:
+        piece = parts[row["node-uuid"]]
+        assert piece["unit"] == row["unit"].strip("/") and piece["plan-start"] is None
+    assert parts[pieces[0]]["status"] == "running"
+    assert parts[pieces[0]]["actual-start"] == pytest.approx(11.0)
+    assert sorted(p["part"] for p in node["parts"]) == sorted(
+        f"{i + 1}/{len(parts)}" for i in range(len(parts)))
+    # The other parts keep their plan, and the search its planned interval.
+    assert all(p["plan-end"] is not None for u, p in parts.items() if u not in pieces)
+    assert (node["plan-start"], node["plan-end"]) == (
+        min(p["start"] for p in search["parts"]), search["end"])
+    view.engine_feedback("op0", {"node-uuid": pieces[1], "status": "succeeded"}, 30.0)
+    shown = view.node_tree(root)
+    assert shown is not None
+    (node,) = [n for n in _flat(shown) if n["uuid"] == search["node-uuid"]]
+    assert {p["uuid"]: p["status"] for p in node["parts"]}[pieces[1]] == "succeeded"
+
+    record = view.mission_record(root)
+    assert record is not None
+    _, tasks = plan_geometry(record.shown_plan or {}, {})
+    drawn = {t["uuid"]: t for t in tasks if t.get("part-of") == search["node-uuid"]}
+    assert lost["node-uuid"] not in drawn and set(pieces) <= set(drawn)
+    for row in rows:
+        assert drawn[row["node-uuid"]]["unit"] == row["unit"].strip("/")
+        assert drawn[row["node-uuid"]]["kind"] == "area"

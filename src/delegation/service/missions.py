@@ -174,6 +174,9 @@ class Mission:
             "tst": self.tst,
             # The operator's own tree (uuids completed): what node feedback is about (§8).
             "received": self.received,
+            # After a re-delegation, the tree the engine executes now (a lost unit's remainder
+            # of a search runs in its task's place: the page draws those pieces, DESIGN 3.11).
+            **({"current-tst": self.current_tst} if self.current_tst is not self.tst else {}),
         }
 
 

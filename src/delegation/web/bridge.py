@@ -526,7 +526,7 @@ class Bridge:
             if out is None:  # one of the page's own dry-run plans
                 raise ApiError(404, f"root-uuid: {root!r} is a preview, not a mission")
             tree = view.node_tree(root)
-            plan = dict(rec.plan) if rec is not None and rec.plan is not None else None
+            plan = rec.shown_plan if rec is not None else None
             starts = dict(rec.starts) if rec is not None else {}
         self._listen_engines()
         routes, tasks = plan_geometry(plan, starts) if plan is not None else ({}, [])

@@ -7,6 +7,11 @@ interval spans them. The service relays no feedback for parts (3.4), so a part's
 actual interval come from the feedback of the engine that runs the mission (the plan's root
 ``execunit``): the page listens to that engine's ``tst/feedback`` for the parts alone. (A unit's
 ``direct_execution_info`` names the engine's task-uuid, not the node: no use here.)
+
+When a unit with a part is lost, what it had not swept is planned again among the live units and
+runs in its part's place (docs/protocol.md §11, §12.6 ``subtrees``: a ``conc`` under the part's
+uuid holding the pieces). The page then shows the pieces, not the lost part (``reshared``): their
+units, areas on the map, and status from the engine's feedback as for any part.
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from delegation.errors import DelegationError
+from delegation.tst.node import TstNode, parse_tree, walk
 from delegation.web.geometry import shared_parts
 
 
@@ -77,3 +84,70 @@ def span(parts: list[dict[str, Any]]) -> tuple[float | None, float | None]:
     if not parts or None in starts or None in ends:
         return None, None
     return min(starts), max(ends)
+
+
+def reshared(plan: Mapping[str, Any] | None, current: Any) -> Mapping[str, Any] | None:
+    """``plan`` as the page shows it once parts of its shared searches were re-shared or moved:
+    in ``current`` (``query-mission``'s ``current-tst``, the tree the engine executes now) a
+    part's uuid that names a ``conc`` holds the pieces run in its place, and a part that names a
+    task may have another unit. Each re-shared part is replaced in ``shared-searches`` by its
+    pieces (``replaces`` naming it; unit and name from the tree; no planned area or times: the
+    re-delegation's plan is not the mission's) and leaves ``assignments``; a moved part takes
+    its new unit in both; ``tst`` is ``current`` (the pieces' areas, for the map). ``plan``
+    itself when no part changed, or when ``current`` is another tree (a replaced tree has other
+    uuids: its tasks are shown on the nodes they replace)."""
+    tst = (plan or {}).get("tst")
+    if not plan or not isinstance(current, dict) or not isinstance(tst, dict):
+        return plan
+    try:
+        tree = parse_tree(current)
+    except DelegationError:
+        return plan
+    first = tst.get("common_params")
+    if not isinstance(first, dict) or tree.node_uuid != first.get("node-uuid"):
+        return plan
+    nodes = {node.node_uuid: node for _, node in walk(tree) if node.node_uuid}
+    gone: set[str] = set()
+    moved: dict[str, str] = {}
+
+    def now(part: Mapping[str, Any], depth: int = 0) -> list[Mapping[str, Any]]:
+        uid = part["node-uuid"]
+        node = nodes.get(uid)
+        if node is None or depth > 8:
+            return [part]
+        if node.name == "conc":
+            gone.add(uid)
+            out: list[Mapping[str, Any]] = []
+            for child in node.children:
+                if child.node_uuid:
+                    out += now(_piece(child, uid), depth + 1)
+            return out
+        unit = node.execunit if isinstance(node.execunit, str) else ""
+        if unit and unit != part.get("execunit"):
+            moved[uid] = unit
+            return [{**part, "execunit": unit}]
+        return [part]
+
+    searches = []
+    for search in plan.get("shared-searches") or []:
+        parts = search.get("parts") if isinstance(search, dict) else None
+        if not isinstance(parts, list):
+            searches.append(search)
+            continue
+        shown = [q for p in parts if isinstance(p, dict) and isinstance(p.get("node-uuid"), str)
+                 for q in now(p)]
+        searches.append({**search, "parts": shown})
+    if not gone and not moved:
+        return plan
+    assignments = [
+        {**a, "execunit": moved[a["node-uuid"]]} if a.get("node-uuid") in moved else a
+        for a in plan.get("assignments") or []
+        if isinstance(a, dict) and a.get("node-uuid") not in gone]
+    return {**plan, "tst": current, "shared-searches": searches, "assignments": assignments}
+
+
+def _piece(node: TstNode, replaces: str) -> dict[str, Any]:
+    """A piece of a re-shared part, in the form of a plan's part (docs/plan.md §1)."""
+    unit = node.execunit if isinstance(node.execunit, str) else ""
+    return {"node-uuid": node.node_uuid, "name": node.name, "execunit": unit, "area": None,
+            "sweep-length": None, "start": None, "end": None, "replaces": replaces}

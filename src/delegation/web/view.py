@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from delegation.fleet import FleetRegistry
-from delegation.web.parts import engine_of, part_uuids, search_parts, span
+from delegation.web.parts import engine_of, part_uuids, reshared, search_parts, span
 
 #: Flown track: points closer than this (m) to the last kept one are not kept.
 TRACK_STEP_M = 2.0
@@ -173,6 +173,9 @@ class MissionRecord:
     fail_reason: str = ""
     units: list[str] = field(default_factory=list)
     plan: dict[str, Any] | None = None
+    #: The tree the engine executes after a re-delegation (``query-mission``'s ``current-tst``):
+    #: a lost unit's part of a shared search re-shared runs as pieces in its place.
+    current_tst: dict[str, Any] | None = None
     #: The operator's own tree (as received), or the tree sent when that is all we know.
     tree: dict[str, Any] | None = None
     node_status: dict[str, str] = field(default_factory=dict)
@@ -192,6 +195,12 @@ class MissionRecord:
     @property
     def ended(self) -> bool:
         return self.status in FINAL
+
+    @property
+    def shown_plan(self) -> dict[str, Any] | None:
+        """The plan with its shared searches' parts as they are now (``parts.reshared``)."""
+        shown = reshared(self.plan, self.current_tst)
+        return None if shown is None else dict(shown)
 
     def elapsed(self, now: float) -> float | None:
         if self.started_at is None:
@@ -467,7 +476,7 @@ class LiveView:
             gone = self.missions.pop(victim)
             for uid in tree_uuids(gone.tree or {}):
                 self._node_mission.pop(uid, None)
-            for uid in part_uuids(gone.plan):
+            for uid in part_uuids(gone.shown_plan):
                 self._part_mission.pop(uid, None)
             self._node_mission.pop(victim, None)
 
@@ -525,6 +534,8 @@ class LiveView:
                 if isinstance(new, str) and isinstance(old, str):
                     self._alias[new] = self._alias.get(old, old)
                     self._node_mission[new] = root
+                    if old in self._part_mission:  # a part re-shared: its pieces are parts
+                        self._part_mission[new] = root
                     if unit:
                         m.reassigned[self._alias[new]] = unit
                 if unit and unit not in m.units:
@@ -591,9 +602,10 @@ class LiveView:
         """Index the mission's node uuids and apply feedback that arrived before its tree."""
         uids = set(tree_uuids(m.tree or {}))
         uids.update(tree_uuids((m.plan or {}).get("tst") or {}))
+        uids.update(tree_uuids(m.current_tst or {}))
         for uid in uids:
             self._node_mission[uid] = m.id
-        parts = part_uuids(m.plan)
+        parts = part_uuids(m.shown_plan)
         for uid in parts:
             self._part_mission[uid] = m.id
         engine = engine_of(m.plan) if parts else None
@@ -677,6 +689,9 @@ class LiveView:
             if mission.get("objective"):
                 plan["objective"] = mission["objective"]
             self._take_plan(m, plan)
+        current = mission.get("current-tst")
+        if isinstance(current, dict):
+            m.current_tst = dict(current)
         received = mission.get("received")
         if isinstance(received, dict):
             m.tree = dict(received)
@@ -711,18 +726,23 @@ class LiveView:
         m = self.missions.get(root)
         if m is None or m.tree is None:
             return None
+        plan = m.shown_plan or {}
         planned: dict[str, tuple[float | None, float | None]] = {}
-        for a in (m.plan or {}).get("assignments") or []:
+        for a in plan.get("assignments") or []:
             if isinstance(a, dict) and isinstance(a.get("node-uuid"), str):
                 planned[a["node-uuid"]] = (number(a.get("start")), number(a.get("end")))
         units = {uid: unit for uid, unit in
                  ((a.get("node-uuid"), str(a.get("execunit", "")).strip("/"))
-                  for a in (m.plan or {}).get("assignments") or [] if isinstance(a, dict))
+                  for a in plan.get("assignments") or [] if isinstance(a, dict))
                  if isinstance(uid, str)}
         units.update(m.reassigned)
-        parts = search_parts(m.plan, lambda uid: (m.node_status.get(uid), m.rel(
-            m.node_start.get(uid)), m.rel(m.node_end.get(uid))))
-        return _node_json(m.tree, m, planned, units, parts)
+        def actual(uid: str) -> tuple[str | None, float | None, float | None]:
+            return m.node_status.get(uid), m.rel(m.node_start.get(uid)), m.rel(m.node_end.get(uid))
+
+        parts = search_parts(plan, actual)
+        # A search's planned interval is its plan's: re-shared pieces have no planned times.
+        spans = {uid: span(first) for uid, first in search_parts(m.plan, actual).items()}
+        return _node_json(m.tree, m, planned, units, parts, spans)
 
     # ------------------------------------------------------------------ log and reads
 
@@ -775,15 +795,17 @@ def _metres(p: list[float], lat: float, lon: float) -> float:
 def _node_json(tree: Mapping[str, Any], m: MissionRecord,
                planned: Mapping[str, tuple[float | None, float | None]],
                units: Mapping[str, str],
-               parts: Mapping[str, list[dict[str, Any]]]) -> dict[str, Any]:
+               parts: Mapping[str, list[dict[str, Any]]],
+               spans: Mapping[str, tuple[float | None, float | None]]) -> dict[str, Any]:
     """NODE JSON of a tree (recursive on children; trees are bounded by the service's limits);
-    a search shared among units carries its ``parts`` and spans their planned times."""
+    a search shared among units carries its ``parts`` (as they are now) and its planned
+    interval (``spans``: its planned parts')."""
 
     def build(node: Mapping[str, Any], depth: int) -> dict[str, Any]:
         uid = node_uuid_of(node) or ""
         kids = node.get("children") if depth < 64 else None
         shared = parts.get(uid)
-        plan = span(shared) if shared else planned.get(uid, (None, None))
+        plan = spans.get(uid, (None, None)) if shared else planned.get(uid, (None, None))
         extra = {"parts": shared} if shared else {}
         return {**extra,
             "uuid": uid,

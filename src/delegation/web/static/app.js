@@ -92,6 +92,8 @@ class Store {
     this.events.push(e);
     if (this.events.length > EVENTS_MAX) this.events.shift();
     this.dirty.events.push(e);
+    // Re-delegated: tasks moved, or a lost unit's part re-shared as pieces; the detail says which.
+    if (e.kind === "re-delegated" && this.details.has(e.mission)) this.fetchDetail(e.mission);
     this.schedule();
   }
 
