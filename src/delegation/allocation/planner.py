@@ -165,7 +165,8 @@ def _shared_plan(
     tree. A part its unit cannot fly within its endurance (its real sweep longer than sized)
     shrinks that unit's share and the area is cut again (``ENDURANCE_ROUNDS`` times at most):
     the best of these plans is kept, so an area no one unit can cover is planned feasibly
-    whenever the fleet's endurance allows."""
+    whenever the fleet's endurance allows. Last, the parts may be sized once more for what that
+    plan has the units do before the search (``_reseated``)."""
     shared = share_searches(prepared, problem, tables, result.schedule, new_uuid)
     if shared is None:
         return None
