@@ -270,15 +270,17 @@ def _conc_of(original: TstNode, parts: list[TstNode]) -> TstNode:
                    extra=dict(original.extra))
 
 
-def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int
-                 ) -> float:
+def search_bound(problem: Problem, tables: CostTables, schedule: Schedule | None, t: int,
+                 before: Before | None = None) -> float:
     """DESIGN 3.11's lower bound (s from mission start) for search task ``t``: each unit that
     could take part sweeps ``speed x width`` m2/s, with no turns, from when it could be at the
-    area's nearest point (free of what it does first in ``schedule``; None: free at once)."""
+    area's nearest point (free of what it does first in ``schedule``, or as ``before`` says;
+    neither: free at once)."""
     region = region_of(_polygons(tables, t))
+    if before is None:
+        before = before_search(problem, tables, schedule, [t])
     raw = [Sharer(s.key, s.arrive, s.rate * PLAN_OVERHEAD)
-           for s in _sharers(problem, tables, before_search(problem, tables, schedule, [t]),
-                             t, region, {})]
+           for s in _sharers(problem, tables, before, t, region, {})]
     return lower_bound(float(region.area), raw)
 
 
