@@ -91,6 +91,10 @@ class Mission:
     #: The operator's own tree (the tree sent may regroup its control nodes): what feedback and
     #: ``query-mission`` show. None: the sent tree is shown as it is.
     operator: OperatorView | None = None
+    #: Task node uuid -> (unit, task-uuid) of the last ``start-task`` the engine was seen to send
+    #: for it: what the service asks the unit about (``query-status``) when the engine cannot say
+    #: how the tree stands (`delegation.service.unit_catch_up`).
+    node_tasks: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.current_root = self.current_root or self.root_uuid
@@ -225,6 +229,7 @@ def mission_state(m: Mission) -> dict[str, Any]:
         "current-root": m.current_root,
         "retries": m.retries,
         "redelegations": m.redelegations,
+        "node-tasks": {uid: list(pair) for uid, pair in m.node_tasks.items()},
     }
 
 
@@ -269,6 +274,8 @@ def mission_from_record(r: dict[str, Any]) -> Mission:
         retries=dict(r.get("retries") or {}),
         redelegations=int(r.get("redelegations") or 0),
         owner=str(r.get("owner") or ""),
+        node_tasks={uid: (str(pair[0]), str(pair[1]))
+                    for uid, pair in (r.get("node-tasks") or {}).items()},
         # The operator's view is derived again from the tree received and the tree sent.
         operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]),
                                   _part_map(r.get("plan") or {}))
