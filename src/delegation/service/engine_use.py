@@ -154,6 +154,9 @@ class EngineUse(MissionPart):
         # A task failing on its unit is re-delegated (within its retry budget) before the
         # engine's root ``failed`` that follows could end the mission.
         retry = self._failed_task(fb) if redelegate else None
+        held = self.book.of_node(fb.node_uuid)
+        lapsed = (self.repair.hold_ran_out(held, fb.node_uuid, fb.status, now)
+                  if held is not None and fb.status == "failed" else None)
         mission, events = self.book.observe_feedback(
             fb.node_uuid, fb.status, fb.root_flag, fb.fail_reason, self.lifecycle.epoch(now)
         )
@@ -166,6 +169,8 @@ class EngineUse(MissionPart):
             # Held by the engine (hold-failed): the task alone moves; else the engine already
             # ended the failed (or aborted) branch and the tree is replaced.
             effects.extend(self.repair.failed(mission, fb.node_uuid, retry[0], retry[1], now))
+        if lapsed is not None:
+            effects.extend(lapsed)
         return effects
 
     def relay(self, mission: Mission, fb: TstFeedback) -> Effects:

@@ -204,6 +204,36 @@ class Repair(MissionPart):
                 if mission.node_status.get(uid) in _HELD} | {node_uuid}
         return self.redelegate(mission, unit, why, now, rebind=True, only=held)
 
+    def hold_ran_out(self, mission: Mission, node_uuid: str, status: str, now: float
+                     ) -> Effects | None:
+        """A control node of the running tree ``failed`` while a held task's move is planned
+        or sent: the engine's hold (``hold-failed``, §12.7) ran out before the move was ready
+        (a planner busy with a long plan), and the task's branch failed as without it. The
+        mission does not end with the old tree: the repair goes on as its replacement (the
+        mission is ``redelegating`` from now, and the remaining tree is planned and started as
+        for a tree the engine does not hold). None when this is not that."""
+        root = mission.root_uuid
+        info = mission.nodes.get(node_uuid)
+        if status != "failed" or info is None or info.is_task or mission.ended \
+                or mission.redelegating or node_uuid not in mission.current_nodes:
+            return None
+        replan, sent = self.replans.get(root), self.rebinds.get(root)
+        moving: Replan | Rebinding | None = (
+            replan if replan is not None and replan.rebind and replan.held
+            else sent if sent is not None and sent.held else None)
+        if moving is None:
+            return None
+        log.warning("mission %s: the engine's hold of %s ran out before its move was ready (%s "
+                    "failed): the tree is replaced instead", root,
+                    ", ".join(sorted(moving.held)), info.path)
+        # Planned again whole (the move planned only the held task; the unit's other tasks,
+        # left on it then, stopped with the branch too): the earlier job's result is dropped.
+        self.replans.pop(root, None)
+        self.rebinds.pop(root, None)
+        return self.redelegate(mission, next(iter(sorted(moving.units))), moving.why, now,
+                               rebind=False)
+        return None
+
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
                    *, rebind: bool | None = None, offers: bool = False,
                    only: set[str] | None = None) -> Effects:
