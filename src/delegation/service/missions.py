@@ -496,10 +496,16 @@ class MissionBook:
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 
     def graft(self, mission: Mission, subtrees: dict[str, dict[str, Any]]) -> None:
-        """Task nodes of the running tree replaced by subtrees under their uuids
-        (``rebind-tst-nodes`` ``subtrees``: a lost unit's unswept remainder shared again); the
-        subtrees' nodes join the mission, their paths under the node they replace."""
+        """Nodes of the running tree replaced by subtrees under their uuids
+        (``rebind-tst-nodes`` ``subtrees``: a lost unit's unswept remainder shared again, a lost
+        delegator's part run by our own units); the subtrees' nodes join the mission, their
+        paths under the node they replace, and the nodes under a replaced one leave it."""
+        replaced = {uid: node for _, node in walk(parse_tree(mission.current_tst))
+                    if (uid := node.node_uuid or "") in subtrees}
         for uid, raw in subtrees.items():
+            if uid in replaced:  # the nodes under it (a subtree replaced) leave the tree
+                mission.current_nodes.difference_update(
+                    n.node_uuid or "" for _, n in walk(replaced[uid]) if n.node_uuid != uid)
             info = mission.nodes.get(uid)
             where_ = info.path if info is not None else "root"
             for new_uid, new in node_infos(parse_tree(raw)).items():

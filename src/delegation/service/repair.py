@@ -40,7 +40,7 @@ from delegation.messages import (
 from delegation.runtime.core import Effects
 from delegation.service.catch_up import CatchUp
 from delegation.service.engine_link import INTERNAL as INTERNAL  # re-exported: tests, older callers
-from delegation.service.federated import handover, without_units
+from delegation.service.federated import handover, take_back, without_units
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.missions import Mission, node_infos
 from delegation.service.planning import MissionPart, Planning
@@ -100,6 +100,9 @@ class Rebinding:
     subtrees: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: Failed tasks the engine held, moved by it: their recorded failure is forgotten.
     held: frozenset[str] = frozenset()
+    #: New nodes of ``subtrees`` -> the nodes they stand for (a lost delegator's part planned
+    #: for our own units: its tasks have new uuids, the operator hears them under the old).
+    origin: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(eq=False)
@@ -373,6 +376,8 @@ class Repair(MissionPart):
             return self.rebind(mission, replan, plan, now)
         if replan.handover:
             handed = self.hand_over(mission, replan, plan, now)
+            if handed is None:
+                handed = self.take_back(mission, replan, plan, now)
             if handed is not None:
                 return handed
         if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
@@ -451,6 +456,32 @@ class Repair(MissionPart):
         return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
                                                  mission.root_uuid)])
 
+    def take_back(self, mission: Mission, replan: Replan, plan: Plan, now: float
+                  ) -> Effects | None:
+        """A lost delegator's part that the plan gives to our own units runs in its place
+        within the running tree (``rebind-tst-nodes`` ``subtrees`` of each subtree's root, which
+        the engine holds as one node; `federated.take_back`): the rest of the tree, other
+        partners' parts too, runs on untouched, uuids kept. None when the plan does otherwise
+        (the caller replaces the tree)."""
+        if mission.node_status.get(replan.old_root) in TERMINAL_NODE_STATUSES \
+                or self.engine.problem(now):
+            return None
+        delegators = {d.name for d in self.view.fleet.delegators(now, alive_only=False)}
+        taken = take_back(parse_tree(mission.current_tst), plan.tst, replan.remaining.origin,
+                          replan.remaining.freed, replan.units, delegators, mission.node_status)
+        if taken is None:
+            return None
+        mission.current_root = replan.old_root  # the tree runs on
+        self.rebinds[mission.root_uuid] = Rebinding({}, replan.why, replan.units, taken.tasks,
+                                                    subtrees=taken.subtrees,
+                                                    origin=taken.origin)
+        key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
+        model = RebindTstNodes(execunits={}, subtrees=taken.subtrees, sender=self.config.name)
+        return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
+                                                 mission.root_uuid)])
+
     def moves(self, mission: Mission, replan: Replan, plan: Plan
               ) -> tuple[dict[str, str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
         """What the rebind moves: (task uuid -> its new unit, task uuid -> the subtree of parts
@@ -507,6 +538,7 @@ class Repair(MissionPart):
         self.book.rebind(mission, sent.book or sent.execunits)
         if sent.subtrees:
             self.book.graft(mission, sent.subtrees)
+            mission.origin.update(sent.origin)
         # The retry budget counts once per task first delegated (a handed-over subtree: each of
         # its tasks; a search moved as parts: the search).
         moved = set(sent.execunits) | set(sent.subtrees) | (
