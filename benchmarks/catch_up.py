@@ -14,7 +14,9 @@ started again.
 Measured (wall seconds, monotonic): from the new instance's first heartbeat to its
 ``succeeded`` on ``delegation/feedback``; and how the end was learnt (``query-status`` sent by
 the service, or not). Bound (docs/protocol.md §11): the engine's heartbeat heard (1 Hz) +
-``catch_up_timeout`` (2 s) for a silent engine + the units' answers.
+``catch_up_timeout`` (2 s) for a silent engine + the units' answers. Measured 2026-11-26 (5 runs
+each, load average 16-30 on 2 cores): engine median 0.81 s (max 1.01 s); units median 2.63 s
+(max 3.04 s), 2 ``query-status`` sent each run.
 
     PYTHONPATH=src python benchmarks/catch_up.py [--runs 5] [--mode both]
 """
