@@ -128,3 +128,13 @@ def test_a_connection_never_up_is_not_reported_lost() -> None:
     client.connected.set()  # up, then lost: that is a loss
     client._on_disconnect(None, None, None, 0, None)
     assert seen == [(False, 0)] and not client.connected.is_set()
+
+
+def test_an_engine_told_not_to_answer_query_tst_stays_silent_and_runs_trees_as_usual() -> None:
+    """The test-only ``answers_query_tst=False`` imitates an engine without the extension that
+    does not answer it (the public op0): the service's catch-up from its units is tested so."""
+    c = engine("dji0")
+    c.answers_query_tst = False
+    (start,) = on(send(c, start_tst(ctl("seq", "R", task("a")))), f"{DJI0}/exec/command")
+    assert start["command"] == "start-task"
+    assert send(c, _query("R"), 3.0).publish == []

@@ -374,11 +374,20 @@ def test_a_lost_delegator_s_single_task_is_re_delegated_like_a_lost_unit_s() -> 
         feed_unit(a, "dji0", *GRANSO, ["move-to", "search-area"], t)
         feed_engine(a, t)
     moved = run_jobs(a, a.on_tick(116.0), 116.1)
-    [event] = on(moved, "delegation/feedback")
+    # Our dji0 takes it in its place in the running tree (the engine holds a delegated subtree
+    # as one node: its replacement runs under that uuid); nothing else is touched.
+    [rebind] = on(moved, "op0/tst/command")
+    assert rebind["command"] == "rebind-tst-nodes" and rebind["execunits"] == {}
+    [(uid, sub)] = rebind["subtrees"].items()
+    assert uid == "near-b" and sub["common_params"]["node-uuid"] == "near-b"
+    assert sub["name"] == "move-to" and sub["common_params"]["execunit"] == "/dji0"
+    done = engine_answers(a, moved, "ok", 116.2)
+    [event] = on(done, "delegation/feedback")
     assert event["status"] == "re-delegated" and "/delegator-b lost" in event["fail-reason"]
     assert [(t["replaces"], t["unit"]) for t in event["tasks"]] == [("near-b", "/dji0")]
-    [again] = [c for c in on(moved, "op0/tst/command") if c["command"] == "start-tst"]
-    assert "/delegator-b" not in json.dumps(again["tst"])
+    mission = a.book.get("root-f")
+    assert "/delegator-b" not in json.dumps(mission.current_tst)
+    assert mission.current_root == "root-f"  # the same tree runs on
 
 
 def test_a_lost_delegator_s_bundle_is_re_delegated_task_by_task() -> None:
@@ -399,9 +408,23 @@ def test_a_lost_delegator_s_bundle_is_re_delegated_task_by_task() -> None:
         feed_unit(a, "dji0", *GRANSO, ["move-to", "search-area"], t)
         feed_engine(a, t)
     moved = run_jobs(a, a.on_tick(116.0), 116.1)
-    [event] = on(moved, "delegation/feedback")
+    [rebind] = on(moved, "op0/tst/command")
+    assert rebind["command"] == "rebind-tst-nodes"
+    [(uid, sub)] = rebind["subtrees"].items()
+    assert uid == bundle["common_params"]["node-uuid"] == sub["common_params"]["node-uuid"]
+    assert {n.execunit for _, n in walk(parse_tree(sub)) if not n.is_control} == {"/dji0"}
+    done = engine_answers(a, moved, "ok", 116.2)
+    [event] = on(done, "delegation/feedback")
     assert sorted((t["replaces"], t["unit"]) for t in event["tasks"]) == [
         ("near-b", "/dji0"), ("near-b2", "/dji0")]
+    # The new task nodes stand for the old: the operator hears them under the old uuids.
+    mission = a.book.get("root-f")
+    news = {t["node-uuid"]: t["replaces"] for t in event["tasks"]}
+    assert all(mission.origin[new] == old for new, old in news.items())
+    from test_service_redelegation import feedback
+
+    relayed = feedback(a, next(iter(news)), "running", 117.0)
+    assert [f["node-uuid"] for f in on(relayed, "tst/feedback")] == [news[next(iter(news))]]
 
 
 def test_a_partners_plan_is_checked_not_trusted() -> None:
@@ -479,16 +502,20 @@ def _answered(partner_core: ServiceCore, a: ServiceCore, topic: str, ask: dict[s
 
 
 def test_with_two_partners_one_lost_the_others_part_stays_with_it() -> None:
+    from test_service_core import engine_answers
+
     a = two_fleets()  # no --fleet: b-air0, no longer delegator-b's, is ours and nearest
     three_partners(a)
     moved = run_jobs(a, a.on_tick(116.0), 116.1)
-    [event] = on(moved, "delegation/feedback")
+    [rebind] = on(moved, "op0/tst/command")  # no abort, no new tree: near-c runs on with c
+    assert rebind["command"] == "rebind-tst-nodes" and list(rebind["subtrees"]) == ["near-b"]
+    done = engine_answers(a, moved, "ok", 116.2)
+    [event] = on(done, "delegation/feedback")
     assert event["status"] == "re-delegated"
     assert [(t["replaces"], t["unit"]) for t in event["tasks"]] == [("near-b", "/dji0")]
-    [again] = [m for m in on(moved, "op0/tst/command") if m["command"] == "start-tst"]
-    leaves = [n.execunit for _, n in walk(parse_tree(again["tst"])) if not n.is_control]
+    mission = a.book.get("root-f")
+    leaves = [n.execunit for _, n in walk(parse_tree(mission.current_tst)) if not n.is_control]
     assert sorted(leaves) == ["/delegator-c", "/dji0", "/dji0"]  # near-c stays with c
-    assert "/delegator-c" in [ch["common_params"]["execunit"] for ch in again["tst"]["children"]]
 
 
 def test_a_lost_partners_part_goes_whole_to_another_partner_and_nothing_restarts() -> None:
@@ -559,3 +586,57 @@ def test_a_handover_needs_the_whole_subtree_given_to_a_live_delegator() -> None:
                     *args[1:3], {"t1": "succeeded"}) is None  # not whole: t1 would run again
     assert handover(current, planned("/delegator-c"), origin, {"u1", "u2", "x"},
                     *args[1:]) is None  # something else freed too (a lost unit of ours)
+
+
+def test_a_lost_partners_part_is_taken_back_by_our_units_only_when_the_plan_runs_it_whole_here(
+) -> None:
+    from delegation.service.federated import take_back
+    from delegation.tst.node import parse_tree
+
+    def move(uid: str, unit: str) -> dict[str, Any]:
+        return {"name": "move-to", "common_params": {"node-uuid": uid, "execunit": unit},
+                "params": {"waypoint": {"latitude": 58.4, "longitude": 15.6, "altitude": 20.0}}}
+
+    def tree(root: str, a: str, bundle: str, b1: str, b2: str, units: tuple[str, str, str],
+             bundle_unit: str) -> dict[str, Any]:
+        kids = [move(b1, units[1]), move(b2, units[2])]
+        return {"name": "conc", "common_params": {"node-uuid": root}, "children": [
+            move(a, units[0]),
+            {"name": "conc", "common_params": {"node-uuid": bundle, "execunit": bundle_unit},
+             "children": kids}]}
+
+    b = "/delegator-b"
+    current = parse_tree(tree("root-f", "near-a", "bundle", "b1", "b2", ("/dji0", b, b), b))
+    origin = {"x-root": "root-f", "x-a": "near-a", "x-bundle": "bundle", "x-b1": "b1",
+              "x-b2": "b2"}
+    freed = {"x-b1", "x-b2"}
+
+    def planned(units: tuple[str, str, str]) -> Any:
+        return parse_tree(tree("x-root", "x-a", "x-bundle", "x-b1", "x-b2", units, "/op0"))
+
+    args = (origin, freed, {"delegator-b"}, {"delegator-b", "delegator-c"}, {})
+    taken = take_back(current, planned(("/dji0", "/dji0", "/dji1")), *args)
+    assert taken is not None
+    [(uid, sub)] = taken.subtrees.items()
+    assert uid == "bundle" == sub["common_params"]["node-uuid"]
+    assert [c["common_params"]["node-uuid"] for c in sub["children"]] == ["x-b1", "x-b2"]
+    assert taken.origin == {"x-b1": "b1", "x-b2": "b2"}
+    assert [(t["node-uuid"], t["replaces"], t["unit"]) for t in taken.tasks] == [
+        ("x-b1", "b1", "/dji0"), ("x-b2", "b2", "/dji1")]
+    # A part for another delegator: our engine would start its tasks itself (not folded).
+    assert take_back(current, planned(("/dji0", "/delegator-c", "/dji1")), *args) is None
+    # Something else freed too (one of our own units lost meanwhile): the tree is replaced.
+    assert take_back(current, planned(("/dji0", "/dji0", "/dji1")), origin,
+                     freed | {"x-a"}, *args[2:]) is None
+    # What the partner finished is not run again: the part is what is left of it.
+    done = {"b1": "succeeded"}
+    left = parse_tree({"name": "conc", "common_params": {"node-uuid": "x-root"}, "children": [
+        move("x-a", "/dji0"), {"name": "conc", "common_params": {"node-uuid": "x-bundle"},
+                               "children": [move("x-b2", "/dji1")]}]})
+    part = take_back(current, left, origin, {"x-b2"}, {"delegator-b"}, {"delegator-b"}, done)
+    assert part is not None and [t["replaces"] for t in part.tasks] == ["b2"]
+    # The plan regrouped or shared it into parts of its own: not the subtree's tasks.
+    shared = parse_tree({"name": "conc", "common_params": {"node-uuid": "x-root"}, "children": [
+        move("x-a", "/dji0"), {"name": "conc", "common_params": {"node-uuid": "x-bundle"},
+                               "children": [move("p1", "/dji0"), move("p2", "/dji1")]}]})
+    assert take_back(current, shared, *args) is None

@@ -183,7 +183,7 @@ def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds
     b_cfg, b0 = site("delegator-b", "op-b", "b0", SITE_B, prefix,
                      partners=frozenset({"delegator-a", "op-a"}))
     watch = collector(f"{prefix}/unit/+/+/delegator-a/#", f"{prefix}/unit/+/+/delegator-b/#",
-                      f"{prefix}/unit/+/+/+/delegation_info")
+                      f"{prefix}/unit/+/+/+/delegation_info", f"{prefix}/unit/+/+/op-a/tst/command")
     root, far = str(uuid.uuid4()), f"far-{uuid.uuid4().hex[:8]}"
     # b0: 300 s (3 s here: still flying when delegator-b is stopped); a0 then 540 s (5.4 s)
     near_a, far_b = move_to(100, 0), move_to(SITE_B + 2400, 0)
@@ -210,6 +210,11 @@ def test_a_delegator_killed_mid_mission_is_re_delegated_and_the_mission_succeeds
         assert [(t["replaces"], t["unit"]) for t in moved["tasks"]] == [(far, "/a0")]
         watch.wait_json(events, lambda d: d.get("root-uuid") == root
                         and d["status"] == "succeeded", timeout=60.0, what="the mission's end")
+        # Our a0 took the lost part in its place in the running tree: no tree was replaced
+        # (a0's own task was neither aborted nor started again).
+        sent = [d["command"] for d in watch.json_on(f"{prefix}/unit/+/+/op-a/tst/command")]
+        assert sent.count("start-tst") == 1 and "signal-tst-tree" not in sent, sent
+        assert "rebind-tst-nodes" in sent
 
 
 def test_a_lost_partners_part_goes_to_another_partner_whose_own_part_runs_on(

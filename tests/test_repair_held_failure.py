@@ -97,3 +97,59 @@ def test_every_held_task_of_a_unit_moves_in_one_rebind() -> None:
     [cmd] = on(planned, "op0/tst/command")
     assert cmd["command"] == "rebind-tst-nodes" and sorted(cmd["execunits"]) == ["n1", "n2"]
     assert set(cmd["execunits"].values()) <= {"/u0", "/u2"}
+
+
+def test_a_hold_that_runs_out_before_the_move_is_planned_replaces_the_tree() -> None:
+    """The engine's hold (30 s) ran out while the held task's move was still being planned (a
+    planner queue behind a long plan): its branch failed as without the hold (§12.7). The
+    mission does not end with it: the repair goes on as a replacement of the tree."""
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    fleet(core, 100.0)
+    started(core, _tree("conc", "root-1", _task("n0", "/u0"),
+                        _tree("seq", "s", _task("n1", "/u1"), _task("n2", "/u1"))), hold=True)
+    feedback(core, "n0", "running", 101.5)
+    feedback(core, "n1", "running", 101.5)
+    fleet(core, 102.0)
+    failed = feedback(core, "n1", "failed", 102.5, reason="/u1 reported failed")
+    assert len(failed.jobs) == 1  # the move is being planned (not done yet)
+    fleet(core, 132.0)
+    lapsed = Effects()
+    why = "root/children[1]/children[0] (move-to) failed: /u1 reported failed"
+    lapsed.extend(feedback(core, "s", "failed", 132.6, reason=why))
+    lapsed.extend(feedback(core, "n0", "aborted", 132.7, reason="/u0 reported aborted"))
+    lapsed.extend(feedback(core, "root-1", "failed", 132.8, root=True,
+                           reason=f"root/children[1] (seq) failed: {why}"))
+    assert statuses(lapsed) == []  # the mission goes on
+    assert len(lapsed.jobs) == 1  # planned again whole (n0's abort is the engine's: no job)
+    relayed = {(f["node-uuid"], f["status"]) for f in on(lapsed, f"{BASE}/tst/feedback")}
+    assert ("s", "failed") not in relayed and ("root-1", "failed") not in relayed
+    mission = core.book.get("root-1")
+    assert mission.redelegating and not mission.ended
+    assert on(run_jobs(core, failed, 133.0), "op0/tst/command") == []  # superseded: dropped
+    done = run_jobs(core, lapsed, 133.1)
+    assert [c["command"] for c in on(done, "op0/tst/command")] == ["signal-tst-tree",
+                                                                   "start-tst"]
+    [moved] = on(done, "delegation/feedback")
+    assert moved["status"] == "re-delegated"
+    new = parse_tree(on(done, "op0/tst/command")[1]["tst"])
+    units = {t.name + str(i): t.execunit for i, (_, t) in enumerate(walk(new)) if not t.is_control}
+    # n0 again (the branch's failure stopped it), n1 and n2 off the failing unit, as when a
+    # rebind is refused.
+    assert len(units) == 3 and "/u1" not in units.values()
+
+
+def test_a_hold_that_runs_out_while_the_move_is_sent_replaces_the_tree() -> None:
+    core = ServiceCore(ServiceConfig(prefix=PREFIX))
+    planned = failed_n1(core, hold=True)  # the rebind is out, not answered yet
+    [cmd] = on(planned, "op0/tst/command")
+    assert cmd["command"] == "rebind-tst-nodes"
+    fleet(core, 132.0)
+    lapsed = feedback(core, "s", "failed", 132.6, reason="root/children[1]/children[0] failed")
+    assert core.book.get("root-1").redelegating and len(lapsed.jobs) == 1
+    late = TstResponse(response="failed", response_to=cmd["com-uuid"],
+                       fail_reason="execunits.n1: already ended (failed)")
+    refused = core.on_message(f"{ENGINE}/tst/response", encode(late), 132.7)
+    assert refused.jobs == [] and on(refused, "op0/tst/command") == []  # already in hand
+    done = run_jobs(core, lapsed, 133.0)
+    assert [c["command"] for c in on(done, "op0/tst/command")] == ["signal-tst-tree",
+                                                                   "start-tst"]

@@ -77,8 +77,13 @@ class EngineCore:
         options: EngineOptions | None = None,
         *,
         new_uuid: Callable[[], str] | None = None,
+        answers_query_tst: bool = True,
     ) -> None:
         self.identity = identity
+        self.answers_query_tst = answers_query_tst
+        """False (tests only): ``query-tst`` gets no answer at all, as from an engine without
+        our extension that stays silent (the public op0 as issue 22 describes it), so that the
+        service's catch-up from the units themselves is exercised with a real engine."""
         self.executor = TreeExecutor(options, new_uuid=new_uuid)
         #: Subtrees handed to other TST executors (delegators), docs/protocol.md §15.3.
         self.delegated = Delegated(identity.name)
@@ -255,6 +260,10 @@ class EngineCore:
         if isinstance(command, Ping):
             return self._answer(key, command.com_uuid, "pong")
         if isinstance(command, QueryTst):
+            if not self.answers_query_tst:
+                log.debug("%s: query-tst %s left unanswered (answers_query_tst off)", self.name,
+                          command.com_uuid)
+                return Effects()
             nodes = self.executor.tree_status(command.node_uuid)
             if nodes is None:
                 why = f"no tree {command.node_uuid} is known to {self.name}"

@@ -32,9 +32,10 @@ class TstEngine(CoreUnit[EngineCore]):
         clock: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
         tick_interval: float = 0.1,
+        answers_query_tst: bool = True,
     ) -> None:
         identity = Identity(name, agent_type, str(uuid.uuid4()), role, prefix, rate)
-        core = EngineCore(identity, options)
+        core = EngineCore(identity, options, answers_query_tst=answers_query_tst)
         super().__init__(settings, core, clock=clock, wall=wall, tick_interval=tick_interval)
         self.base = identity.base
 

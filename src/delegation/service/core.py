@@ -91,6 +91,7 @@ from delegation.service.missions import MissionBook
 from delegation.service.offers import OfferDesk
 from delegation.service.planning import Planning, Timing
 from delegation.service.repair import Repair
+from delegation.service.unit_catch_up import UnitCatchUp
 from delegation.topics import parse_unit_topic
 
 log = logging.getLogger(__name__)
@@ -138,7 +139,9 @@ class ServiceCore:
         self.planning = Planning(*shared, offers=self.offers)
         self.catch_up = CatchUp(*shared)
         self.repair = Repair(*shared, planning=self.planning, catch_up=self.catch_up)
-        self.engine_use = EngineUse(*shared, repair=self.repair, catch_up=self.catch_up)
+        self.unit_catch_up = UnitCatchUp(*shared)
+        self.engine_use = EngineUse(*shared, repair=self.repair, catch_up=self.catch_up,
+                                    units=self.unit_catch_up)
 
     @property
     def name(self) -> str:
@@ -160,7 +163,7 @@ class ServiceCore:
     @book.setter
     def book(self, book: MissionBook) -> None:
         for part in (self.view, self.lifecycle, self.planning, self.catch_up, self.repair,
-                     self.engine_use):
+                     self.engine_use, self.unit_catch_up):
             part.book = book
 
     @property
@@ -230,6 +233,8 @@ class ServiceCore:
             f"{p}/unit/+/+/+/delegation_info",
             f"{p}/unit/+/+/+/sensor_info",
             f"{p}/unit/+/+/+/sensor/#",
+            f"{p}/unit/+/+/+/exec/command",  # our engine's start-tasks (`UnitCatchUp`)
+            f"{p}/unit/+/+/+/exec/response",
             *self.engine.subscriptions(),
             *self.offers.subscriptions(),
         ]
@@ -292,6 +297,8 @@ class ServiceCore:
             return self.engine_use.receive(topic, payload, now)
         if self.offers.is_answer(topic):
             return Effects(jobs=self.offers.receive(topic, payload, now))
+        if parsed.rest in ("exec/command", "exec/response"):
+            return self.engine_use.from_unit(parsed.name, parsed.rest, topic, payload, now)
         self.view.observe(topic, payload, now)
         return self._fleet_events(now)
 
@@ -301,6 +308,7 @@ class ServiceCore:
         self._listening(now)
         self.view.log_silent(now)
         effects = self._release_held(now) if self._held else Effects()
+        effects.extend(self.engine_use.units_expired(now))  # before a silent engine asks again
         for got in self.engine.expire(now):
             effects.extend(self.engine_use.answer(got, now))
         if self._offline_since is None:

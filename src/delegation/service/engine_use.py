@@ -36,6 +36,7 @@ from delegation.service.missions import Mission
 from delegation.service.planning import MissionPart
 from delegation.service.redelegation import current_node, first_origin
 from delegation.service.repair import Repair
+from delegation.service.unit_catch_up import UnitCatchUp, UnitsSay
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,8 @@ class EngineUse(MissionPart):
 
     repair: Repair
     catch_up: CatchUp
+    #: Asking the units when the engine cannot say how a tree stands.
+    units: UnitCatchUp
     #: Callers' signals sent as several, by the caller's command key.
     fanout: dict[CommandKey, _Fanout] = field(default_factory=dict)
 
@@ -144,12 +147,16 @@ class EngineUse(MissionPart):
             return self.answer(got, now)
         return Effects()
 
-    def feedback(self, fb: TstFeedback, now: float) -> Effects:
+    def feedback(self, fb: TstFeedback, now: float, redelegate: bool = True) -> Effects:
         """Node statuses: the mission book moves on, the operator hears it (in the tree it
-        sent), the learner times the task; a task failing on its unit is re-delegated."""
+        sent), the learner times the task; a task failing on its unit is re-delegated (unless
+        ``redelegate`` is False: its tree ended with it, as its units said, `UnitCatchUp`)."""
         # A task failing on its unit is re-delegated (within its retry budget) before the
         # engine's root ``failed`` that follows could end the mission.
-        retry = self._failed_task(fb)
+        retry = self._failed_task(fb) if redelegate else None
+        held = self.book.of_node(fb.node_uuid)
+        lapsed = (self.repair.hold_ran_out(held, fb.node_uuid, fb.status, now)
+                  if held is not None and fb.status == "failed" else None)
         mission, events = self.book.observe_feedback(
             fb.node_uuid, fb.status, fb.root_flag, fb.fail_reason, self.lifecycle.epoch(now)
         )
@@ -162,6 +169,8 @@ class EngineUse(MissionPart):
             # Held by the engine (hold-failed): the task alone moves; else the engine already
             # ended the failed (or aborted) branch and the tree is replaced.
             effects.extend(self.repair.failed(mission, fb.node_uuid, retry[0], retry[1], now))
+        if lapsed is not None:
+            effects.extend(lapsed)
         return effects
 
     def relay(self, mission: Mission, fb: TstFeedback) -> Effects:
@@ -267,12 +276,51 @@ class EngineUse(MissionPart):
         if it had just arrived, or the tree sent again; no answer: asked again."""
         if got.response is None:
             self.catch_up.unanswered(root)
-            return Effects()
+            return self._ask_units(root, now)
         missed, effects = self.catch_up.answered(root, got.response, now)
         if missed:
             log.info("mission %s: caught up on %d node status(es) missed", root, len(missed))
         for fb in missed:
             effects.extend(self.feedback(fb, now))
+        if got.response.response not in ("ok", "unknown"):  # an engine without query-tst
+            effects.extend(self._ask_units(root, now))
+        return effects
+
+    def _ask_units(self, root: str, now: float) -> Effects:
+        """The engine cannot say how the mission's tree stands: its units are asked
+        (`UnitCatchUp`)."""
+        effects, said = self.units.ask(root, now)
+        return effects.extend(self._units_said(said, now))
+
+    def from_unit(self, unit: str, rest: str, topic: str, payload: bytes, now: float
+                  ) -> Effects:
+        """A unit's ``exec/command`` (a ``start-task`` of our engine: its task-uuid is kept) or
+        ``exec/response`` (maybe the answer to our ``query-status``)."""
+        if rest == "exec/command":
+            self.units.start_seen(unit, topic, payload)
+            return Effects()
+        return self._units_said(self.units.answer_seen(unit, topic, payload), now)
+
+    def units_expired(self, now: float) -> Effects:
+        """Units that did not answer ``query-status`` in time: what the others said counts."""
+        effects = Effects()
+        for said in self.units.expire(now):
+            effects.extend(self._units_said(said, now))
+        return effects
+
+    def _units_said(self, said: UnitsSay | None, now: float) -> Effects:
+        """The units' answers applied as the feedback they would have been (a failed task ends
+        its tree as the engine ended it: not re-delegated); a tree that ended badly while a
+        unit still runs a task of it is ``$abort``ed on the engine."""
+        mission = self.book.find(said.root) if said is not None else None
+        if said is None or mission is None or mission.ended:
+            return Effects()
+        tree = mission.current_root
+        effects = Effects()
+        for fb in said.feedback:
+            effects.extend(self.feedback(fb, now, redelegate=False))
+        if said.abort:
+            effects.extend(self.repair.abort_tree(tree, now))
         return effects
 
     def _confirm(self, got: EngineAnswer, now: float) -> Effects:

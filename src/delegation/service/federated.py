@@ -28,6 +28,7 @@ from delegation.tst.node import (
     classify_execunit,
     make_node,
     map_tree,
+    to_dict,
     walk,
     where,
 )
@@ -284,6 +285,64 @@ def handover(current: TstNode, planned: TstNode, origin: Mapping[str, str],
 
 #: Node statuses after which a subtree is not handed to anyone again.
 _ENDED = frozenset({"succeeded", "failed", "aborted"})
+
+
+@dataclass(frozen=True, slots=True)
+class TakeBack:
+    """Subtrees of lost delegators that the plan gives to our own units, each run in its
+    place within the running tree (``rebind-tst-nodes`` ``subtrees``: the engine holds the
+    subtree as one node, under its root's uuid): the subtrees (root uuid -> the planned part,
+    its root's uuid kept, the rest new), the new nodes' origins (new uuid -> the node it
+    stands for) and the ``re-delegated`` rows."""
+
+    subtrees: dict[str, dict[str, Any]]
+    origin: dict[str, str]
+    tasks: list[dict[str, str]]
+
+
+def take_back(current: TstNode, planned: TstNode, origin: Mapping[str, str],
+              freed: Collection[str], lost: Collection[str], delegators: Collection[str],
+              status: Mapping[str, str]) -> TakeBack | None:
+    """The `TakeBack` when a re-delegation's plan (``planned``, made of the remaining tree whose
+    uuids ``origin`` maps to ``current``'s) runs what is left of every subtree a lost delegator
+    was handed on our own units only (no task on a delegator), as planned from that subtree
+    (the same tasks, nothing regrouped or shared into new parts), and frees nothing else; else
+    None (the tree is replaced)."""
+    roots = delegated_roots(current, lost)
+    inside = {r: {n.node_uuid or "" for _, n in walk(node) if not n.is_control}
+              for r, (_, node) in roots.items()}
+    covered: set[str] = set().union(*inside.values())
+    if not roots or not {origin.get(f, "") for f in freed} <= covered:
+        return None
+    by_old = {origin[n.node_uuid]: n for _, n in walk(planned)
+              if n.node_uuid and n.node_uuid in origin}
+    others = set(delegators) | set(lost)
+    subtrees: dict[str, dict[str, Any]] = {}
+    origins: dict[str, str] = {}
+    tasks: list[dict[str, str]] = []
+    for r, (path, _) in roots.items():
+        left = {t for t in inside[r] if status.get(t) not in ("succeeded", "revoked")}
+        if status.get(r) in _ENDED or not left:
+            continue  # nothing of it to run again
+        new = by_old.get(r)
+        if new is None:
+            return None
+        nodes = list(walk(new, path))
+        if any(_fixed(n) in others for _, n in nodes) \
+                or any(not n.is_control and not _fixed(n) for _, n in nodes):
+            return None  # a part for a delegator (ours would start its tasks) or unassigned
+        if {origin.get(n.node_uuid or "") for _, n in nodes if not n.is_control} != left:
+            return None  # regrouped or shared into new parts: not the subtree's own tasks
+        subtrees[r] = to_dict(new.with_common_values({"node-uuid": r}))
+        for sub, n in nodes:
+            uid = n.node_uuid or ""
+            if n is not new and uid in origin:
+                origins[uid] = origin[uid]
+            if not n.is_control:
+                tasks.append({"node-uuid": uid if n is not new else r,
+                              "replaces": origin[uid], "name": n.name,
+                              "path": where(sub, n), "unit": f"/{_fixed(n)}"})
+    return TakeBack(subtrees, origins, tasks) if subtrees else None
 
 
 def kept_delegations(root: TstNode, own: Collection[str], engine: str) -> list[Offer]:

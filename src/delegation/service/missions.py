@@ -91,6 +91,10 @@ class Mission:
     #: The operator's own tree (the tree sent may regroup its control nodes): what feedback and
     #: ``query-mission`` show. None: the sent tree is shown as it is.
     operator: OperatorView | None = None
+    #: Task node uuid -> (unit, task-uuid) of the last ``start-task`` the engine was seen to send
+    #: for it: what the service asks the unit about (``query-status``) when the engine cannot say
+    #: how the tree stands (`delegation.service.unit_catch_up`).
+    node_tasks: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.current_root = self.current_root or self.root_uuid
@@ -228,6 +232,7 @@ def mission_state(m: Mission) -> dict[str, Any]:
         "current-root": m.current_root,
         "retries": m.retries,
         "redelegations": m.redelegations,
+        "node-tasks": {uid: list(pair) for uid, pair in m.node_tasks.items()},
     }
 
 
@@ -272,6 +277,8 @@ def mission_from_record(r: dict[str, Any]) -> Mission:
         retries=dict(r.get("retries") or {}),
         redelegations=int(r.get("redelegations") or 0),
         owner=str(r.get("owner") or ""),
+        node_tasks={uid: (str(pair[0]), str(pair[1]))
+                    for uid, pair in (r.get("node-tasks") or {}).items()},
         # The operator's view is derived again from the tree received and the tree sent.
         operator=(OperatorView.of(parse_tree(received), parse_tree(r["tst"]),
                                   _part_map(r.get("plan") or {}))
@@ -492,10 +499,16 @@ class MissionBook:
         self.touch(mission.root_uuid, Change.TREE | Change.STATE)
 
     def graft(self, mission: Mission, subtrees: dict[str, dict[str, Any]]) -> None:
-        """Task nodes of the running tree replaced by subtrees under their uuids
-        (``rebind-tst-nodes`` ``subtrees``: a lost unit's unswept remainder shared again); the
-        subtrees' nodes join the mission, their paths under the node they replace."""
+        """Nodes of the running tree replaced by subtrees under their uuids
+        (``rebind-tst-nodes`` ``subtrees``: a lost unit's unswept remainder shared again, a lost
+        delegator's part run by our own units); the subtrees' nodes join the mission, their
+        paths under the node they replace, and the nodes under a replaced one leave it."""
+        replaced = {uid: node for _, node in walk(parse_tree(mission.current_tst))
+                    if (uid := node.node_uuid or "") in subtrees}
         for uid, raw in subtrees.items():
+            if uid in replaced:  # the nodes under it (a subtree replaced) leave the tree
+                mission.current_nodes.difference_update(
+                    n.node_uuid or "" for _, n in walk(replaced[uid]) if n.node_uuid != uid)
             info = mission.nodes.get(uid)
             where_ = info.path if info is not None else "root"
             for new_uid, new in node_infos(parse_tree(raw)).items():

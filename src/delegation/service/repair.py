@@ -40,7 +40,7 @@ from delegation.messages import (
 from delegation.runtime.core import Effects
 from delegation.service.catch_up import CatchUp
 from delegation.service.engine_link import INTERNAL as INTERNAL  # re-exported: tests, older callers
-from delegation.service.federated import handover, without_units
+from delegation.service.federated import handover, take_back, without_units
 from delegation.service.jobs import Job, JobFailed, JobResult, PlanDone, internal_error
 from delegation.service.missions import Mission, node_infos
 from delegation.service.planning import MissionPart, Planning
@@ -100,6 +100,9 @@ class Rebinding:
     subtrees: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: Failed tasks the engine held, moved by it: their recorded failure is forgotten.
     held: frozenset[str] = frozenset()
+    #: New nodes of ``subtrees`` -> the nodes they stand for (a lost delegator's part planned
+    #: for our own units: its tasks have new uuids, the operator hears them under the old).
+    origin: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(eq=False)
@@ -203,6 +206,36 @@ class Repair(MissionPart):
                                              unit)
                 if mission.node_status.get(uid) in _HELD} | {node_uuid}
         return self.redelegate(mission, unit, why, now, rebind=True, only=held)
+
+    def hold_ran_out(self, mission: Mission, node_uuid: str, status: str, now: float
+                     ) -> Effects | None:
+        """A control node of the running tree ``failed`` while a held task's move is planned
+        or sent: the engine's hold (``hold-failed``, §12.7) ran out before the move was ready
+        (a planner busy with a long plan), and the task's branch failed as without it. The
+        mission does not end with the old tree: the repair goes on as its replacement (the
+        mission is ``redelegating`` from now, and the remaining tree is planned and started as
+        for a tree the engine does not hold). None when this is not that."""
+        root = mission.root_uuid
+        info = mission.nodes.get(node_uuid)
+        if status != "failed" or info is None or info.is_task or mission.ended \
+                or mission.redelegating or node_uuid not in mission.current_nodes:
+            return None
+        replan, sent = self.replans.get(root), self.rebinds.get(root)
+        moving: Replan | Rebinding | None = (
+            replan if replan is not None and replan.rebind and replan.held
+            else sent if sent is not None and sent.held else None)
+        if moving is None:
+            return None
+        log.warning("mission %s: the engine's hold of %s ran out before its move was ready (%s "
+                    "failed): the tree is replaced instead", root,
+                    ", ".join(sorted(moving.held)), info.path)
+        # Planned again whole (the move planned only the held task; the unit's other tasks,
+        # left on it then, stopped with the branch too): the earlier job's result is dropped.
+        self.replans.pop(root, None)
+        self.rebinds.pop(root, None)
+        return self.redelegate(mission, next(iter(sorted(moving.units))), moving.why, now,
+                               rebind=False)
+        return None
 
     def redelegate(self, mission: Mission, unit: str, why: str, now: float,
                    *, rebind: bool | None = None, offers: bool = False,
@@ -343,6 +376,8 @@ class Repair(MissionPart):
             return self.rebind(mission, replan, plan, now)
         if replan.handover:
             handed = self.hand_over(mission, replan, plan, now)
+            if handed is None:
+                handed = self.take_back(mission, replan, plan, now)
             if handed is not None:
                 return handed
         if any(mission.node_status.get(origin.get(uid, "")) == "succeeded"
@@ -421,6 +456,32 @@ class Repair(MissionPart):
         return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
                                                  mission.root_uuid)])
 
+    def take_back(self, mission: Mission, replan: Replan, plan: Plan, now: float
+                  ) -> Effects | None:
+        """A lost delegator's part that the plan gives to our own units runs in its place
+        within the running tree (``rebind-tst-nodes`` ``subtrees`` of each subtree's root, which
+        the engine holds as one node; `federated.take_back`): the rest of the tree, other
+        partners' parts too, runs on untouched, uuids kept. None when the plan does otherwise
+        (the caller replaces the tree)."""
+        if mission.node_status.get(replan.old_root) in TERMINAL_NODE_STATUSES \
+                or self.engine.problem(now):
+            return None
+        delegators = {d.name for d in self.view.fleet.delegators(now, alive_only=False)}
+        taken = take_back(parse_tree(mission.current_tst), plan.tst, replan.remaining.origin,
+                          replan.remaining.freed, replan.units, delegators, mission.node_status)
+        if taken is None:
+            return None
+        mission.current_root = replan.old_root  # the tree runs on
+        self.rebinds[mission.root_uuid] = Rebinding({}, replan.why, replan.units, taken.tasks,
+                                                    subtrees=taken.subtrees,
+                                                    origin=taken.origin)
+        key = (INTERNAL, f"{mission.root_uuid}#rebind{mission.redelegations + 1}")
+        for note in plan.notes:
+            log.info("mission %s (re-delegation): %s", mission.root_uuid, note)
+        model = RebindTstNodes(execunits={}, subtrees=taken.subtrees, sender=self.config.name)
+        return Effects(publish=[self.engine.send("rebind", key, "delegation", model, now,
+                                                 mission.root_uuid)])
+
     def moves(self, mission: Mission, replan: Replan, plan: Plan
               ) -> tuple[dict[str, str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
         """What the rebind moves: (task uuid -> its new unit, task uuid -> the subtree of parts
@@ -477,6 +538,7 @@ class Repair(MissionPart):
         self.book.rebind(mission, sent.book or sent.execunits)
         if sent.subtrees:
             self.book.graft(mission, sent.subtrees)
+            mission.origin.update(sent.origin)
         # The retry budget counts once per task first delegated (a handed-over subtree: each of
         # its tasks; a search moved as parts: the search).
         moved = set(sent.execunits) | set(sent.subtrees) | (
