@@ -52,6 +52,10 @@ MIN_TIMEOUT = 2.5
 OUTAGE = 6.0
 #: How long the service waits for a lost engine to come back (its default is 30 s).
 ENGINE_RETURN = 4.0
+#: The heartbeat timeout of the reboot test: longer than its wait for the re-delegation, so that
+#: only the new agent-uuid can cause it. With `MIN_TIMEOUT`, a loaded machine that took more than
+#: 2.5 s to start the new process (Python, the imports, the connection) saw "/u1 lost" instead.
+REBOOT_LOSS = 60.0
 HOME = {"u0": (57.7600, 16.6800), "u1": (57.7600, 16.6840), "u2": (57.7624, 16.6842)}
 GOAL = {"u0": (57.7627, 16.6800), "u1": (57.7627, 16.6840), "near-u0": (57.7627, 16.6808)}
 
@@ -142,9 +146,10 @@ def conc(*children: dict[str, Any]) -> dict[str, Any]:
 
 
 def start_service(settings: BrokerSettings, prefix: str, **config: Any) -> DelegationService:
-    """The service (started by ``with``), quick to judge a unit lost (`MIN_TIMEOUT`)."""
-    return DelegationService(settings, ServiceConfig(prefix=prefix,
-                                                     min_heartbeat_timeout=MIN_TIMEOUT, **config))
+    """The service (started by ``with``), quick to judge a unit lost (`MIN_TIMEOUT`, unless
+    ``min_heartbeat_timeout`` says otherwise)."""
+    config.setdefault("min_heartbeat_timeout", MIN_TIMEOUT)
+    return DelegationService(settings, ServiceConfig(prefix=prefix, **config))
 
 
 def watch(settings: BrokerSettings, prefix: str) -> Collector:
@@ -239,7 +244,8 @@ def test_a_rebooted_unit_is_re_delegated_at_once(
     settings = mosquitto.settings()
     for name in HOME:
         procs.sim(name)
-    with TstEngine(settings, prefix=prefix), start_service(settings, prefix) as service:
+    with TstEngine(settings, prefix=prefix), \
+            start_service(settings, prefix, min_heartbeat_timeout=REBOOT_LOSS) as service:
         ready(service, list(HOME))
         col = watch(settings, prefix)
         try:
@@ -247,8 +253,10 @@ def test_a_rebooted_unit_is_re_delegated_at_once(
             wait_running(col, {"u1"})
             procs.kill("u1")
             procs.sim("u1")  # the same unit, a new process: a new agent-uuid, no tasks
+            # Within REBOOT_LOSS / 2: the re-delegation cannot come from a loss.
             moved = col.wait_json("+/unit/+/+/+/delegation/feedback",
-                                  lambda d: d.get("status") == "re-delegated", timeout=20.0)
+                                  lambda d: d.get("status") == "re-delegated",
+                                  timeout=REBOOT_LOSS / 2)
             assert "/u1 rebooted" in moved["fail-reason"], moved
             assert [t["unit"] for t in moved["tasks"]] in (["/u0"], ["/u2"])
             end = final_status(col, root, timeout=90.0)

@@ -1,7 +1,10 @@
 """Two delegation services, each with its own simulated fleet and engine, on one real broker
 (docs/protocol.md §15): a mission whose best plan uses both fleets runs to success with the
 operator's view whole; a delegator that never answers offers delays planning by the bid window
-at most."""
+at most.
+
+On one broker (`one_broker`): the subject is the services' federation, the same code on either
+broker; the MQTT client on each broker is what test_mqtt.py checks."""
 
 from __future__ import annotations
 
@@ -13,13 +16,14 @@ from typing import Any
 
 import pytest
 
+from conftest import one_broker
 from delegation.fleet import make_unit
 from delegation.local import LocalSystem
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import ServiceConfig
 from test_e2e_service import AIR_TASKS, FRAME, move_to
 
-pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
+pytestmark = [pytest.mark.mqtt, pytest.mark.slow, one_broker()]
 
 SPEEDS = {"slow": 4.0, "standard": 8.0, "fast": 14.0}
 #: Site B is 2 km east of site A: a unit of one site needs 250 s to reach the other.

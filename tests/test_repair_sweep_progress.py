@@ -54,14 +54,19 @@ def flight(node: TstNode, share: float, report_every: float = 0.5
     assert v.start_task(node.name, node.params, "t0") is None
     legs = np.array([(v.east, v.north)] + [leg[:2] for leg in v.tasks["t0"].legs])
     total = float(np.hypot(*np.diff(legs, axis=0).T).sum()) / SPEED
-    truth, reported, t, dt = [v.position], [v.position], 0.0, 0.25
+    # Where it was (east/north in its own frame), made GeoPoints at the end in one conversion:
+    # `SimVehicle.position` converts one point at a time (most of this test's time when it did).
+    xy, is_report, t, dt = [(v.east, v.north, v.altitude)], [True], 0.0, 0.25
     while t < share * total:
         v.step(dt)
         t += dt
-        truth.append(v.position)
-        if round(t / dt) % round(report_every / dt) == 0:
-            reported.append(v.position)
-    return v, truth, reported
+        xy.append((v.east, v.north, v.altitude))
+        is_report.append(round(t / dt) % round(report_every / dt) == 0)
+    east, north, up = np.array(xy).T
+    lat, lon = v.frame.to_geo(east, north)
+    truth = [GeoPoint(latitude=float(a), longitude=float(b), altitude=float(h))
+             for a, b, h in zip(lat, lon, up, strict=True)]
+    return v, truth, [p for p, report in zip(truth, is_report, strict=True) if report]
 
 
 def region(node: TstNode, frame: LocalFrame | None = None

@@ -3,6 +3,9 @@ broker, the page's bridge and uvicorn in threads, httpx as the client (docs/ui.m
 
 Two users (``--users``): alice starts missions, bob may not touch them (the service refuses: 403).
 Events are read from /api/events by a thread and waited on with deadlines.
+
+The page's tests run on one broker (`one_broker`): their subject is the page, the same code on
+either broker. The buffered reads (the MQTT client's own) run on both.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import httpx
 import pytest
 
 import cli_forks
+from conftest import one_broker
 from delegation.fleet import FleetRegistry, make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
@@ -181,6 +185,7 @@ def page(broker: LocalBroker, tmp_path_factory: pytest.TempPathFactory) -> Itera
             bridge.stop()
 
 
+@one_broker()
 def test_state_and_the_snapshot_show_the_units(page: Page) -> None:
     config = page.get("/api/config").json()
     assert config["user"] == "alice" and config["tile-url"] is None
@@ -200,6 +205,7 @@ def test_state_and_the_snapshot_show_the_units(page: Page) -> None:
     assert "move-to" in dji0["tasks-available"] and dji0["track"]
 
 
+@one_broker()
 def test_plan_gives_a_plan_per_strategy_and_stores_nothing(
         page: Page, collector: Callable[..., Any]) -> None:
     """Issue 23: every preview stayed in the store as a mission (planned, then aborted), and
@@ -239,6 +245,7 @@ def test_plan_gives_a_plan_per_strategy_and_stores_nothing(
     assert not missions & set(roots)
 
 
+@one_broker()
 def test_a_started_mission_reaches_succeeded_on_the_event_stream(page: Page) -> None:
     answer = page.post("/api/missions", {"mission": near_mission(), "strategy": "auction"})
     assert answer.status_code == 200, answer.text
@@ -267,6 +274,7 @@ def test_a_started_mission_reaches_succeeded_on_the_event_stream(page: Page) -> 
     assert "notes" in m["plan"]
 
 
+@one_broker()
 def test_signals_and_cancel_with_the_owners_rights(page: Page) -> None:
     answer = page.post("/api/missions", {"mission": far_mission()})
     assert answer.status_code == 200, answer.text
@@ -291,6 +299,7 @@ def test_signals_and_cancel_with_the_owners_rights(page: Page) -> None:
     page.mission_status(root, "aborted")
 
 
+@one_broker()
 def test_a_lost_unit_is_shown_lost(page: Page) -> None:
     extra = SimFleet(page.settings, [make_unit("lost0", "air", FRAME.geopoint(-80.0, 0.0, 30.0),
                                                TASKS)], prefix=page.prefix,
@@ -309,6 +318,7 @@ def test_a_lost_unit_is_shown_lost(page: Page) -> None:
     assert units["lost0"]["status"] == "lost" and units["dji0"]["status"] == "alive"
 
 
+@one_broker()
 def test_bad_input_is_400_naming_the_field(page: Page) -> None:
     bad = {"name": "move-to", "params": {"waypoint": {"latitude": 957.0, "longitude": 16.0}}}
     for path in ("/api/plan", "/api/missions"):
@@ -322,6 +332,7 @@ def test_bad_input_is_400_naming_the_field(page: Page) -> None:
     assert unknown.status_code == 404 and "unknown mission" in unknown.json()["fail-reason"]
 
 
+@one_broker()
 def test_an_alias_bomb_or_a_body_too_large_is_refused_with_memory_bounded(page: Page) -> None:
     """Issue 23: an alias bomb in an unvalidated field passed validation and was expanded when
     forwarded (+183 MB, 504); bodies were read whole however large; a mission sent as an object
@@ -353,6 +364,7 @@ def test_an_alias_bomb_or_a_body_too_large_is_refused_with_memory_bounded(page: 
     assert len(page.get("/api/state").json()["missions"]) == before
 
 
+@one_broker()
 def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
     for path in ("/api/config", "/api/state", "/api/events"):
         assert page.get(path, token=None).status_code == 401
@@ -366,6 +378,7 @@ def test_every_api_call_needs_a_token_and_the_cookie_works(page: Page) -> None:
         assert browser.get("/api/config").json()["user"] == "bob"
 
 
+@one_broker()
 def test_each_user_sees_what_list_missions_shows_them(page: Page) -> None:
     """Issue 23: /api/state and the event stream showed every user every mission and owner."""
     bobs_events = Events(page.url, BOB).start()
@@ -403,6 +416,7 @@ def test_each_user_sees_what_list_missions_shows_them(page: Page) -> None:
     assert shown == {m["root-uuid"] for m in listed}
 
 
+@one_broker()
 def test_the_cookie_is_secure_under_tls(page: Page) -> None:
     plain = page.http.get(f"/?token={BOB}", follow_redirects=False)
     assert plain.status_code == 303 and "secure" not in plain.headers["set-cookie"].lower()
@@ -413,6 +427,7 @@ def test_the_cookie_is_secure_under_tls(page: Page) -> None:
     assert "; secure" in cookie and "httponly" in cookie and "samesite=strict" in cookie
 
 
+@one_broker()
 def test_a_token_is_revoked_by_editing_the_users_file(page: Page) -> None:
     original = page.users_file.read_text()
     assert page.get("/api/config", token=BOB).status_code == 200
@@ -427,6 +442,7 @@ def test_a_token_is_revoked_by_editing_the_users_file(page: Page) -> None:
     assert page.get("/api/config", token=BOB).json()["user"] == "bob"
 
 
+@one_broker()
 def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:
     """A web site the operator visits may POST to the loopback page (no preflight for text/plain)
     or rebind its own name to 127.0.0.1: refused, and nothing starts."""
@@ -449,6 +465,7 @@ def test_other_sites_cannot_drive_or_read_the_page(page: Page) -> None:
     assert len(page.get("/api/state").json()["missions"]) == before
 
 
+@one_broker()
 def test_without_users_every_request_acts_as_the_servers_sender(page: Page) -> None:
     # not started: no I/O; a start waits 4 request timeouts, 1 s (not 5), for the heartbeat
     bridge = Bridge(page.settings, prefix=page.prefix, sender="ops", request_timeout=0.25)
@@ -482,6 +499,7 @@ def test_cli_usage_errors_are_one_line_and_exit_2(args: tuple[str, ...], says: s
     assert len(lines) == 1 and says in lines[0]
 
 
+@one_broker()
 @pytest.mark.parametrize("command", [("ui",), ("serve", "--state", ":memory:")])
 def test_cli_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page,
                                                                 command: tuple[str, ...]) -> None:
