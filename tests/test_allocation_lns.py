@@ -10,7 +10,7 @@ from delegation.allocation import check_invariants, plan_mission
 from delegation.allocation.auction import auction as auction_schedule
 from delegation.allocation.optimal.lns import better_key, tree_key
 from delegation.allocation.optimal.parallel import (
-    LNS_HELPER_SCRIPT,
+    HELPER_SCRIPT,
     HelperLns,
     LnsAnswer,
     use_second_core,
@@ -92,5 +92,5 @@ def test_without_a_second_core_the_search_runs_alone() -> None:
 
 
 def test_a_failing_search_helper_is_reported_not_raised(second_core: None) -> None:
-    answer = launch(LNS_HELPER_SCRIPT, b"not a pickle").result(30)
+    answer = launch(HELPER_SCRIPT, b"not a pickle").result(30)
     assert isinstance(answer, str) and answer.startswith("helper failed")

@@ -7,9 +7,10 @@ import argparse
 import os
 from typing import TYPE_CHECKING
 
-from delegation.cli.options import UsageError, env_flag, env_port, port_number
+from delegation.cli.options import UsageError, env_flag, env_port, port_number, positive_float
 
 if TYPE_CHECKING:
+    from delegation.runtime.client import ServiceClient
     from delegation.runtime.settings import BrokerSettings
 
 
@@ -56,6 +57,23 @@ def add_broker_args(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--password", default=None, help=argparse.SUPPRESS)  # visible in ps: avoid
     g.add_argument("--prefix", default="waraps", help="first topic level (default: waraps)")
+
+
+def add_service_args(parser: argparse.ArgumentParser) -> None:
+    """``--service`` and ``--wait``: the running delegation service a command talks to (with the
+    broker flags, `service_client`)."""
+    parser.add_argument("--service", default="delegator0", help="the service's unit name")
+    parser.add_argument("--wait", type=positive_float, default=10.0,
+                        help="seconds to wait for the service's heartbeat (default 10)")
+
+
+def service_client(args: argparse.Namespace) -> ServiceClient:
+    """A client of the service `add_service_args` named, on the broker of `client_settings`
+    (not started)."""
+    from delegation.runtime.client import ServiceClient
+
+    return ServiceClient(client_settings(args), prefix=args.prefix, service=args.service,
+                         service_timeout=args.wait)
 
 
 def broker_settings(args: argparse.Namespace) -> BrokerSettings | None:

@@ -3,12 +3,13 @@ line per change; ``$enough`` to open-ended tasks on request; the summary at the 
 
 from __future__ import annotations
 
+import argparse
 import logging
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from delegation.cli.options import Stopped
+from delegation.cli.options import Stopped, positive_float
 from delegation.errors import DelegationError
 
 if TYPE_CHECKING:
@@ -32,6 +33,23 @@ class Watch:
     timeout: float
     tracks: dict[str, list[Any]] | None = None
     enough: bool = False
+
+
+def add_watch_args(parser: argparse.ArgumentParser) -> None:
+    """``--speedup``, ``--timeout`` and ``--enough`` of a command that follows a mission it did
+    not start the fleet of (``submit``, ``follow``): `watch_from` makes them a `Watch`."""
+    parser.add_argument("--speedup", type=positive_float, default=1.0,
+                        help="the fleet's time factor, to show actual times in mission seconds")
+    parser.add_argument("--timeout", type=positive_float, default=3600.0,
+                        help="stop following after this many seconds (exit 1; the mission goes "
+                        "on)")
+    parser.add_argument("--enough", action="store_true",
+                        help="send $enough to open-ended tasks (look-at-*) once all others ended")
+
+
+def watch_from(args: argparse.Namespace) -> Watch:
+    """The `Watch` of `add_watch_args`' flags."""
+    return Watch(args.speedup, args.timeout, enough=args.enough)
 
 
 def follow(

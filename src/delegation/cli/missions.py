@@ -16,14 +16,14 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
-from delegation.cli.connect import add_broker_args, client_settings
+from delegation.cli.connect import add_broker_args, add_service_args, service_client
+from delegation.cli.following import add_watch_args, follow, still_running_hint, watch_from
 from delegation.cli.options import positive_float
 
 if TYPE_CHECKING:
     from rich.console import Console
 
     from delegation.render.progress import MissionProgress
-    from delegation.runtime.client import ServiceClient
 
 #: What ``delegation signal`` may send to a whole mission (``cancel`` is ``$abort``).
 SIGNALS: tuple[str, ...] = ("$enough", "$pause", "$continue")
@@ -51,12 +51,7 @@ def register(subparsers: Any) -> None:
 
     p = _command(subparsers, "follow", "re-attach to a mission and show its live progress")
     p.add_argument("mission_id", metavar="ID", help="mission id or a unique prefix of it")
-    p.add_argument("--speedup", type=positive_float, default=1.0,
-                   help="the fleet's time factor, to show actual times in mission seconds")
-    p.add_argument("--timeout", type=positive_float, default=3600.0,
-                   help="stop following after this many seconds (exit 1; the mission goes on)")
-    p.add_argument("--enough", action="store_true",
-                   help="send $enough to open-ended tasks once all others ended")
+    add_watch_args(p)
     p.set_defaults(func=_follow)
 
     p = _command(subparsers, "signal", "send $enough, $pause or $continue to a whole mission")
@@ -80,19 +75,10 @@ def register(subparsers: Any) -> None:
 
 def _command(subparsers: Any, name: str, text: str) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(name, help=text, description=text + ".")
-    p.add_argument("--service", default="delegator0", help="the service's unit name")
-    p.add_argument("--wait", type=positive_float, default=10.0,
-                   help="seconds to wait for the service's heartbeat (default 10)")
+    add_service_args(p)
     p.add_argument("--json", action="store_true", help="print JSON (nothing else on stdout)")
     add_broker_args(p)
     return p
-
-
-def _client(args: argparse.Namespace) -> ServiceClient:
-    from delegation.runtime.client import ServiceClient
-
-    return ServiceClient(client_settings(args), prefix=args.prefix, service=args.service,
-                         service_timeout=args.wait)
 
 
 def _print_json(data: Any) -> None:
@@ -116,7 +102,7 @@ def _clock(epoch: Any) -> str:
 def _missions(args: argparse.Namespace) -> int:
     from rich.table import Table
 
-    with _client(args) as client:
+    with service_client(args) as client:
         rows = client.list_missions()
     if args.status == "active":
         rows = [r for r in rows if r.get("status") not in ("succeeded", "failed", "aborted")]
@@ -145,7 +131,7 @@ def _missions(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
-    with _client(args) as client:
+    with service_client(args) as client:
         mission = client.query_mission(client.resolve_mission(args.mission_id))
     if args.json:
         _print_json(mission)
@@ -191,7 +177,7 @@ def mission_tree_table(mission: dict[str, Any], speedup: float = 1.0) -> Any:
 
 
 def _cancel(args: argparse.Namespace) -> int:
-    with _client(args) as client:
+    with service_client(args) as client:
         root = client.resolve_mission(args.mission_id)
         client.cancel_mission(root)
     if args.json:
@@ -202,7 +188,7 @@ def _cancel(args: argparse.Namespace) -> int:
 
 
 def _signal(args: argparse.Namespace) -> int:
-    with _client(args) as client:
+    with service_client(args) as client:
         root = client.resolve_mission(args.mission_id)
         client.signal_mission(root, args.signal)
     if args.json:
@@ -218,18 +204,16 @@ def _signal(args: argparse.Namespace) -> int:
 def _follow(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from delegation.cli.following import Watch, follow, still_running_hint
     from delegation.cli.options import Stopped
 
     console = Console(stderr=bool(args.json))  # with --json, stdout holds the JSON alone
-    with _client(args) as client:
+    with service_client(args) as client:
         root = client.resolve_mission(args.mission_id)
         mission = client.query_mission(root)
         progress = resume_progress(mission, args.speedup)
         if not progress.done:
             try:
-                watch = Watch(args.speedup, args.timeout, enough=args.enough)
-                follow(client, progress.plan, watch, console, progress=progress)
+                follow(client, progress.plan, watch_from(args), console, progress=progress)
             except (KeyboardInterrupt, Stopped):
                 console.print()
                 still_running_hint(console, root, progress.status)
@@ -281,7 +265,7 @@ def _bids(args: argparse.Namespace) -> int:
     from delegation.tst.validate import parse_and_validate
 
     tree = with_uuids(parse_and_validate(read_mission(args.mission)))
-    with _client(args) as client:
+    with service_client(args) as client:
         bids = client.get_bids(tree.to_dict())
     if args.json:
         _print_json(bids)

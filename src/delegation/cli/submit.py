@@ -6,8 +6,8 @@ import argparse
 import json
 from typing import Any
 
-from delegation.cli.connect import add_broker_args, client_settings
-from delegation.cli.following import Watch, run_mission
+from delegation.cli.connect import add_broker_args, add_service_args, service_client
+from delegation.cli.following import add_watch_args, run_mission, watch_from
 from delegation.cli.inputs import read_mission
 from delegation.cli.options import positive_float
 from delegation.cli.plan import OBJECTIVE_CHOICES, STRATEGY_CHOICES
@@ -20,34 +20,12 @@ def register(subparsers: Any) -> None:
     submit.add_argument(
         "mission", help="a TST (JSON/YAML), a scenario file, or a start-tst/delegate command file"
     )
-    submit.add_argument("--service", default="delegator0", help="the service's unit name")
-    submit.add_argument(
-        "--wait",
-        type=float,
-        default=10.0,
-        help="seconds to wait for the service's heartbeat (default 10)",
-    )
+    add_service_args(submit)
     submit.add_argument("--strategy", default=None, choices=STRATEGY_CHOICES)
     submit.add_argument("--objective", default=None, choices=OBJECTIVE_CHOICES)
     submit.add_argument("--time-limit", type=positive_float, default=None,
                         help="planner time limit (s; default: the service's)")
-    submit.add_argument(
-        "--speedup",
-        type=positive_float,
-        default=1.0,
-        help="the fleet's time factor, to show actual times in mission seconds",
-    )
-    submit.add_argument(
-        "--timeout",
-        type=positive_float,
-        default=3600.0,
-        help="stop following after this many seconds (exit 1)",
-    )
-    submit.add_argument(
-        "--enough",
-        action="store_true",
-        help="send $enough to open-ended tasks (look-at-*) once all others ended",
-    )
+    add_watch_args(submit)
     submit.add_argument("--json", action="store_true",
                         help="progress on stderr; the mission (query-mission) as JSON on stdout")
     add_broker_args(submit)
@@ -57,7 +35,6 @@ def register(subparsers: Any) -> None:
 def _submit(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from delegation.runtime.client import ServiceClient
     from delegation.tst.validate import parse_and_validate
 
     tree = read_mission(args.mission)
@@ -70,15 +47,12 @@ def _submit(args: argparse.Namespace) -> int:
     ):
         if value is not None:
             command[key] = value
-    settings = client_settings(args)
-    with ServiceClient(
-        settings, prefix=args.prefix, service=args.service, service_timeout=args.wait
-    ) as client:
+    with service_client(args) as client:
         progress = run_mission(
             client,
             command,
             Console(stderr=bool(args.json)),  # with --json, stdout holds the JSON alone
-            Watch(args.speedup, args.timeout, enough=args.enough),
+            watch_from(args),
         )
         if args.json and progress is not None:
             print(json.dumps(client.query_mission(progress.root_uuid), indent=2))

@@ -17,7 +17,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 import paho.mqtt.client as paho
 from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode, MQTTProtocolVersion
@@ -35,6 +35,7 @@ SHUTDOWN_TIMEOUT = 5.0
 __all__ = [
     "QOS_COMMAND",
     "QOS_PERIODIC",
+    "ClientBase",
     "Message",
     "MessageSink",
     "MqttClient",
@@ -95,6 +96,69 @@ def _set_nodelay(sock: Any) -> None:
 
 MessageSink = Callable[[Message], None]
 
+
+class ClientBase:
+    """What `MqttClient` and `Ros2Client` (`delegation.runtime.ros2`) share, so that the two
+    transports cannot drift apart where they must agree: the constructor `make_client` calls,
+    who the client is, where received messages go, the subscriptions it keeps (renewed after
+    every reconnect), ``with`` as connect/disconnect, and the rule that a callback never raises
+    into the transport's thread. A transport adds its own state in `_init_transport`.
+    """
+
+    def __init__(
+        self,
+        settings: BrokerSettings,
+        client_id: str | None = None,
+        sink: MessageSink | None = None,
+        on_connection: Callable[[bool, int], None] | None = None,
+    ) -> None:
+        """``on_connection(up, connect_count)`` is called on the transport's thread at every
+        connect and disconnect (it must not block): units catch up after an outage with it."""
+        self.settings = settings
+        self._on_connection = on_connection
+        self.client_id = client_id or f"delegation-{uuid.uuid4().hex[:12]}"
+        self.messages: queue.Queue[Message] = queue.Queue()
+        self._sink: MessageSink = sink or self.messages.put
+        self._subscriptions: dict[str, int] = {}
+        #: Guards ``_subscriptions`` (paho's callbacks and the ROS 2 executor read them on their
+        #: own threads), and in `Ros2Client` all its reader state; re-entrant for that.
+        self._lock = threading.RLock()
+        self.connected = threading.Event()
+        self.connect_count = 0
+        #: Exceptions caught in callbacks (each dropped what it was handling).
+        self.callback_errors = 0
+        self._init_transport()
+
+    def _init_transport(self) -> None:
+        """The transport's own state (called at the end of ``__init__``)."""
+
+    def connect(self, timeout: float = 10.0) -> None:
+        raise NotImplementedError
+
+    def disconnect(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+    @property
+    def subscriptions(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._subscriptions)
+
+    def _callback_failed(self, what: str, exc: Exception) -> None:
+        """An exception out of a callback would end the transport's thread for good (paho
+        re-raises it; rclpy's executor stops spinning): it is logged (the first with its
+        traceback) and counted instead."""
+        self.callback_errors += 1
+        log.error("%s: %s dropped: %s: %.200s", self.client_id, what, type(exc).__name__, exc,
+                  exc_info=self.callback_errors == 1)
+
+
 #: Bytes a buffered client reads from the socket at once.
 _READ_CHUNK = 65536
 
@@ -136,44 +200,25 @@ class _BufferedReadClient(paho.Client):
 _UNSUPPORTED_PROTOCOL = 132  # CONNACK reason "Unsupported protocol version" (v3 rc 1 maps here)
 
 
-class MqttClient:
+class MqttClient(ClientBase):
     """One paho client: connect (with protocol detection), subscribe in on_connect, publish.
 
     Received messages are handed to ``sink`` (by default put into ``self.messages``) on paho's
     thread; the sink must not block.
     """
 
-    def __init__(
-        self,
-        settings: BrokerSettings,
-        client_id: str | None = None,
-        sink: MessageSink | None = None,
-        on_connection: Callable[[bool, int], None] | None = None,
-    ) -> None:
-        """``on_connection(up, connect_count)`` is called on paho's thread at every connect and
-        disconnect (it must not block): units catch up after an outage with it."""
-        self.settings = settings
-        self._on_connection = on_connection
-        self.client_id = client_id or f"delegation-{uuid.uuid4().hex[:12]}"
-        self.messages: queue.Queue[Message] = queue.Queue()
-        self._sink: MessageSink = sink or self.messages.put
-        self._subscriptions: dict[str, int] = {}
-        self._sub_lock = threading.Lock()
-        self.connected = threading.Event()
+    def _init_transport(self) -> None:
         self._connack = threading.Event()
         self._connack_code: int | None = None
         self._connack_reason = ""
         self._client: paho.Client | None = None
         self.protocol_version: MQTTProtocolVersion | None = None
-        self.connect_count = 0
         self.nodelay_sockets = 0
         #: Read the socket in chunks (`_BufferedReadClient`); set before `connect`.
         self.buffered_reads = False
         #: Ask the broker not to send back what this client publishes (MQTT 5 "No Local"; a
         #: 3.1.1 broker has no such option: see `no_local_active`); set before `connect`.
         self.no_local = False
-        #: Exceptions caught in callbacks (each dropped what it was handling).
-        self.callback_errors = 0
 
     # ---- lifecycle
 
@@ -314,19 +359,12 @@ class MqttClient:
         self._shutdown_client()
         self.connected.clear()
 
-    def __enter__(self) -> MqttClient:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
-
     # ---- subscribe / publish
 
     def subscribe(self, pattern: str, qos: int = QOS_COMMAND) -> None:
         """Subscribe now (when connected) and again after every reconnect."""
         Wildcard(pattern)  # validate early, with a clear message
-        with self._sub_lock:
+        with self._lock:
             self._subscriptions[pattern] = qos
         client = self._client
         if client is not None and self.connected.is_set():
@@ -344,16 +382,11 @@ class MqttClient:
         return [(pattern, SubscribeOptions(qos=qos, noLocal=True)) for pattern, qos in subs]
 
     def unsubscribe(self, pattern: str) -> None:
-        with self._sub_lock:
+        with self._lock:
             self._subscriptions.pop(pattern, None)
         client = self._client
         if client is not None and self.connected.is_set():
             client.unsubscribe(pattern)
-
-    @property
-    def subscriptions(self) -> dict[str, int]:
-        with self._sub_lock:
-            return dict(self._subscriptions)
 
     def publish(
         self, topic: str, payload: bytes | str, qos: int = QOS_PERIODIC, retain: bool = False
@@ -381,7 +414,7 @@ class MqttClient:
             self._connack_code = code
             self._connack_reason = str(reason)
             if code == 0:
-                with self._sub_lock:
+                with self._lock:
                     subs = list(self._subscriptions.items())
                 if subs:
                     client.subscribe(self._sub_options(client, subs))
@@ -413,10 +446,3 @@ class MqttClient:
             self._sink(_message_from_paho(msg))
         except Exception as exc:
             self._callback_failed(f"a message on {msg.topic[:200]}", exc)
-
-    def _callback_failed(self, what: str, exc: Exception) -> None:
-        """An exception out of a callback would end paho's network loop for good (paho re-raises
-        it): it is logged (the first with its traceback) and counted instead."""
-        self.callback_errors += 1
-        log.error("%s: %s dropped: %s: %.200s", self.client_id, what, type(exc).__name__, exc,
-                  exc_info=self.callback_errors == 1)

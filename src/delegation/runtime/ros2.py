@@ -27,11 +27,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import queue
 import threading
 import time
-import uuid
-from collections.abc import Callable
 from typing import Any
 
 import rclpy
@@ -45,8 +42,7 @@ from std_msgs.msg import String
 
 from delegation.messages.ros_text import NOT_JSON, read_text
 from delegation.ros_topics import RosFilter, UnitNames, ros_token, ros_topic
-from delegation.runtime.mqtt import Message, MessageSink, MqttConnectError, MqttError
-from delegation.runtime.settings import BrokerSettings
+from delegation.runtime.mqtt import ClientBase, Message, MqttConnectError, MqttError
 from delegation.topics import INFO_LEVELS, MAX_PAYLOAD, QOS_COMMAND, QOS_PERIODIC, Wildcard
 
 log = logging.getLogger(__name__)
@@ -110,31 +106,17 @@ class _SharedContext:
                     context.try_shutdown()
 
 
-class Ros2Client:
+class Ros2Client(ClientBase):
     """One ROS 2 node with `MqttClient`'s interface (see the module's docstring).
 
     Received messages are handed to ``sink`` (by default put into ``self.messages``) on this
     client's executor thread; the sink must not block.
     """
 
-    def __init__(
-        self,
-        settings: BrokerSettings,
-        client_id: str | None = None,
-        sink: MessageSink | None = None,
-        on_connection: Callable[[bool, int], None] | None = None,
-    ) -> None:
-        self.settings = settings
-        self._on_connection = on_connection
-        self.client_id = client_id or f"delegation-{uuid.uuid4().hex[:12]}"
-        self.messages: queue.Queue[Message] = queue.Queue()
-        self._sink: MessageSink = sink or self.messages.put
-        self._subscriptions: dict[str, int] = {}
+    def _init_transport(self) -> None:
+        # ``self._lock`` (`ClientBase`) guards the filters, readers, writers and routes too
+        # (re-entrant: discovery, under it, reads the topics it finds).
         self._filters: dict[str, RosFilter] = {}
-        self._lock = threading.RLock()
-        self.connected = threading.Event()
-        self.connect_count = 0
-        self.callback_errors = 0
         self.names = UnitNames()
         self._node: Node | None = None
         self._executor: Executor | None = None
@@ -229,13 +211,6 @@ class Ros2Client:
             with contextlib.suppress(Exception):
                 self._on_connection(False, self.connect_count)
 
-    def __enter__(self) -> Ros2Client:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
-
     # ---- subscribe / publish
 
     def subscribe(self, pattern: str, qos: int = QOS_COMMAND) -> None:
@@ -256,11 +231,6 @@ class Ros2Client:
                 reader = self._readers.pop(ros)
                 if node is not None:
                     node.destroy_subscription(reader)
-
-    @property
-    def subscriptions(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self._subscriptions)
 
     def publish(
         self, topic: str, payload: bytes | str, qos: int = QOS_PERIODIC, retain: bool = False
@@ -418,8 +388,3 @@ class Ros2Client:
                 (topic, QOS_PERIODIC if _periodic(ros) else QOS_COMMAND)
             self._routes[ros] = route
             return route
-
-    def _callback_failed(self, what: str, exc: Exception) -> None:
-        self.callback_errors += 1
-        log.error("%s: %s dropped: %s: %.200s", self.client_id, what, type(exc).__name__, exc,
-                  exc_info=self.callback_errors == 1)

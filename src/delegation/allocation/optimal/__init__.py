@@ -29,8 +29,8 @@ launcher (``runtime.second_core.launch``); allocation starts no process by itsel
 
 Modules: ``routing`` (the routing model), ``minmax`` (its local search), ``cpsat`` (the CP-SAT
 model), ``cpsat_subtrees`` (its subtree-serialisation sub-model), ``lns`` (the search),
-``parallel`` with ``minmax_helper``/``lns_helper`` (the second core), ``shared`` (ticks, task
-points, evaluating routes); this one chooses the solver.
+``parallel`` with ``helper`` (the second core), ``shared`` (ticks, task points, evaluating
+routes); this one chooses the solver.
 """
 
 from __future__ import annotations

@@ -6,11 +6,12 @@ that are not plain, while this process runs the large neighbourhood search, a he
 one with another seed from the same start (``HelperLns``). The caller keeps the better.
 
 Allocation is pure (no processes, no threads: the import contracts), so it only says what to run:
-the script (``minmax_helper.py``, ``lns_helper.py``) and a pickled payload. Starting the process
-is the job of a ``SecondCore`` that a composition root hands to ``use_second_core`` (the runtime's
-``runtime.second_core.launch``); without one, ``optimal`` searches on one core. The helper gets its
-deadline as wall-clock time (it is a script run by path, not ``-m``: importing the whole package
-would take seconds on a loaded machine); its answer is waited for with a timeout.
+the script (``helper.py``, for either search) and a pickled payload that names the search.
+Starting the process is the job of a ``SecondCore`` that a composition root hands to
+``use_second_core`` (the runtime's ``runtime.second_core.launch``); without one, ``optimal``
+searches on one core. The helper gets its deadline as wall-clock time (it is a script run by path,
+not ``-m``: importing the whole package would take seconds on a loaded machine); its answer is
+waited for with a timeout.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import dataclasses
 import pickle
 import time
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -31,10 +32,8 @@ from delegation.allocation.strategies import Objective
 #: The helper is not started for models larger than this (matrix entries): the copy would cost
 #: more than the search gains.
 HELPER_MAX_ENTRIES = 4_000_000
-#: What the helper process runs: ``python HELPER_SCRIPT payload-file``.
-HELPER_SCRIPT = Path(__file__).with_name("minmax_helper.py")
-#: The large neighbourhood search's helper: ``python LNS_HELPER_SCRIPT payload-file``.
-LNS_HELPER_SCRIPT = Path(__file__).with_name("lns_helper.py")
+#: What a helper process runs, either search: ``python HELPER_SCRIPT payload-file``.
+HELPER_SCRIPT = Path(__file__).with_name("helper.py")
 
 
 class Pending(Protocol):
@@ -81,33 +80,52 @@ def _answer(pending: Pending, timeout: float, size: int) -> tuple[Any, ...] | st
     return answer
 
 
-class HelperSearch:
-    """``minmax_search`` in a helper process until ``seconds`` from now."""
+def _launch(search: str, data: dict[str, Any]) -> Pending | None:
+    """Start ``search`` (a name in ``helper.SEARCHES``) on the second core (None: no
+    ``SecondCore`` was given)."""
+    if _second_core is None:
+        return None
+    return _second_core(HELPER_SCRIPT, pickle.dumps({**data, "search": search}))
+
+
+Answer = TypeVar("Answer")
+
+
+class _Helper(Generic[Answer]):
+    """A search running in a helper process; its answer tuple becomes an ``Answer``."""
 
     def __init__(self, pending: Pending) -> None:
         self._pending = pending
+
+    def result(self, timeout: float) -> Answer | str:
+        """The helper's answer, or why there is none (late, failed)."""
+        out = _answer(self._pending, timeout, 4)
+        return out if isinstance(out, str) else self._convert(out)
+
+    @staticmethod
+    def _convert(out: tuple[Any, ...]) -> Answer:
+        raise NotImplementedError
+
+
+class HelperSearch(_Helper[RouteSet]):
+    """``minmax_search`` in a helper process until ``seconds`` from now."""
 
     @staticmethod
     def start(
         model: MinMaxModel, routes: list[list[int]], seconds: float, seed: int
     ) -> HelperSearch | None:
         """Start the helper (None: no ``SecondCore`` was given)."""
-        if _second_core is None:
-            return None
-        data = {
+        pending = _launch("minmax", {
             "matrices": model.matrices, "starts": model.starts, "ends": model.ends,
             "capacity": model.capacity, "allowed": model.allowed, "pinned": model.pinned,
             "angle": model.angle, "total": model.total, "every_unit": model.every_unit,
             "routes": routes, "wall_deadline": time.time() + seconds, "seed": seed,
             "sweep_first": True,  # this process explores the basin of its own start
-        }
-        return HelperSearch(_second_core(HELPER_SCRIPT, pickle.dumps(data)))
+        })
+        return None if pending is None else HelperSearch(pending)
 
-    def result(self, timeout: float) -> RouteSet | str:
-        """The helper's routes, or why there are none (late, failed)."""
-        out = _answer(self._pending, timeout, 4)
-        if isinstance(out, str):
-            return out
+    @staticmethod
+    def _convert(out: tuple[Any, ...]) -> RouteSet:
         routes, lengths, rounds, restarts = out
         return RouteSet(routes, np.asarray(lengths, dtype=float), rounds, restarts)
 
@@ -123,32 +141,24 @@ class LnsAnswer:
     improvements: int
 
 
-class HelperLns:
+class HelperLns(_Helper[LnsAnswer]):
     """``lns`` in a helper process, with another seed, until ``seconds`` from now."""
-
-    def __init__(self, pending: Pending) -> None:
-        self._pending = pending
 
     @staticmethod
     def start(
         problem: Problem, objective: Objective, start: Schedule, seconds: float, seed: int
     ) -> HelperLns | None:
         """Start the helper (None: no ``SecondCore`` was given)."""
-        if _second_core is None:
-            return None
-        data = {
+        pending = _launch("lns", {
             "problem": dataclasses.replace(problem, cache={}),  # derived data: rebuilt there
             "objective": objective.value,
             "assign": np.asarray(start.assign).tolist(),
             "orders": [list(map(int, o)) for o in start.orders],
             "wall_deadline": time.time() + seconds, "seed": seed,
-        }
-        return HelperLns(_second_core(LNS_HELPER_SCRIPT, pickle.dumps(data)))
+        })
+        return None if pending is None else HelperLns(pending)
 
-    def result(self, timeout: float) -> LnsAnswer | str:
-        """The helper's answer, or why there is none (late, failed)."""
-        out = _answer(self._pending, timeout, 4)
-        if isinstance(out, str):
-            return out
+    @staticmethod
+    def _convert(out: tuple[Any, ...]) -> LnsAnswer:
         assign, orders, iterations, improvements = out
         return LnsAnswer(assign, orders, iterations, improvements)
