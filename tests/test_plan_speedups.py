@@ -2,7 +2,8 @@
 
 Each shortcut is checked against the plain computation on generated inputs (as
 ``test_auction_speedups`` does for the auction's): the flown sweep of a convex area skips
-``transitions_inside`` (every leg between points inside a convex area stays inside).
+``transitions_inside`` (every leg between points inside a convex area stays inside); the
+precedence matrix is filled one block per ``seq`` instead of one per pair of its children.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import numpy as np
 import pytest
 
 import delegation.coverage as coverage
+from allocation_helpers import SHAPES, random_instance
+from delegation.allocation.problem import Structure, flatten_tree, precedence
 from delegation.coverage import circle_polygon, flown_sweep
 
 
@@ -60,3 +63,29 @@ def test_a_concave_or_flat_area_is_not_taken_for_convex() -> None:
     assert coverage._convex_area_of(np.array([[0, 0], [10, 0], [20, 0.0]])) is None
     star = circle_polygon((0, 0), 100, 5)[[0, 2, 4, 1, 3]]  # a pentagram winds twice
     assert coverage._convex_area_of(star) is None
+
+
+def _precedence_pair_by_pair(structure: Structure, n_tasks: int) -> np.ndarray:
+    """``precedence`` as it was written first: one block per pair of a seq's children."""
+    before = np.zeros((n_tasks, n_tasks), dtype=bool)
+    under: list[list[int]] = [[] for _ in range(structure.size)]
+    for n in range(structure.size - 1, -1, -1):
+        t = structure.task_of_node[n]
+        under[n] = [t] if t >= 0 else [x for c in structure.children[n] for x in under[c]]
+    for n in range(structure.size):
+        if structure.kinds[n] == "seq":
+            seen: list[int] = []
+            for c in structure.children[n]:
+                if seen and under[c]:
+                    before[np.ix_(seen, under[c])] = True
+                seen = seen + under[c]
+    return before
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_precedence_one_block_per_seq_equals_pair_by_pair(shape: str) -> None:
+    for seed in range(8):
+        tree, _ = random_instance(seed, shape, n_tasks=25, n_units=3)
+        structure, tree_leaves = flatten_tree(tree)
+        np.testing.assert_array_equal(precedence(structure, len(tree_leaves)),
+                                      _precedence_pair_by_pair(structure, len(tree_leaves)))
