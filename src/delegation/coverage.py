@@ -590,8 +590,9 @@ def _strip_reach(x: np.ndarray, farthest: np.ufunc) -> np.ndarray:
     its strip's two edges, interpolated between neighbouring lanes (extrapolated at the first
     and the last)."""
     mid = (x[1:] + x[:-1]) / 2.0
-    before = np.r_[x[0] + (x[0] - x[1]) / 2.0, mid]
-    after = np.r_[mid, x[-1] + (x[-1] - x[-2]) / 2.0]
+    # (np.concatenate: np.r_ costs ~10 us a call, and every flown sweep asks four times)
+    before = np.concatenate(([x[0] + (x[0] - x[1]) / 2.0], mid))
+    after = np.concatenate((mid, [x[-1] + (x[-1] - x[-2]) / 2.0]))
     return np.asarray(farthest(farthest(x, before), after))
 
 
