@@ -280,7 +280,16 @@ def sweep_cells(
     ``along``: the lanes' direction (default: ``sweep_direction``).
     """
     poly = _clean_polygon(polygon_xy)
-    return _cells(*_segments(poly, width, _direction(poly, width, along)))
+    return [cell.copy() for cell in _swept_cells(poly, width, along)]
+
+
+def _swept_cells(poly: np.ndarray, width: float, along: np.ndarray | None
+                 ) -> tuple[np.ndarray, ...]:
+    """``sweep_cells`` of a cleaned polygon, the remembered read-only arrays (``_swept``)."""
+    w = _check_width(width)
+    direction = _direction(poly, w, along)
+    return _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
+                  float(direction[0]), float(direction[1]))[0]
 
 
 def _cells(segments: np.ndarray, lane: np.ndarray) -> list[np.ndarray]:
@@ -395,21 +404,24 @@ def coverage_path(
     poly = _clean_polygon(polygon_xy)
     w = _check_width(width)
     direction = _direction(poly, w, along)
-    path, _ = _first_path(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
-                          float(direction[0]), float(direction[1]))
+    _, path, _ = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
+                        float(direction[0]), float(direction[1]))
     return path.copy()
 
 
 @functools.lru_cache(maxsize=1024)
-def _first_path(data: bytes, n: int, width: float, ax: float, ay: float
-                ) -> tuple[np.ndarray, int]:
-    """(variant 0's path, lane segments) of the sweep along (ax, ay): remembered, as choosing
-    the direction sweeps the winner already, and the cost tables then ask for its path."""
+def _swept(data: bytes, n: int, width: float, ax: float, ay: float
+           ) -> tuple[tuple[np.ndarray, ...], np.ndarray, int]:
+    """(cells, variant 0's path, lane segments) of the sweep along (ax, ay), read-only:
+    remembered, as choosing the direction sweeps the winner already, and the cost tables then
+    fly its cells (``flown_sweep``) or ask for its path."""
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     segments, lane = _segments(poly, width, np.array([ax, ay]))
-    path = _fly_cells(_cells(segments, lane), 0)
-    path.setflags(write=False)
-    return path, len(segments)
+    cells = tuple(_cells(segments, lane))
+    path = _fly_cells(list(cells), 0)
+    for array in (*cells, path):
+        array.setflags(write=False)
+    return cells, path, len(segments)
 
 
 # --------------------------------------------------------------------------- turns inside
@@ -420,10 +432,24 @@ def flown_sweep(polygons: Sequence[np.ndarray], width: float) -> np.ndarray:
     cost model counts and the simulated units fly (``costs.task_path``)."""
     parts: list[np.ndarray] = []
     for poly in polygons:
-        cells = turns_inside(sweep_cells(poly, width), width)
+        clean = _clean_polygon(poly)
+        cells = turns_inside(list(_swept_cells(clean, width, None)), width)
         path = _fly_cells(cells, 0, start=parts[-1][-1] if parts else None)
-        parts.append(transitions_inside(path, _clean_polygon(poly)))
+        # Over a convex area every leg between two points inside stays inside: the way inside
+        # is the path itself (``transitions_inside`` would find every leg covered).
+        parts.append(path if _convex_area_of(clean) else transitions_inside(path, clean))
     return np.concatenate(parts, axis=0) if parts else np.zeros((0, 2))
+
+
+def _convex_area_of(poly: np.ndarray) -> float | None:
+    """``_convex_area`` (None also for a flat polygon), remembered per polygon."""
+    area = _convex_area_cached(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly))
+    return area if area is not None and area > 0.0 else None
+
+
+@functools.lru_cache(maxsize=1024)
+def _convex_area_cached(data: bytes, n: int) -> float | None:
+    return _convex_area(np.frombuffer(data, dtype=float).reshape(n, 2))
 
 
 def transitions_inside(path: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
@@ -564,8 +590,9 @@ def _strip_reach(x: np.ndarray, farthest: np.ufunc) -> np.ndarray:
     its strip's two edges, interpolated between neighbouring lanes (extrapolated at the first
     and the last)."""
     mid = (x[1:] + x[:-1]) / 2.0
-    before = np.r_[x[0] + (x[0] - x[1]) / 2.0, mid]
-    after = np.r_[mid, x[-1] + (x[-1] - x[-2]) / 2.0]
+    # (np.concatenate: np.r_ costs ~10 us a call, and every flown sweep asks four times)
+    before = np.concatenate(([x[0] + (x[0] - x[1]) / 2.0], mid))
+    after = np.concatenate((mid, [x[-1] + (x[-1] - x[-2]) / 2.0]))
     return np.asarray(farthest(farthest(x, before), after))
 
 
@@ -637,8 +664,8 @@ def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.n
 
 def _flown_length(poly: np.ndarray, width: float, along: np.ndarray) -> tuple[float, int]:
     """(path length, lane segments) of the sweep along ``along``: the criterion for choosing."""
-    path, segments = _first_path(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
-                                 float(width), float(along[0]), float(along[1]))
+    _, path, segments = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
+                               float(width), float(along[0]), float(along[1]))
     return path_length(path), segments
 
 

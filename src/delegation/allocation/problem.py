@@ -135,11 +135,15 @@ def precedence(structure: Structure, n_tasks: int) -> np.ndarray:
     for n in range(structure.size):
         if structure.kinds[n] != "seq":
             continue
-        seen: list[int] = []
-        for c in structure.children[n]:
-            if seen and tasks_under[c]:
-                before[np.ix_(seen, tasks_under[c])] = True
-            seen = seen + tasks_under[c]
+        # One block per seq: a before b where a's child comes before b's (a block per child
+        # pair cost a numpy call each).
+        under = tasks_under[n]
+        if not under:
+            continue
+        rank = np.array([k for k, c in enumerate(structure.children[n])
+                         for _ in tasks_under[c]], dtype=int)
+        block = np.ix_(under, under)
+        before[block] |= rank[:, None] < rank[None, :]
     return before
 
 

@@ -8,6 +8,7 @@ travel it replaces. Tasks done in place (``travels`` False) leave the unit where
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -24,23 +25,26 @@ def route_points(
     inf where nothing follows (open route), so the travel to "next" costs nothing there.
     """
     n = len(route)
-    prev_xy = np.empty((n + 1, 2))
-    prev_xy[0] = problem.unit_xy[u]
     start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+    # Plain Python over the route (a few to a few dozen tasks), one conversion at the end:
+    # numpy's per-row assignments cost more than the arithmetic.
+    start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
+    prev: list[list[float]] = [problem.unit_xy[u].tolist()]
     for k in range(n):
-        prev_xy[k + 1] = end[k] if travels[k] else prev_xy[k]
-    next_xy = np.zeros((n + 1, 2))
-    next_speed = np.full(n + 1, np.inf)
+        prev.append(end_l[k] if travels_l[k] else prev[k])
+    here, speed = ([0.0, 0.0], math.inf)
     if problem.has_home[u]:
-        next_xy[n] = problem.home_xy[u]
-        next_speed[n] = problem.home_speed[u]
+        here, speed = problem.home_xy[u].tolist(), float(problem.home_speed[u])
+    nxt: list[list[float]] = [here] * (n + 1)
+    speeds = [speed] * (n + 1)
+    unit_speed = problem.speed[u].tolist()
     for k in range(n - 1, -1, -1):
-        if travels[k]:
-            next_xy[k] = start[k]
-            next_speed[k] = problem.speed[u, route[k]]
-        else:
-            next_xy[k] = next_xy[k + 1]
-            next_speed[k] = next_speed[k + 1]
+        if travels_l[k]:
+            here, speed = start_l[k], unit_speed[route[k]]
+        nxt[k], speeds[k] = here, speed
+    prev_xy = np.array(prev, dtype=float).reshape(n + 1, 2)
+    next_xy = np.array(nxt, dtype=float).reshape(n + 1, 2)
+    next_speed = np.array(speeds, dtype=float).reshape(n + 1)
     return prev_xy, next_xy, next_speed
 
 

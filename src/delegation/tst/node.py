@@ -163,12 +163,20 @@ def with_uuids(root: TstNode, new_uuid: Callable[[], str] | None = None) -> TstN
     make = new_uuid or (lambda: str(uuid_module.uuid4()))
 
     def fill(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
+        if node.node_uuid is not None and same_nodes(children, node.children):
+            return node  # (nothing to change: a value needs no copy; the planner's hot path)
         node = replace(node, children=children)
         if node.node_uuid is None:
             node = node.with_common_values({"node-uuid": make()})
         return node
 
     return map_tree(root, fill)
+
+
+def same_nodes(a: tuple[TstNode, ...], b: tuple[TstNode, ...]) -> bool:
+    """Whether ``a`` and ``b`` hold the very same node objects (a rebuilt subtree that changed
+    nothing is the old one: ``map_tree`` callers keep it instead of copying)."""
+    return len(a) == len(b) and all(x is y for x, y in zip(a, b, strict=True))
 
 
 # --------------------------------------------------------------------------- parse / serialise

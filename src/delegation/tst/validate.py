@@ -23,6 +23,7 @@ from delegation.tst.node import (
     classify_execunit,
     map_tree,
     parse_tree,
+    same_nodes,
     walk,
     where,
     with_uuids,
@@ -356,7 +357,8 @@ def with_defaults(root: TstNode) -> TstNode:
     """
 
     def fill(node: TstNode, children: tuple[TstNode, ...]) -> TstNode:
-        node = node.with_children(children)
+        if not same_nodes(children, node.children):  # (else the node itself: nothing to copy)
+            node = node.with_children(children)
         spec = CATALOGUE.get(node.name)
         if spec is None or not spec.defaults:
             return node

@@ -99,6 +99,10 @@ class _GeneralAuction:
         self.seen_start = np.full(n_tasks, np.nan)
         self.dirty = np.ones(n_units, dtype=bool)  # units whose waiting bids must all be remade
         self.current = evaluate(problem, self.assign, self.routes)
+        self.node_of_list: list[int] = self.node_of.tolist()
+        self._times_of: Schedule | None = None
+        self._times_lists: tuple[list[float], list[float], list[float] | None, list[float]] = \
+            ([], [], None, [])
 
     def _share(self) -> float:
         """One unit's share of the work (s), roughly: each task from its nearest capable unit."""
@@ -332,33 +336,51 @@ class _GeneralAuction:
             return np.zeros(0)
         match self.objective:
             case Objective.MAKESPAN:
-                return np.array([self._finish_bound(u, int(cols[j])) for u, j in bids])
+                times = self._times()
+                return np.array([self._finish_bound(u, int(cols[j]), times) for u, j in bids])
             case Objective.TOTAL:
                 ts = cols[np.array([j for _, j in bids], dtype=int)]
                 us = np.array([u for u, _ in bids], dtype=int)
                 return np.asarray(self.current.total_time + self.delta[us, ts])
 
-    def _finish_bound(self, u: int, t: int) -> float:
+    def _times(self) -> tuple[list[float], list[float], list[float] | None, list[float]]:
+        """The current schedule's task ends, travel + work per task, node activations and
+        units' use as lists (``_finish_bound`` reads them element by element, several bids a
+        round: numpy scalars cost more), made once per schedule."""
+        current = self.current
+        if self._times_of is not current:
+            self._times_of = current
+            self._times_lists = (
+                current.end.tolist(), (current.travel_time + current.work_time).tolist(),
+                current.node_act.tolist() if current.node_act is not None else None,
+                current.unit_used.tolist())
+        return self._times_lists
+
+    def _finish_bound(
+        self, u: int, t: int,
+        times: tuple[list[float], list[float], list[float] | None, list[float]],
+    ) -> float:
         """A lower bound on when unit ``u`` finishes with ``t`` at any position it may take.
 
         Nothing before the position moves (those tasks wait for nothing ``t`` waits for: its
         tree successors have no unit yet), so ``t`` starts no earlier than its activation and
         the end of the task before it; then the unit does ``t`` and the rest of its route one
         after another: their travel and work, ``costs`` more than they took before.
+        ``times``: ``_times()``.
         """
-        current, route = self.current, self.routes[u]
+        route = self.routes[u]
+        end, busy, node_act, used = times
         column = self.costs[u][:, t].tolist()
         low = int(self.low[u, t]) if self.has_pred[t] else 0
-        act = float(current.node_act[self.node_of[t]]) if current.node_act is not None else 0.0
+        act = node_act[self.node_of_list[t]] if node_act is not None else 0.0
         before = self.ready[u]
-        rest = float(current.unit_used[u]) if route else float(self.base[u])
-        end, travel, work = current.end, current.travel_time, current.work_time
+        rest = used[u] if route else float(self.base[u])
         best = np.inf
         for q, added in enumerate(column):
             if q > 0:
                 k = route[q - 1]
-                before = float(end[k])
-                rest -= float(travel[k] + work[k])
+                before = end[k]
+                rest -= busy[k]
             if q >= low and added < np.inf:
                 best = min(best, max(act, before) + added + rest)
         return best

@@ -313,6 +313,12 @@ class _FlatRoutes:
         self.owner_at = np.repeat(np.arange(len(orders)), sizes - 1)
         self.ordered = bool(problem.before.any())
         self.at = self.offsets[self.owner_at] + self.k_at  # the point before the task
+        self._own: np.ndarray | None = None
+        if self.ordered:  # the tree's order between the routes' tasks and any task
+            self.preceding = problem.before[self.task_at]  # (F, T): route task before t
+            self.following = problem.before[:, self.task_at].T  # (F, T): t before route task
+            self.ends = np.diff(np.append(self.offsets, self.owner.size)) - 1
+            self.place = np.arange(self.owner.size) - self.offsets[self.owner]
 
     def _in_place(self, f: np.ndarray, units: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Travel + work time of travelling task(s) ``t`` on ``units`` put between the points
@@ -333,8 +339,9 @@ class _FlatRoutes:
         s_units = np.full(n, s)
         mine = self._in_place(fi, s_units, self.task_at) \
             - self._in_place(fi[:1], s_units[:1], np.array([t]))
-        theirs = self._in_place(f, self.owner_at, np.full(n, t)) \
-            - self._in_place(f, self.owner_at, self.task_at)
+        if self._own is None:  # (the same for every swap: each task in its own place)
+            self._own = self._in_place(f, self.owner_at, self.task_at)
+        theirs = self._in_place(f, self.owner_at, np.full(n, t)) - self._own
         return mine, theirs
 
     def insertion(self, seg: list[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -369,12 +376,11 @@ class _FlatRoutes:
 
     def _in_order(self, seg: np.ndarray) -> np.ndarray:
         """(positions,) where the run ``seg`` keeps the tree's order with the route's tasks."""
-        before = self.problem.before
-        pred = before[np.ix_(self.task_at, seg)].any(axis=1)
-        succ = before[np.ix_(seg, self.task_at)].any(axis=0)
+        pred = self.preceding[:, seg].any(axis=1)
+        succ = self.following[:, seg].any(axis=1)
         low = np.zeros(self.offsets.size, dtype=int)
         np.maximum.at(low, self.owner_at[pred], self.k_at[pred] + 1)
-        high = np.diff(np.append(self.offsets, self.owner.size)) - 1
+        high = self.ends.copy()
         np.minimum.at(high, self.owner_at[succ], self.k_at[succ])
-        place = np.arange(self.owner.size) - self.offsets[self.owner]
+        place = self.place
         return np.asarray((place >= low[self.owner]) & (place <= high[self.owner]))
