@@ -226,8 +226,8 @@ class Planning(MissionPart):
                  plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
                  plan.makespan or 0.0,
                  ", ".join(sorted({a.execunit for a in plan.assignments})) or "none")
-        for note in plan.notes:
-            log.info("mission %s: %s", plan.tst.node_uuid, note)
+        if plan.notes:  # one record: a plan in a busy fleet has a note per unit
+            log.info("mission %s: %s", plan.tst.node_uuid, "; ".join(plan.notes))
         if not plan.feasible:
             reason = infeasible_reason(plan, job.tree.root)
             log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
