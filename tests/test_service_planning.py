@@ -141,3 +141,29 @@ def test_a_burst_of_start_plans_is_planned_one_at_a_time_with_the_units_then(
         now += 0.1
     assert sent == (2 if commitments == "exclude" else 3) and core.planner_jobs == 0
     assert core.planning.next_id() == 4  # three plans in all: none made again
+
+
+def test_a_start_plan_waiting_for_the_one_being_made_reads_the_fleet_when_handed_out() -> None:
+    """A start plan that arrives while another is being made waits for it (`holds_units`): it
+    reads the fleet only when handed out (issue 19: a burst read it twice per plan, once for
+    nothing), and then carries the units, their speed sources and the input warnings."""
+    core = _core()
+    topic = core.topics.delegation_command
+    first = Effects()
+    for i, lat in enumerate((57.7610, 16.6815)):  # the second: latitude and longitude swapped
+        body = {"com-uuid": f"d-{i}", "command": "delegate", "start": True,
+                "tst": _one_move(f"root-d{i}", lat)}
+        first.extend(core.on_message(topic, json.dumps(body).encode(), 102.0))
+    [running] = first.jobs
+    assert not running.deferred and {u.name for u in running.units} == {"dji0", "dji1"}
+    [waiting] = core._start_queue
+    assert waiting.deferred and waiting.units == () and waiting.warnings == ()
+    out = core.on_job_done(JobDone(running, run_job(running)), 102.1)
+    [nxt] = out.jobs
+    assert nxt.id == waiting.id and not nxt.deferred
+    assert {u.name for u in nxt.units} == {"dji0", "dji1"} and set(nxt.speed_sources) == \
+        {"dji0", "dji1"}
+    assert any("from the nearest unit" in w for w in nxt.warnings)
+    result = run_job(nxt)
+    assert isinstance(result, PlanDone) and any("from the nearest unit" in n
+                                                for n in result.plan.notes)

@@ -250,10 +250,13 @@ class ServiceCore:
         """One message from the broker (a command on a shared or a per-client command topic)."""
         self._listening(now)
         effects = self._message(topic, payload, now)
-        return self._counted(effects.extend(self._release_held(now)) if self._held else effects)
+        return self._counted(effects.extend(self._release_held(now)) if self._held else effects,
+                             now)
 
-    def _counted(self, effects: Effects) -> Effects:
-        """Count the jobs ``effects`` hands to the planner (each comes back as one `JobDone`)."""
+    def _counted(self, effects: Effects, now: float) -> Effects:
+        """Count the jobs ``effects`` hands to the planner (each comes back as one `JobDone`);
+        start plans that hold units go one at a time (`Planning.holds_units`), the others wait
+        in order (a `Job.deferred` one handed out at once reads the fleet now)."""
         self.planner_jobs += len(effects.jobs)
         if not any(self.planning.holds_units(j) for j in effects.jobs if isinstance(j, Job)):
             return effects
@@ -265,7 +268,7 @@ class ServiceCore:
                 self._start_queue.append(job)
             else:
                 self._start_running = True
-                jobs.append(job)
+                jobs.append(self.planning.refreshed(job, now) if job.deferred else job)
         effects.jobs = jobs
         return effects
 
@@ -318,7 +321,7 @@ class ServiceCore:
         effects.jobs.extend(self.offers.expire(now))
         if self._offline_since is None:  # nobody is lost while we cannot hear them
             self.fleet.check(now)
-        return self._counted(effects.extend(self._fleet_events(now)))
+        return self._counted(effects.extend(self._fleet_events(now)), now)
 
     def on_disconnect(self, now: float) -> Effects:
         """Our own connection to the broker is lost: stop judging liveness until it is back."""
@@ -410,7 +413,7 @@ class ServiceCore:
         if isinstance(cmd, StartTst):
             return self.planning.job("tst", key, cmd.tst, now,
                                      self.planning.options(None, None, None),
-                                     start=True, source="tst")
+                                     start=True, source="tst", waits=self._start_running)
         if isinstance(cmd, SignalTstNode | SignalTstTree | SignalUnit):
             return self.engine_use.signal(cmd, key, now)
         if isinstance(cmd, Ping):
@@ -433,7 +436,7 @@ class ServiceCore:
             return self.planning.job("delegation", key, cmd.tst, now, options,
                                      start=cmd.start and not cmd.preview,
                                      source="preview" if cmd.preview else "delegate",
-                                     preview_id=cmd.preview_id)
+                                     preview_id=cmd.preview_id, waits=self._start_running)
         if isinstance(cmd, GetBids):
             return self.planning.job("delegation", key, cmd.tst, now,
                                      self.planning.options(None, None, None),
@@ -455,7 +458,7 @@ class ServiceCore:
     def on_job_done(self, done: JobDone, now: float) -> Effects:
         """A planning job finished: answer it, and with ``start`` send the tree to the engine."""
         self.planner_jobs = max(0, self.planner_jobs - 1)
-        effects = self._counted(self._job_done(done, now))
+        effects = self._counted(self._job_done(done, now), now)
         effects.jobs.extend(self._next_start(done, now))  # counted when it came
         return effects
 

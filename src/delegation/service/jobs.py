@@ -96,6 +96,10 @@ class Job:
     offers: tuple[Offer, ...] = ()
     #: Delegators known when a re-delegation was made: their subtrees stay with them.
     delegators: frozenset[str] = frozenset()
+    #: A start plan that arrived while another was being made: it waits for it and gets the
+    #: units (with their notes, warnings and speed sources) only when handed out
+    #: (`Planning.refreshed`), so ``units`` is empty until then (a burst read the fleet twice).
+    deferred: bool = False
 
     @property
     def com_uuid(self) -> str:

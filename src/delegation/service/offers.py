@@ -84,16 +84,27 @@ class OfferDesk:
         parsed = parse_unit_topic(topic)
         return parsed is not None and parsed.rest == f"delegation/response/{self.config.name}"
 
+    def _askable(self, now: float) -> list[Delegator]:
+        """The live delegators this service would ask for offers now (none when it does not
+        federate)."""
+        c = self.config
+        if not c.federate or c.bid_window <= 0:
+            return []
+        return [d for d in self.fleet.delegators(now) if d.name != c.name]
+
+    def may_ask(self, now: float) -> bool:
+        """Whether `open` could ask anyone now (a plan's job may then be held for offers)."""
+        return bool(self._askable(now))
+
     def open(self, job: Job, caller: str, now: float, *, redelegation: bool = False
              ) -> Effects | None:
         """Ask the live delegators for offers on the job's offerable subtrees and hold the job;
         None when there is nothing to ask (the job goes to the planner at once). A re-delegation
         asks only when ``redelegation`` says so (a lost delegator's part, §15.4)."""
         c = self.config
-        if not c.federate or c.bid_window <= 0 or job.kind != "plan" \
-                or (job.redelegate and not redelegation):
+        if job.kind != "plan" or (job.redelegate and not redelegation):
             return None
-        delegators = [d for d in self.fleet.delegators(now) if d.name != c.name]
+        delegators = self._askable(now)
         if not delegators:  # nobody to ask: no geometry (it cost more than the plan, issue 19)
             return None
         if caller and (caller in {d.name for d in delegators}

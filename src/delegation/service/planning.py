@@ -113,9 +113,15 @@ class Planning(MissionPart):
         source: str,
         kind: Literal["plan", "bids"] = "plan",
         preview_id: str | None = None,
+        waits: bool = False,
     ) -> Effects:
         """Validate the tree (once, here: a bad one is answered at once) and hand it to the
-        planner as a job; a start naming a preview starts the previewed plan if it holds."""
+        planner as a job; a start naming a preview starts the previewed plan if it holds.
+
+        ``waits``: a start plan is being made, so a start plan that holds units (`holds_units`)
+        waits for it and is given the units as they are then (`refreshed`): the fleet is not
+        read now (a `Job.deferred` job), unless other delegators may be asked for offers (they
+        are asked with the units as they are now)."""
         self._trusted(key, now)
         if preview_id is not None and (not start or source != "delegate"):
             raise InputError(InputProblem("command", "preview-id",
@@ -129,7 +135,13 @@ class Planning(MissionPart):
             if problem:
                 raise InputError(InputProblem("engine", "", problem))
         view = self.view
-        units, notes = view.plannable(now) if kind == "plan" else (view.units(now), ())
+        deferred = (waits and kind == "plan" and start and preview_id is None
+                    and self.config.commitments != "share"
+                    and not (self.offers is not None and self.offers.may_ask(now)))
+        units: tuple[UnitState, ...] = ()
+        notes: tuple[str, ...] = ()
+        if not deferred:
+            units, notes = view.plannable(now) if kind == "plan" else (view.units(now), ())
         if preview_id is not None:
             preview = self._previewed(key, preview_id, tree, units, now)
             if isinstance(preview, Preview):
@@ -138,17 +150,19 @@ class Planning(MissionPart):
             notes = (f"preview {preview_id} not started, planned again: "
                      f"{self._unpreviewed[key][1]}", *notes)
         job_id = self.next_id()
-        warnings = tuple(input_warnings(tree.root, units, view.fleet.names())) if kind == "plan" \
-            else ()
+        warnings = tuple(input_warnings(tree.root, units, view.fleet.names())) \
+            if kind == "plan" and not deferred else ()
         for w in warnings:
             log.warning("mission %s: %s", tree.node_uuid, w)
-        log.info("mission %s (%s) received on %s (%s%s): %d units to plan for", tree.node_uuid,
-                 tree.name, face, source, ", start" if start else "", len(units))
+        log.info("mission %s (%s) received on %s (%s%s): %s", tree.node_uuid, tree.name, face,
+                 source, ", start" if start else "",
+                 "waits for the start plan being made" if deferred
+                 else f"{len(units)} units to plan for")
         job = Job(id=job_id, kind=kind, key=key, face=face, tree=tree,
                   units=units, options=options, engine=self.config.engine,
                   start=start, source=source, received=self.desk.received(key, now),
                   speed_sources=view.speed_sources(units), warnings=warnings, notes=notes,
-                  limits=self.config.limits)
+                  limits=self.config.limits, deferred=deferred)
         if kind == "plan" and self.offers is not None:  # ask other delegators first
             held = self.offers.open(job, self.desk.caller(key), now)
             if held is not None:
@@ -171,8 +185,11 @@ class Planning(MissionPart):
             notes = (f"preview {unpreviewed[0]} not started, planned again: {unpreviewed[1]}",
                      *notes)
         warnings = tuple(input_warnings(job.tree.root, units, self.view.fleet.names()))
+        if job.deferred:  # said on arrival for a job read then
+            for w in warnings:
+                log.warning("mission %s: %s", job.tree.node_uuid, w)
         return replace(job, units=units, notes=notes, warnings=warnings,
-                       speed_sources=self.view.speed_sources(units))
+                       speed_sources=self.view.speed_sources(units), deferred=False)
 
     def _trusted(self, key: CommandKey, now: float) -> None:
         """``InputError`` when another delegator (or a TST engine: one of theirs handing us a
@@ -209,8 +226,8 @@ class Planning(MissionPart):
                  plan.strategy, plan.objective, "feasible" if plan.feasible else "infeasible",
                  plan.makespan or 0.0,
                  ", ".join(sorted({a.execunit for a in plan.assignments})) or "none")
-        for note in plan.notes:
-            log.info("mission %s: %s", plan.tst.node_uuid, note)
+        if plan.notes:  # one record: a plan in a busy fleet has a note per unit
+            log.info("mission %s: %s", plan.tst.node_uuid, "; ".join(plan.notes))
         if not plan.feasible:
             reason = infeasible_reason(plan, job.tree.root)
             log.info("mission %s refused: %s", plan.tst.node_uuid, reason)
