@@ -402,6 +402,32 @@ def test_each_unit_starts_a_search_where_its_own_sweep_starts() -> None:
     assert plan.feasible and check_invariants(plan, fixed, [low, high]) == []
 
 
+def test_a_task_costed_for_one_unit_alone() -> None:
+    """``cost_tables(only=...)`` (a shared search's part, fixed to its unit; issue 21): that
+    unit's figures are those of the full tables, its sweep's ends are the task's reference
+    points, no other unit is swept or may take it, and the reason says why."""
+    low = unit("low", x=-300.0, y=-200.0, sweep_altitude=20.0)
+    high = unit("high", x=900.0, y=700.0, sweep_altitude=80.0)
+    area = [wire(0, 0, 30.0), wire(600, 0, 30.0), wire(600, 410, 30.0), wire(0, 410, 30.0)]
+    tasks = [make_node("search-area", params={"area": area}),
+             make_node("move-to", params={"waypoint": wire(100, 100)})]
+    full = cost_tables([low, high], tasks, frame=GRANSO)
+    one = cost_tables([low, high], tasks, frame=GRANSO, only={0: 1})
+    for table in ("work_distance", "work_time", "need_time", "capable"):
+        assert getattr(one, table)[1, 0] == getattr(full, table)[1, 0], table
+        np.testing.assert_array_equal(getattr(one, table)[:, 1], getattr(full, table)[:, 1])
+    assert one.capable[1, 0] and full.capable[0, 0] and not one.capable[0, 0]
+    assert one.work_distance[0, 0] == math.inf and one.need_time[0, 0] == math.inf
+    np.testing.assert_array_equal(one.start_for(1, 0), full.start_for(1, 0))
+    np.testing.assert_array_equal(one.end_for(1, 0), full.end_for(1, 0))
+    # (the full tables' reference points are the narrowest sweep's, low's; these high's own)
+    np.testing.assert_array_equal(one.start_xy[0], full.start_for(1, 0))
+    assert not np.allclose(full.end_xy[0], full.end_for(1, 0))
+    np.testing.assert_array_equal(one.width, full.width)
+    assert one.reason(0, 0) == "low was not costed for search-area: it is high's alone"
+    assert one.reason(1, 0) is None and full.only == {} and one.only == {0: 1}
+
+
 def test_large_tables_are_consistent() -> None:
     rng = np.random.default_rng(0)
     units = [

@@ -43,8 +43,8 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -341,6 +341,9 @@ class CostTables:
     #: ``start_xy``/``end_xy``. None: those for every unit.
     unit_start_xy: np.ndarray | None = None
     unit_end_xy: np.ndarray | None = None
+    #: Task index -> the one unit index it was costed for (``cost_tables(only=...)``): the
+    #: other units have no sweep of it (work inf) and cannot take it.
+    only: Mapping[int, int] = field(default_factory=dict)
 
     @property
     def n_units(self) -> int:
@@ -367,6 +370,9 @@ class CostTables:
             return f"{unit.name} is not alive (no recent heartbeat)"
         if not self.listed[u, t]:
             return f"{unit.name} does not offer {task.name}"
+        if self.only.get(t, u) != u:
+            return (f"{unit.name} was not costed for {task.name}: it is "
+                    f"{self.units[self.only[t]].name}'s alone")
         if self.exclude_busy and unit.busy:
             return f"{unit.name} is busy with another task"
         need, have = float(self.need_time[u, t]), float(self.endurance[u])
@@ -454,12 +460,17 @@ def cost_tables(
     frame: LocalFrame | None = None,
     *,
     exclude_busy: bool = False,
+    only: Mapping[int, int] | None = None,
 ) -> CostTables:
     """Build the cost tables for ``units`` x ``tasks`` (task nodes, in the order given).
 
     ``frame`` defaults to one centred on every unit, home and task point. With ``exclude_busy``,
     units already executing a task cannot take new ones (the live service's choice); offline
-    planning leaves it off.
+    planning leaves it off. ``only``: task index -> the one unit index that task is costed for
+    (a shared search's part, fixed to its unit, DESIGN 3.11): the task is swept at that unit's
+    width alone, its reference points are that sweep's ends, and no other unit can take it
+    (work inf). Sweeping each part at every width of the fleet was most of the cost of planning
+    the parts (issue 21); the unit's own figures are the same either way.
     """
     units_t = tuple(units)
     tasks_t = tuple(tasks)
@@ -470,8 +481,10 @@ def cost_tables(
     speed = _speed_table(units_t, tasks_t)
     listed = _listed_table(units_t, tasks_t)
     width = _width_table(units_t, geoms)
+    costed = _costed(len(units_t), len(tasks_t), only or {})
     start_xy, end_xy, work_distance, polygons, unit_ends = _task_ends_and_work(
-        geoms, task_xy, width, listed)
+        geoms, task_xy, width if costed is None else np.where(costed, width, np.nan),
+        listed if costed is None else listed & costed)
     open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(len(geoms))
     fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(len(geoms))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -497,9 +510,21 @@ def cost_tables(
         polygons=polygons,
         unit_start_xy=unit_ends[0] if unit_ends is not None else None,
         unit_end_xy=unit_ends[1] if unit_ends is not None else None,
+        only=dict(only or {}),
     )
-    _fill_capability(tables)
+    _fill_capability(tables, costed)
     return tables
+
+
+def _costed(n_units: int, n_tasks: int, only: Mapping[int, int]) -> np.ndarray | None:
+    """(U, T) the pairs ``cost_tables`` costs (``only``), None for all of them."""
+    if not only:
+        return None
+    costed = np.ones((n_units, n_tasks), dtype=bool)
+    for t, u in only.items():
+        costed[:, t] = False
+        costed[u, t] = True
+    return costed
 
 
 def _frame_around(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> LocalFrame:
@@ -629,9 +654,10 @@ def _sweep_work(
     return ends
 
 
-def _fill_capability(tables: CostTables) -> None:
+def _fill_capability(tables: CostTables, costed: np.ndarray | None = None) -> None:
     """``need_time`` (travel there, the work, and home again where the unit has a home) and
-    ``capable`` (listed, alive, not busy where excluded, within endurance), in place."""
+    ``capable`` (listed, alive, not busy where excluded, within endurance, costed: ``only``),
+    in place."""
     units = tables.units
     alive = np.array([u.alive for u in units], dtype=bool).reshape(len(units))
     busy = np.array([u.busy for u in units], dtype=bool).reshape(len(units))
@@ -643,6 +669,8 @@ def _fill_capability(tables: CostTables) -> None:
     capable = tables.listed & alive[:, None] & (need_time <= tables.endurance[:, None])
     if tables.exclude_busy:
         capable &= ~busy[:, None]
+    if costed is not None:
+        capable &= costed
     tables.need_time[...] = need_time
     tables.capable[...] = capable
 

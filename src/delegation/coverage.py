@@ -687,8 +687,11 @@ def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
         coarse = short_side / _SCREEN_LANES
         rough = np.array([_flown_length(poly, coarse, v)[0] for v in candidates])
         bar = np.sort(rough)[_SCREEN_KEEP - 1] * (1.0 + _SAME_LENGTH)
-        keep = np.flatnonzero(rough <= bar)
-        candidates = candidates[np.union1d(keep, [0])]  # (the long axis always stays)
+        keep = rough <= bar
+        keep[0] = True  # (the long axis always stays)
+        # (not ``np.union1d``: numpy 2's ``unique`` imports ``numpy.ma`` on first use, 30-50 ms
+        # of the first plan in a process)
+        candidates = candidates[np.flatnonzero(keep)]
     area = _convex_area(poly)
     scores: dict[int, tuple[float, int]] = {}  # candidate -> (path length, lane segments)
     shortest = math.inf

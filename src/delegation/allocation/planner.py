@@ -218,7 +218,7 @@ class _Planned:
 
 def _plan_shared(shared: SharedTree, units: Sequence[UnitState], like: CostTables,
                  strategy: str, objective: Objective, time_limit: float) -> _Planned:
-    tables = _tables_of(shared.tree, units, like)
+    tables = _tables_of(shared, units, like)
     problem = build_problem(shared.tree, units, tables)
     return _Planned(shared, problem, tables, STRATEGIES[strategy](problem, objective, time_limit))
 
@@ -250,10 +250,17 @@ def _reseated(
     return best
 
 
-def _tables_of(tree: TstNode, units: Sequence[UnitState], like: CostTables) -> CostTables:
-    """Cost tables for ``tree``'s leaves in the frame of ``like``."""
-    return cost_tables(list(units), [node for _, node in flatten_tree(tree)[1]],
-                       frame=like.frame, exclude_busy=like.exclude_busy)
+def _tables_of(shared: SharedTree, units: Sequence[UnitState], like: CostTables) -> CostTables:
+    """Cost tables for the leaves of ``shared.tree`` in the frame of ``like``, each part costed
+    for its own unit alone (``cost_tables(only=...)``: no other unit may take it, and sweeping
+    every part at each of the fleet's widths cost most of a round, issue 21)."""
+    leaves = [node for _, node in flatten_tree(shared.tree)[1]]
+    index = {node.node_uuid: t for t, node in enumerate(leaves)}
+    names = {unit.name: u for u, unit in enumerate(units)}
+    only = {index[part.node_uuid]: names[part.unit] for search in shared.searches
+            for part in search.parts if part.node_uuid in index and part.unit in names}
+    return cost_tables(list(units), leaves, frame=like.frame, exclude_busy=like.exclude_busy,
+                       only=only)
 
 
 def make_plan(
