@@ -247,13 +247,13 @@ def delegated_roots(root: TstNode, units: Collection[str]) -> dict[str, tuple[st
     return found
 
 
-def handover(current: TstNode, planned: TstNode, origin: Mapping[str, str],
-             freed: Collection[str], lost: Collection[str], delegators: Collection[str],
-             status: Mapping[str, str]) -> Handover | None:
-    """The `Handover` when a re-delegation's plan (``planned``, made of the remaining tree whose
-    uuids ``origin`` maps to ``current``'s) gives every subtree a lost delegator was handed,
-    whole (none of its tasks ended), to one live delegator, and frees nothing else; else None
-    (the tree is replaced: our own units take the rest)."""
+def _lost_subtrees(current: TstNode, planned: TstNode, origin: Mapping[str, str],
+                   freed: Collection[str], lost: Collection[str]) -> tuple[
+                       dict[str, tuple[str, TstNode]], dict[str, set[str]], dict[str, TstNode]
+                   ] | None:
+    """What `handover` and `take_back` both start from: the subtrees the lost delegators were
+    handed (root uuid -> path and node), the task uuids inside each, and the planned nodes by
+    the uuid they stand for; None when there are none or the plan frees a task outside them."""
     roots = delegated_roots(current, lost)
     inside = {r: {n.node_uuid or "" for _, n in walk(node) if not n.is_control}
               for r, (_, node) in roots.items()}
@@ -262,6 +262,20 @@ def handover(current: TstNode, planned: TstNode, origin: Mapping[str, str],
         return None
     by_old = {origin[n.node_uuid]: n for _, n in walk(planned)
               if n.node_uuid and n.node_uuid in origin}
+    return roots, inside, by_old
+
+
+def handover(current: TstNode, planned: TstNode, origin: Mapping[str, str],
+             freed: Collection[str], lost: Collection[str], delegators: Collection[str],
+             status: Mapping[str, str]) -> Handover | None:
+    """The `Handover` when a re-delegation's plan (``planned``, made of the remaining tree whose
+    uuids ``origin`` maps to ``current``'s) gives every subtree a lost delegator was handed,
+    whole (none of its tasks ended), to one live delegator, and frees nothing else; else None
+    (the tree is replaced: our own units take the rest)."""
+    found = _lost_subtrees(current, planned, origin, freed, lost)
+    if found is None:
+        return None
+    roots, inside, by_old = found
     engine: dict[str, str] = {}
     book: dict[str, str] = {}
     tasks: list[dict[str, str]] = []
@@ -308,14 +322,10 @@ def take_back(current: TstNode, planned: TstNode, origin: Mapping[str, str],
     was handed on our own units only (no task on a delegator), as planned from that subtree
     (the same tasks, nothing regrouped or shared into new parts), and frees nothing else; else
     None (the tree is replaced)."""
-    roots = delegated_roots(current, lost)
-    inside = {r: {n.node_uuid or "" for _, n in walk(node) if not n.is_control}
-              for r, (_, node) in roots.items()}
-    covered: set[str] = set().union(*inside.values())
-    if not roots or not {origin.get(f, "") for f in freed} <= covered:
+    found = _lost_subtrees(current, planned, origin, freed, lost)
+    if found is None:
         return None
-    by_old = {origin[n.node_uuid]: n for _, n in walk(planned)
-              if n.node_uuid and n.node_uuid in origin}
+    roots, inside, by_old = found
     others = set(delegators) | set(lost)
     subtrees: dict[str, dict[str, Any]] = {}
     origins: dict[str, str] = {}
