@@ -142,3 +142,18 @@ def test_the_origin_is_fixed() -> None:
     assert (frame.origin_lat, frame.origin_lon) == (57.76, 16.68)
     with pytest.raises(AttributeError):
         frame.origin_lat = 0.0  # type: ignore[misc]
+
+
+def test_beyond_the_horizon_is_an_error_not_a_point() -> None:
+    """No surface point has east/north 7,000 km from the origin (the tangent plane's up line
+    misses the Earth): an error, one point or an array; NaN stays NaN, as with pymap3d. At
+    3,000 km the point is still found exactly (pymap3d's three steps had not converged there)."""
+    frame = LocalFrame(57.76, 16.68)
+    with pytest.raises(ValueError, match="beyond the horizon"):
+        frame.to_geo(7_000_000.0, 0.0)
+    with pytest.raises(ValueError, match="beyond the horizon"):
+        frame.to_geo([0.0, 7_000_000.0], [0.0, 0.0])
+    lat, lon = frame.to_geo([math.nan, 10.0], [0.0, 10.0])
+    assert math.isnan(lat[0]) and math.isnan(lon[0]) and not math.isnan(lat[1])
+    x, y = frame.to_xy(*frame.to_geo(3_000_000.0, -1_000_000.0))
+    assert abs(float(x) - 3_000_000.0) <= MM and abs(float(y) + 1_000_000.0) <= MM

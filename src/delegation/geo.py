@@ -66,6 +66,11 @@ def _is_scalar(x: Any) -> bool:
     return isinstance(x, float | int)
 
 
+def _beyond_horizon(frame: LocalFrame) -> str:
+    return (f"east/north beyond the horizon of the frame at {frame.origin_lat}, "
+            f"{frame.origin_lon}: no point of the ellipsoid is there")
+
+
 class LocalFrame:
     """A mission-local East-North-Up frame (metres) around an origin; vectorised both ways.
 
@@ -163,6 +168,8 @@ class LocalFrame:
         ``(U'DU) u^2 + 2 (O'DU + d'DU) u + d'Dd = 0`` with ``d = e E + n N`` (``O'Dd = 0``: E and N
         are tangent at O): the root near 0, in the form without cancellation. On the surface,
         the geodetic latitude is ``atan2(z, (1 - e^2) p)`` exactly (the normal is ``DP``).
+        Beyond the horizon (about 6,400 km from the origin) no surface point has the given
+        east/north: a ValueError (pymap3d's steps returned some point there, hundreds of km off).
         """
         ex, ey, _ = self._east
         nx, ny, nz = self._north
@@ -171,7 +178,10 @@ class LocalFrame:
             dx, dy, dz = ex * east + nx * north, ey * east + ny * north, nz * north
             c = (dx * dx + dy * dy) * _INV_A2 + dz * dz * _INV_B2
             b = self._o_d_u + (dx * ux + dy * uy) * _INV_A2 + dz * uz * _INV_B2
-            u = -c / (b + math.sqrt(b * b - self._u_d_u * c))
+            disc = b * b - self._u_d_u * c
+            if disc < 0.0:
+                raise ValueError(_beyond_horizon(self))
+            u = -c / (b + math.sqrt(disc))
             x, y, z = self._ox + dx + u * ux, self._oy + dy + u * uy, self._oz + dz + u * uz
             return (np.asarray(math.degrees(math.atan2(z, _B2_A2 * math.hypot(x, y)))),
                     np.asarray(math.degrees(math.atan2(y, x))))
@@ -180,7 +190,10 @@ class LocalFrame:
         dx, dy, dz = ex * e + nx * n, ey * e + ny * n, nz * n
         c = (dx * dx + dy * dy) * _INV_A2 + dz * dz * _INV_B2
         b = self._o_d_u + (dx * ux + dy * uy) * _INV_A2 + dz * uz * _INV_B2
-        u = -c / (b + np.sqrt(b * b - self._u_d_u * c))
+        disc = b * b - self._u_d_u * c
+        if np.any(disc < 0.0):  # NaN inputs compare False: NaN out, as before
+            raise ValueError(_beyond_horizon(self))
+        u = -c / (b + np.sqrt(disc))
         x, y, z = self._ox + dx + u * ux, self._oy + dy + u * uy, self._oz + dz + u * uz
         return (np.asarray(np.degrees(np.arctan2(z, _B2_A2 * np.hypot(x, y))), dtype=float),
                 np.asarray(np.degrees(np.arctan2(y, x)), dtype=float))
