@@ -8,6 +8,16 @@ the planner's per-point look-ups do), ``geopoint``, and both on an array of ``--
 point). Then a simulated flight: a `SimVehicle` flying a search, stepped 0.25 s at a time, reading
 its ``position`` on every step (what ``delegation sim`` does for each status message): CPU µs per
 step. The points are 0-40 km from an origin at 57.76 N 16.68 E (the demo's site).
+
+Measured (2026-11-26, 2 CPUs shared, load average 13-17; before = pymap3d's ``geodetic2enu`` and
+three ``enu2geodetic`` steps, after = the frame's own closed form, issue 19), CPU µs:
+
+    to_xy, one point                   10.0 ->  1.1
+    to_geo, one point                 288   ->  1.2
+    geopoint, one point               287   ->  2.5
+    to_xy, 1000 points, per point       0.10 -> 0.06
+    to_geo, 1000 points, per point      0.70 -> 0.04
+    sim flight, per 0.25 s step       293-325 -> 4.7   (reading the position each step)
 """
 
 from __future__ import annotations
