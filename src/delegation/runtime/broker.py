@@ -316,8 +316,8 @@ class BrokerProcess(_Amqtt):
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
             _end(proc)
-        for drain in self._drains:  # the child is gone: its streams end
-            drain.text()
+        for drain in self._drains:  # the child is gone: its streams end (what is buffered in
+            drain.text(timeout)     # the pipe is still read and logged: under load, over 1 s)
         self._drains = []
         for stream in (proc.stdout, proc.stderr):
             if stream:
