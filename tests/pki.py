@@ -5,8 +5,13 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+
+from delegation.runtime.broker import PrivateMosquitto
+from delegation.runtime.settings import BrokerSettings
 
 HAVE_TOOLS = all(shutil.which(t) for t in ("openssl", "mosquitto_passwd"))
 
@@ -96,3 +101,20 @@ def make_password_file(path: Path, users: dict[str, str]) -> Path:
             first = False
         _run(*args)
     return path
+
+
+def self_signed(d: Path) -> tuple[Path, Path]:
+    """A self-signed certificate for 127.0.0.1 and its key (``cert.pem``, ``key.pem`` in ``d``)."""
+    cert, key = d / "cert.pem", d / "key.pem"
+    _run("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
+         "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+         "-keyout", str(key), "-out", str(cert))
+    return cert, key
+
+
+@contextmanager
+def tls_mosquitto(d: Path) -> Iterator[BrokerSettings]:
+    """A private mosquitto on TLS only (a self-signed certificate): client settings trusting it."""
+    cert, key = self_signed(d)
+    with PrivateMosquitto(certfile=str(cert), keyfile=str(key)) as broker:
+        yield broker.settings().model_copy(update={"ca_certs": str(cert)})

@@ -5,7 +5,6 @@ from __future__ import annotations
 import queue
 import shutil
 import socket
-import subprocess
 import threading
 import time
 import uuid
@@ -15,7 +14,6 @@ import pytest
 
 from delegation.runtime.broker import (
     EmbeddedBroker,
-    PrivateMosquitto,
     free_port,
     mosquitto_binary,
 )
@@ -32,6 +30,7 @@ from delegation.topics import (
     unit_base_topic,
     unit_filter,
 )
+from pki import tls_mosquitto
 
 # --------------------------------------------------------------------------- pure
 
@@ -312,12 +311,7 @@ def test_coalesced_writes_deliver_and_acknowledge_every_message_in_order(
 @pytest.mark.skipif(mosquitto_binary() is None or shutil.which("openssl") is None,
                     reason="needs mosquitto and openssl")
 def test_coalesced_writes_over_tls(tmp_path: Path, prefix: str) -> None:
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
-                    "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
-                    "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True)
-    with PrivateMosquitto(certfile=str(cert), keyfile=str(key)) as broker:
-        settings = broker.settings().model_copy(update={"ca_certs": str(cert)})
+    with tls_mosquitto(tmp_path) as settings:
         _coalesced_round_trip(settings, prefix)
 
 

@@ -17,7 +17,7 @@ from delegation.cli.connect import add_broker_args, broker_settings
 from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
 from delegation.runtime.mqtt import MqttClient, MqttConnectError
 from delegation.runtime.settings import BrokerSettings, SettingsError
-from pki import Pki, make_password_file, make_pki
+from pki import Pki, make_password_file, make_pki, self_signed
 
 pytestmark = [
     pytest.mark.mqtt,
@@ -35,16 +35,8 @@ def secure_broker(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> Iterator[tuple[PrivateMosquitto, Path]]:
     d = tmp_path_factory.mktemp("tls")
-    cert, key, passwords = d / "cert.pem", d / "key.pem", d / "passwords"
-    subprocess.run(
-        [
-            "openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
-            "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
-            "-keyout", str(key), "-out", str(cert),
-        ],
-        check=True,
-        capture_output=True,
-    )  # fmt: skip
+    cert, key = self_signed(d)
+    passwords = d / "passwords"
     subprocess.run(
         ["mosquitto_passwd", "-c", "-b", str(passwords), "agent", "s3cret"],
         check=True,

@@ -35,7 +35,7 @@ from conftest import one_broker
 from delegation.fleet import FleetRegistry, make_unit
 from delegation.geo import LocalFrame
 from delegation.local import LocalSystem
-from delegation.runtime.broker import LocalBroker, PrivateMosquitto, mosquitto_binary
+from delegation.runtime.broker import LocalBroker, mosquitto_binary
 from delegation.runtime.client import ServiceClient
 from delegation.runtime.mqtt import Message, MqttClient
 from delegation.service.config import ServiceConfig
@@ -44,6 +44,7 @@ from delegation.web.app import create_app
 from delegation.web.auth import read_users
 from delegation.web.bridge import Bridge
 from delegation.web.server import WebServer
+from pki import tls_mosquitto
 from test_safe_yaml import bomb
 
 pytestmark = [pytest.mark.mqtt, pytest.mark.slow]
@@ -575,12 +576,7 @@ def test_buffered_reads_deliver_every_message_whole_and_in_order(mqtt_settings: 
 @pytest.mark.skipif(mosquitto_binary() is None or shutil.which("openssl") is None,
                     reason="needs mosquitto and openssl")
 def test_buffered_reads_over_tls(tmp_path: Path, prefix: str) -> None:
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
-                    "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
-                    "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True)
-    with PrivateMosquitto(certfile=str(cert), keyfile=str(key)) as broker:
-        settings = broker.settings().model_copy(update={"ca_certs": str(cert)})
+    with tls_mosquitto(tmp_path) as settings:
         _buffered_round_trip(settings, prefix)
 
 
