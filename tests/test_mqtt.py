@@ -3,25 +3,18 @@
 from __future__ import annotations
 
 import queue
-import shutil
 import socket
 import threading
 import time
 import uuid
-from pathlib import Path
 
 import pytest
 
-from delegation.runtime.broker import (
-    EmbeddedBroker,
-    free_port,
-    mosquitto_binary,
-)
+from delegation.runtime.broker import EmbeddedBroker, free_port
 from delegation.runtime.mqtt import Message, MqttClient, MqttConnectError
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.unit import MqttUnit
 from delegation.topics import (
-    QOS_COMMAND,
     Topic,
     Wildcard,
     base_from_heartbeat,
@@ -30,7 +23,6 @@ from delegation.topics import (
     unit_base_topic,
     unit_filter,
 )
-from pki import tls_mosquitto
 
 # --------------------------------------------------------------------------- pure
 
@@ -301,78 +293,3 @@ def test_unit_base_runs_its_own_loop(mqtt_settings: BrokerSettings, prefix: str,
         unit.stop()
     assert unit.stopped_cleanly
     assert not unit.running
-
-
-def test_coalesced_writes_deliver_and_acknowledge_every_message_in_order(
-        mqtt_settings: BrokerSettings, prefix: str) -> None:
-    _coalesced_round_trip(mqtt_settings, prefix)
-
-
-@pytest.mark.skipif(mosquitto_binary() is None or shutil.which("openssl") is None,
-                    reason="needs mosquitto and openssl")
-def test_coalesced_writes_over_tls(tmp_path: Path, prefix: str) -> None:
-    with tls_mosquitto(tmp_path) as settings:
-        _coalesced_round_trip(settings, prefix)
-
-
-def _coalesced_round_trip(mqtt_settings: BrokerSettings, prefix: str) -> None:
-    """A client that joins queued packets into one ``send`` (`_CoalescingClient`: the service's)
-    delivers every message whole and in order (per QoS), one larger than a chunk among them;
-    every QoS 1 message it sends is acknowledged (PUBACKs for it reach it), and those it
-    receives are acknowledged to the broker (their PUBACKs share sends too)."""
-    cond = threading.Condition()
-    got: list[tuple[str, bytes]] = []
-    acked: list[int] = []
-
-    def sink(message: Message) -> None:
-        with cond:
-            got.append((message.topic.rsplit("/", 1)[-1], message.payload))
-            cond.notify_all()
-
-    rx = MqttClient(mqtt_settings, sink=sink)
-    rx.coalesced_writes = True
-    rx.subscribe(f"{prefix}/#", QOS_COMMAND)
-    tx = MqttClient(mqtt_settings)
-    tx.coalesced_writes = True
-    sent = [(("q0" if k % 50 == 0 else "q1"), str(k).encode()) for k in range(2000)]
-    sent.insert(1000, ("q1", bytes(range(256)) * 400))  # 100 kB: more than one chunk
-    rx.connect()
-    try:
-        tx.connect()
-        assert tx._client is not None
-        writes = [0]
-        send = tx._client._sock_send
-
-        def counted(buf: bytes) -> int:
-            writes[0] += 1
-            return send(buf)
-
-        def on_publish(*_args: object) -> None:
-            with cond:
-                acked.append(1)
-                cond.notify_all()
-
-        tx._client._sock_send = counted  # type: ignore[method-assign]
-        tx._client.on_publish = on_publish
-        deadline = time.monotonic() + 20.0
-        with cond:  # the subscription is live once a probe comes through
-            while not any(t == "probe" for t, _ in got):
-                tx.publish(f"{prefix}/probe", b"probe", qos=QOS_COMMAND)
-                assert time.monotonic() < deadline, "the subscription never became live"
-                cond.wait(0.2)
-            got.clear()
-        with cond:
-            acked.clear()
-        writes[0] = 0
-        for kind, payload in sent:
-            tx.publish(f"{prefix}/{kind}", payload, qos=QOS_COMMAND if kind == "q1" else 0)
-        with cond:
-            assert cond.wait_for(lambda: len(got) >= len(sent), 60.0), len(got)
-            # on_publish: a QoS 0 message once written, a QoS 1 one once acknowledged
-            assert cond.wait_for(lambda: len(acked) >= len(sent), 30.0), len(acked)
-    finally:
-        tx.disconnect()
-        rx.disconnect()
-    for kind in ("q0", "q1"):  # in order per QoS (paho holds QoS 1 ones past 20 in flight)
-        assert [m for m in got if m[0] == kind] == [m for m in sent if m[0] == kind]
-    assert writes[0] < len(sent)  # packets shared sends

@@ -197,49 +197,6 @@ class _BufferedReadClient(paho.Client):
         self._rbuf.clear()
         super()._sock_close()
 
-
-#: Bytes of queued packets a coalescing client joins into one ``send``.
-_WRITE_CHUNK = 65536
-#: Packet types whose sending paho follows with nothing (no callback, no state change): these
-#: may share a ``send``. Not a QoS 0 PUBLISH (marked published once written) nor DISCONNECT.
-_PLAIN_WRITES = frozenset({paho.PUBLISH, paho.PUBACK, paho.PUBREC, paho.PUBREL, paho.PUBCOMP,
-                           paho.SUBSCRIBE, paho.UNSUBSCRIBE, paho.PINGREQ, paho.PINGRESP})
-
-
-class _CoalescingClient(_BufferedReadClient):
-    """A buffered-read client that also writes in chunks: paho sends each queued packet with its
-    own ``send`` (each PUBACK, each QoS 1 PUBLISH), a syscall and a TCP segment apiece. Here the
-    queued packets that paho follows with nothing once written (`_PLAIN_WRITES`, QoS 1 and 2
-    PUBLISHes only) are joined into one packet before paho writes them; paho's own handling of
-    a partial write then applies to the whole. For a unit that publishes and acknowledges many
-    QoS 1 messages at once (the delegation service answering a burst)."""
-
-    def _packet_write(self) -> MQTTErrorCode:
-        self._coalesce()
-        return super()._packet_write()
-
-    def _coalesce(self) -> None:
-        out = self._out_packet
-        if len(out) < 2:
-            return
-        run: list[Any] = []
-        size = 0
-        while out and size < _WRITE_CHUNK:
-            packet = out[0]
-            kind = packet["command"] & 0xF0
-            if kind not in _PLAIN_WRITES or (kind == paho.PUBLISH and packet["qos"] == 0):
-                break
-            run.append(out.popleft())
-            size += packet["to_process"]
-        if len(run) < 2:
-            out.extendleft(reversed(run))
-            return
-        data = b"".join(bytes(p["packet"][p["pos"]:]) for p in run)
-        # A PUBACK's type, QoS 1: paho does nothing once it is written (as for each part).
-        out.appendleft({"command": paho.PUBACK, "mid": 0, "qos": 1, "pos": 0,
-                        "to_process": len(data), "packet": data, "info": None})
-
-
 _UNSUPPORTED_PROTOCOL = 132  # CONNACK reason "Unsupported protocol version" (v3 rc 1 maps here)
 
 
@@ -259,8 +216,6 @@ class MqttClient(ClientBase):
         self.nodelay_sockets = 0
         #: Read the socket in chunks (`_BufferedReadClient`); set before `connect`.
         self.buffered_reads = False
-        #: Read and write the socket in chunks (`_CoalescingClient`); set before `connect`.
-        self.coalesced_writes = False
         #: Ask the broker not to send back what this client publishes (MQTT 5 "No Local"; a
         #: 3.1.1 broker has no such option: see `no_local_active`); set before `connect`.
         self.no_local = False
@@ -295,8 +250,7 @@ class MqttClient(ClientBase):
         raise MqttConnectError(f"cannot connect to {self.settings.describe()}: {last}")
 
     def _make_client(self, protocol: MQTTProtocolVersion) -> paho.Client:
-        kind = (_CoalescingClient if self.coalesced_writes
-                else _BufferedReadClient if self.buffered_reads else paho.Client)
+        kind = _BufferedReadClient if self.buffered_reads else paho.Client
         client = kind(
             CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
