@@ -29,6 +29,20 @@ def test_command_log_answers_once_and_remembers() -> None:
     assert again is not None and again.answer == [Outgoing("t", b"answer")]
 
 
+def test_answer_again_only_for_an_answered_command() -> None:
+    """A new or still-pending command gets None (the unit runs it); an answered one its first
+    answer, counted as a re-send."""
+    log = CommandLog()
+    key = ("exec", "c1")
+    assert log.answer_again(key) is None
+    log.begin(key, 0.0)
+    assert log.answer_again(key) is None
+    log.finish(key, [Outgoing("t", b"answer")])
+    assert log.answer_again(key) == [Outgoing("t", b"answer")]
+    entry = log.get(key)
+    assert entry is not None and entry.resends == 2
+
+
 def test_command_log_is_bounded_but_keeps_pending() -> None:
     log = CommandLog(capacity=3)
     log.begin(("tst", "pending"), 0.0)

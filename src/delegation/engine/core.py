@@ -51,8 +51,8 @@ from delegation.messages import (
     decode,
 )
 from delegation.messages.errors import json_value
-from delegation.runtime.commands import CommandKey, CommandLog, CommandState, com_uuid_of
-from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
+from delegation.runtime.commands import CommandKey, CommandLog, com_uuid_of
+from delegation.runtime.core import Effects, Identified, Identity, Outgoing, heartbeat
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC, parse_unit_topic, unit_filter
 from delegation.tst.node import ExecUnitKind, TstNode, classify_execunit, parse_tree, walk, where
 
@@ -68,7 +68,7 @@ ENDED = frozenset({NodeStatus.SUCCEEDED, NodeStatus.FAILED, NodeStatus.ABORTED})
 FACE = "tst"
 
 
-class EngineCore:
+class EngineCore(Identified):
     """The TST engine's every decision: commands, unit messages and time in, `Effects` out."""
 
     def __init__(
@@ -103,15 +103,7 @@ class EngineCore:
         self.catch_up_gap = 3.0
         """A unit heard again after this long a silence is asked ``query-status``."""
 
-    # ---- the Core protocol
-
-    @property
-    def name(self) -> str:
-        return self.identity.name
-
-    @property
-    def status_period(self) -> float:
-        return 1.0 / self.identity.rate
+    # ---- the Core protocol (``name``, ``status_period``: `Identified`)
 
     def subscriptions(self) -> list[str]:
         prefix = self.identity.prefix
@@ -219,10 +211,6 @@ class EngineCore:
     # ---- views (tests, `TstEngine.wait_for_units`)
 
     @property
-    def base(self) -> str:
-        return self.identity.base
-
-    @property
     def trees(self) -> dict[str, Tree]:
         """The trees executing or recently finished, by root uuid."""
         return self.executor.trees
@@ -237,10 +225,9 @@ class EngineCore:
         com_uuid = com_uuid_of(payload)
         key: CommandKey | None = (FACE, com_uuid) if com_uuid else None
         if key is not None:
-            entry = self.commands.seen(key)
-            if entry is not None and entry.state is CommandState.DONE:
-                log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
-                return Effects.of(entry.answer)
+            again = self.commands.answer_again(key)
+            if again is not None:
+                return Effects.of(again)
             self.commands.begin(key, now)
         try:
             command = decode(topic, payload)

@@ -58,20 +58,25 @@ class StartTst(Command):
     hold_failed: float | None = Field(default=None, ge=0.0)
 
 
-class SignalTstNode(Command):
+class _NodeSignal(Command):
+    """A signal to the node ``node-uuid`` (the seed's 14.3.1 and 14.3.2 carry the same fields and
+    differ in how far the signal reaches: the subclasses)."""
+
+    command: str
+    node_uuid: str
+    signal: str
+
+
+class SignalTstNode(_NodeSignal):
     """``signal-tst-node`` (seed 14.3.1): a signal to one node."""
 
     command: Literal["signal-tst-node"] = "signal-tst-node"
-    node_uuid: str
-    signal: str
 
 
-class SignalTstTree(Command):
+class SignalTstTree(_NodeSignal):
     """``signal-tst-tree`` (seed 14.3.2): a signal to every node of the tree under ``node-uuid``."""
 
     command: Literal["signal-tst-tree"] = "signal-tst-tree"
-    node_uuid: str
-    signal: str
 
 
 class SignalUnit(Command):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import re
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -21,6 +22,8 @@ from enum import StrEnum
 from typing import Protocol
 
 from delegation.runtime.core import Outgoing
+
+log = logging.getLogger(__name__)
 
 #: How many commands a unit remembers (oldest answered ones forgotten first): a re-send arrives
 #: seconds later, not after ten thousand other commands.
@@ -164,6 +167,16 @@ class CommandLog:
         if entry is not None:
             entry.resends += 1
         return entry
+
+    def answer_again(self, key: CommandKey) -> list[Outgoing] | None:
+        """What a re-send of an answered command gets: its first answer's very bytes (counted as
+        a re-send); None when ``key`` is new or still pending (the engine and a simulated unit
+        then run it, the service looks further, `CommandDesk`)."""
+        entry = self.seen(key)
+        if entry is None or entry.state is not CommandState.DONE:
+            return None
+        log.debug("re-sent command %s (%s) answered again", key[1], key[0])
+        return entry.answer
 
     def get(self, key: CommandKey) -> CommandEntry | None:
         """The entry of a command, without counting a re-send."""

@@ -21,6 +21,7 @@ from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, QOS_PERIODIC, unit_ba
 __all__ = [
     "Core",
     "Effects",
+    "Identified",
     "Identity",
     "JobCore",
     "JobDone",
@@ -110,6 +111,35 @@ class Identity:
     def topic(self, rest: str) -> str:
         """A topic under this unit, e.g. ``topic("tst/response")``."""
         return f"{self.base}/{rest}"
+
+
+class Identified:
+    """Who a core holding its unit's `Identity` is (the engine, a simulated unit): the `Core`
+    protocol's ``name`` and ``status_period``, and the identity's parts, derived in one place."""
+
+    identity: Identity
+
+    @property
+    def name(self) -> str:
+        return self.identity.name
+
+    @property
+    def agent_uuid(self) -> str:
+        return self.identity.agent_uuid
+
+    @property
+    def rate(self) -> float:
+        """Status rounds per second."""
+        return self.identity.rate
+
+    @property
+    def base(self) -> str:
+        """The unit's base topic (`Identity.base`)."""
+        return self.identity.base
+
+    @property
+    def status_period(self) -> float:
+        return 1.0 / self.identity.rate
 
 
 def heartbeat(

@@ -38,7 +38,7 @@ from delegation.messages import (
     decode,
 )
 from delegation.runtime.commands import CommandLog, com_uuid_of
-from delegation.runtime.core import Effects, Identity, Outgoing, heartbeat
+from delegation.runtime.core import Effects, Identified, Identity, Outgoing, heartbeat
 from delegation.sim.vehicle import ENDED, SimVehicle, TaskEvent, VehiclePolicy
 from delegation.topics import DEFAULT_PREFIX, QOS_COMMAND, QOS_PERIODIC
 
@@ -62,7 +62,7 @@ class _AlwaysListsExecuting(DirectExecutionInfo):
         return frozenset()
 
 
-class SimCore(ABC):
+class SimCore(Identified, ABC):
     """What every simulated unit's core shares: who it is, its vehicle, and simulated time.
 
     ``speedup`` multiplies time (a 600 m flight at 6 m/s with ``speedup=50`` takes 2 s of ``now``).
@@ -101,28 +101,6 @@ class SimCore(ABC):
         self._last_tick: float | None = None
         # Wall minus monotonic seconds, learnt from `status`: stamps status sent between periods.
         self._wall_offset = 0.0
-
-    # ---- who
-
-    @property
-    def name(self) -> str:
-        return self.identity.name
-
-    @property
-    def agent_uuid(self) -> str:
-        return self.identity.agent_uuid
-
-    @property
-    def rate(self) -> float:
-        return self.identity.rate
-
-    @property
-    def base(self) -> str:
-        return self.identity.base
-
-    @property
-    def status_period(self) -> float:
-        return 1.0 / self.rate
 
     def subscriptions(self) -> list[str]:
         return [self.identity.topic("exec/command")]
@@ -193,11 +171,9 @@ class SimUnitCore(SimCore):
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         com_uuid = com_uuid_of(payload)
-        if com_uuid is not None:
-            entry = self.commands.seen((FACE, com_uuid))
-            if entry is not None:
-                log.debug("%s: re-sent command %s answered again", self.name, com_uuid)
-                return Effects.of(entry.answer)
+        again = self.commands.answer_again((FACE, com_uuid)) if com_uuid is not None else None
+        if again is not None:
+            return Effects.of(again)
         try:
             command = decode(topic, payload)
         except MessageError as exc:
