@@ -9,7 +9,9 @@ multi-robot coverage benchmark's polygons cannot be downloaded here). For each p
 width it prints the coverage path length over ``A / w`` (the area divided by the sweep width: no
 turns, no overlap), once with the lanes along the minimum rectangle's long axis (the old rule) and
 once along the direction ``delegation.coverage.sweep_direction`` chooses, then the geometric mean
-and the worst of each.
+and the worst of each; and the path the units fly (``flown_sweep``: turns pulled inside,
+transitions round notches) over ``A / w`` with the share of the area its footprint covers (a
+path made shorter by leaving corners unseen is not better).
 
 ``team``: each polygon searched (``execunit: "*"``) by a heterogeneous fleet of 3-6 units (drones
 of different speeds, 37 m lanes; a boat, 9 m lanes), placed 0.5-2.5 km from the area (seeded):
@@ -43,7 +45,14 @@ from delegation.allocation.sharing import region_of
 from delegation.bench.team_search import concave_polygons, fleet, geo_at, unit_at
 from delegation.bench.team_search import search_node as _search
 from delegation.costs import cost_tables, search_polygons_xy, sweep_width, task_path
-from delegation.coverage import coverage_length, sweep_axes, sweep_direction
+from delegation.coverage import (
+    coverage_length,
+    flown_sweep,
+    footprint,
+    path_length,
+    sweep_axes,
+    sweep_direction,
+)
 from delegation.fleet import UnitState
 from delegation.geo import LocalFrame
 from delegation.tst import TstNode, make_node, with_defaults, with_uuids
@@ -57,10 +66,14 @@ def _geo_mean(xs: list[float]) -> float:
 
 
 def sweep_overhead(widths: tuple[float, ...]) -> None:
-    """Print path / (A / w) per polygon and width, old rule and chosen direction."""
+    """Print path / (A / w) per polygon and width, old rule and chosen direction, and the path
+    the units fly (``flown_sweep``: turns inside, transitions round notches) with the share of
+    the area its footprint covers: a shorter path is only better if it still covers."""
     old_all: list[float] = []
     new_all: list[float] = []
-    print(f"{'polygon':<20} {'w m':>5} {'A/w m':>9} {'old':>6} {'chosen':>7} {'choose s':>9}")
+    covers: list[float] = []
+    print(f"{'polygon':<20} {'w m':>5} {'A/w m':>9} {'old':>6} {'chosen':>7} {'choose s':>9} "
+          f"{'flown':>6} {'cover %':>8}")
     for name, poly in concave_polygons().items():
         area = Polygon(poly).area
         for w in widths:
@@ -70,12 +83,25 @@ def sweep_overhead(widths: tuple[float, ...]) -> None:
             along = sweep_direction(poly, w)
             took = time.perf_counter() - t0
             new = coverage_length(poly, w, along=along) / ideal
+            flown, cover = _flown(poly, w)
             old_all.append(old)
             new_all.append(new)
-            print(f"{name:<20} {w:5.1f} {ideal:9.0f} {old:6.3f} {new:7.3f} {took:9.3f}")
+            covers.append(cover)
+            print(f"{name:<20} {w:5.1f} {ideal:9.0f} {old:6.3f} {new:7.3f} {took:9.3f} "
+                  f"{flown / ideal:6.3f} {100.0 * cover:8.2f}")
     print(f"sweep overhead path/(A/w): long-axis rule geo-mean {_geo_mean(old_all):.3f} "
           f"worst {max(old_all):.3f}; chosen direction geo-mean {_geo_mean(new_all):.3f} "
-          f"worst {max(new_all):.3f} ({len(new_all)} sweeps)")
+          f"worst {max(new_all):.3f} ({len(new_all)} sweeps); flown footprint covers "
+          f"{100.0 * min(covers):.2f} % of the area at worst")
+
+
+def _flown(poly: np.ndarray, width: float) -> tuple[float, float]:
+    """(length of the path the units fly over the polygon, share of the polygon its footprint
+    covers: ``coverage.footprint``, ``width`` wide and as long)."""
+    path = flown_sweep([poly], width)
+    area = Polygon(poly)
+    seen = shapely.intersection(footprint(path, width), area).area
+    return path_length(path), float(seen / area.area)
 
 
 def _bound(tree: TstNode, units: list[UnitState], uuid: str) -> float:
