@@ -513,16 +513,19 @@ def _fitted(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geom
     return found
 
 
-def _may_fit(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry) -> bool:
-    """Whether the units' endurance left could cover ``region``: each flying to the area's
-    nearest point (and home from it) and sweeping at ``FIT_HOPE`` of the whole area's sweep
-    overhead at its width (parts measured 1.13-1.24 where the whole area's was 1.17: a part's
-    is seldom much less). When not, no cut is tried (each try costs sweeps)."""
+def _may_fit(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry,
+             whole_m2: float | None = None) -> bool:
+    """Whether the units' endurance left could cover ``region`` (task ``t``'s area, or a part of
+    it: ``whole_m2`` the area's): each flying to the region's nearest point (and home from it)
+    and sweeping at ``FIT_HOPE`` of the whole area's sweep overhead at its width (parts measured
+    1.13-1.24 where the whole area's was 1.17: a part's is seldom much less). When not, no cut
+    is tried, or no strip more (each try costs sweeps)."""
     area = float(region.area)
+    whole_m2 = area if whole_m2 is None else whole_m2
     fits: dict[int, Fit] = {}
     for row in rows:
         u = row.unit
-        whole = float(tables.work_distance[u, t]) / (area / float(tables.width[u, t]))
+        whole = float(tables.work_distance[u, t]) / (whole_m2 / float(tables.width[u, t]))
         fits[u] = Fit(max(1.0, FIT_HOPE * whole) if math.isfinite(whole) else 1.0)
     return sum(s.cap for s in _sharers_of(rows, tables, t, region, fits, 1.0)) >= area
 
@@ -572,6 +575,8 @@ def _filled(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geom
         if rest.is_empty or rest.area <= _CUT_EPS * area:
             at = hi
             break
+        if i and not _may_fit(order[i:], tables, t, rest, area):
+            return None  # (the units left cannot cover the rest: no need to sweep it)
         over = _judged({row.unit: rest}, [row], tables, t)[0] - 1.0
         if over <= 0.0:
             out[row.unit], at = rest, hi
@@ -608,10 +613,10 @@ _FITTED: dict[tuple[Any, ...], dict[int, shapely.Geometry] | None] = {}
 def _fitted_key(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry
                 ) -> tuple[Any, ...]:
     """What ``_fitted``'s answer depends on: the area, each unit's state, speed, width,
-    endurance and home, and how hard it looks."""
+    endurance and home (None, not NaN: NaN equals nothing), and how hard it looks."""
+    homes = [None if np.isnan(h).any() else tuple(h.tolist()) for h in tables.home_xy]
     units = tuple((r, float(tables.speed[r.unit, t]), float(tables.width[r.unit, t]),
-                   float(tables.endurance[r.unit]), tuple(tables.home_xy[r.unit].tolist()))
-                  for r in rows)
+                   float(tables.endurance[r.unit]), homes[r.unit]) for r in rows)
     return (shapely.to_wkb(region), units, FIT_ROUNDS, FIT_AXES, FIT_STEPS, FIT_TOL, FIT_HOPE)
 
 
