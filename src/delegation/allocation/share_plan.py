@@ -69,7 +69,7 @@ ENDURANCE_ROUNDS = 4
 #: (``_widest``); the share of the whole area's sweep overhead below which the area is out of
 #: reach and no cut is tried (``_may_fit``).
 FIT_ROUNDS = 6
-FIT_AXES = 24
+FIT_AXES = 12
 FIT_STEPS = 8
 FIT_TOL = 0.002
 FIT_HOPE = 0.95
