@@ -119,3 +119,14 @@ def test_a_small_area_with_12_percent_slack_is_cut_so_every_part_fits() -> None:
                for route in plan.routes.values())
     assert check_invariants(plan, tree, units) == []
     assert len(plan.shared) == 1 and len(plan.shared[0].parts) == 4
+
+
+def test_parts_are_not_judged_as_flown_when_endurance_is_ample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    # (Judging sweeps every part: only where endurance may limit one, share_plan.FIT_NEAR.)
+    def judged(*args: object) -> None:
+        raise AssertionError("parts judged with endurance to spare")
+
+    monkeypatch.setattr(share_plan, "_judged", judged)
+    units = [dataclasses.replace(u, endurance=10 * ENDURANCE_S) for u in drones()]
+    plan = plan_mission(comb_search(), units, strategy="auction")
+    assert plan.feasible and len(plan.shared) == 1 and len(plan.shared[0].parts) >= 2

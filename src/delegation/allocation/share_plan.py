@@ -62,12 +62,14 @@ RESEAT_GAIN = 1.05
 #: How many times at most the parts are cut again when a unit cannot fly its part within its
 #: endurance (``overrun``): each time the units that fell short get a smaller share.
 ENDURANCE_ROUNDS = 4
-#: When endurance is tight and the usual cut's parts do not all fit their units (``_fitted``):
-#: how many times the usual cut is sized again from its own parts (``_damped``); how many
-#: directions strips are tried across (every 360 / FIT_AXES degrees, ``_filled``); at most how
-#: many sweeps find each strip's width and how close to its unit's endurance it is then
-#: (``_widest``); the share of the whole area's sweep overhead below which the area is out of
-#: reach and no cut is tried (``_may_fit``).
+#: When endurance is tight (some part sized above ``FIT_NEAR`` of what its unit's endurance
+#: could sweep: the parts are then judged as flown, ``_cut_search``) and the usual cut's parts
+#: do not all fit their units (``_fitted``): how many times the usual cut is sized again from
+#: its own parts (``_damped``); how many directions strips are tried across (every 360 /
+#: FIT_AXES degrees, ``_filled``); at most how many sweeps find each strip's width and how close
+#: to its unit's endurance it is then (``_widest``); the share of the whole area's sweep
+#: overhead below which the area is out of reach and no cut is tried (``_may_fit``).
+FIT_NEAR = 0.8
 FIT_ROUNDS = 6
 FIT_AXES = 12
 FIT_STEPS = 8
@@ -441,14 +443,15 @@ def _cut_search(problem: Problem, tables: CostTables, before: Before, t: int,
                 ) -> dict[int, shapely.Geometry]:
     """Unit index -> its part of task ``t``'s ``region`` (empty: no parts): sized by water
     filling with what earlier parts measured (``fit``) and cut by ``divide``. When endurance
-    limits some unit and a part so cut is over what its unit has left (its real sweep, flight
-    there and home), other cuts are tried (``_fitted``)."""
+    may limit some unit (its part sized above ``FIT_NEAR`` of what it could sweep, or the
+    units together short of the area) and a part so cut is over what its unit has left (its
+    real sweep, flight there and home), other cuts are tried (``_fitted``)."""
     rows = _ready(problem, tables, before, t)
     sharers = _sharers_of(rows, tables, t, region, fit, margin)
     wanted = shares(float(region.area), sharers)
     geoms = divide(region, wanted, {s.key: s.point for s in sharers}) if wanted else {}
-    if not any(math.isfinite(s.cap) for s in sharers):
-        return geoms
+    if wanted and not any(wanted.get(s.key, 0.0) > FIT_NEAR * s.cap for s in sharers):
+        return geoms  # (endurance is not what limits any part: nothing to judge)
     if geoms and _judged(geoms, rows, tables, t)[0] <= 1.0:
         return geoms
     return _fitted(rows, tables, t, region) or geoms
