@@ -495,7 +495,8 @@ def _fitted(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geom
     endurance tight every part must fit as it will be flown (coast3-0.2km2, four drones at 40 %
     of one's need, 12 % slack: sizing again from what the parts measured went round in circles
     a few per cent over). So, unless the area is out of reach anyway (``_may_fit``): the usual
-    cut sized again with damping (``_damped``), then strips across ``FIT_AXES`` directions
+    cut sized again with damping (``_damped``), then strips across ``FIT_AXES`` directions,
+    the units in the order they lie along each, then each strip to the unit with most room
     (``_filled``); the first whose every part fits is kept. Remembered (the planner cuts the
     same search again in each refinement)."""
     key = _fitted_key(rows, tables, t, region)
@@ -504,10 +505,11 @@ def _fitted(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geom
     found = None
     if _may_fit(rows, tables, t, region):
         found = _damped(rows, tables, t, region)
-        for k in range(FIT_AXES if found is None else 0):
+        tries = [(k, by_room) for by_room in (False, True) for k in range(FIT_AXES)]
+        for k, by_room in tries if found is None else []:
             angle = 2.0 * math.pi * k / FIT_AXES
             axis = np.array([math.cos(angle), math.sin(angle)])
-            found = _filled(rows, tables, t, region, axis)
+            found = _filled(rows, tables, t, region, axis, by_room)
             if found is not None:
                 break
     if len(_FITTED) >= 32:
@@ -565,26 +567,34 @@ def _at_caps(area: float, sharers: list[Sharer]) -> dict[int, float]:
 
 
 def _filled(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry,
-            axis: np.ndarray) -> dict[int, shapely.Geometry] | None:
-    """Strips of ``region`` across ``axis``, one per unit in the order the units lie along it,
-    each as wide as its unit can fly within its endurance left (``_widest``), the last unit the
-    rest: None when the rest is more than it can fly. A unit whose strip would be under
+            axis: np.ndarray, by_room: bool = False) -> dict[int, shapely.Geometry] | None:
+    """Strips of ``region`` across ``axis``, one per unit, each as wide as its unit can fly
+    within its endurance left (``_widest``), the last unit the rest: None when the rest is more
+    than it can fly. The units take their strips in the order they lie along ``axis``, or
+    (``by_room``) each strip goes to the unit that could fly most of the rest (the least over
+    its endurance on all of it): a part's sweep starts where its lanes do, not where its unit
+    comes from, so the order along the axis is not always the one that fits (coast3-0.2km2 at
+    39-39.5 % of one unit's need: feasible only so). A unit whose strip would be under
     ``MIN_SHARE`` of the area gets none."""
     lo, hi = extent(region, axis)
-    order = sorted(rows, key=lambda r: (float(np.dot(r.here, axis)), r.unit))
-    area, out, at = float(region.area), {}, lo
-    for i, row in enumerate(order):
+    left = sorted(rows, key=lambda r: (float(np.dot(r.here, axis)), r.unit))
+    area, at = float(region.area), lo
+    out: dict[int, shapely.Geometry] = {}
+    while left:
         rest = band(region, axis, at, hi + 1.0)
         if rest.is_empty or rest.area <= _CUT_EPS * area:
             at = hi
             break
-        if i and not _may_fit(order[i:], tables, t, rest, area):
+        if out and not _may_fit(left, tables, t, rest, area):
             return None  # (the units left cannot cover the rest: no need to sweep it)
-        over = _judged({row.unit: rest}, [row], tables, t)[0] - 1.0
+        overs = [(_judged({r.unit: rest}, [r], tables, t)[0] - 1.0, i)
+                 for i, r in enumerate(left if by_room else left[:1])]
+        over, i = min(overs)
+        row = left.pop(i)
         if over <= 0.0:
             out[row.unit], at = rest, hi
             break
-        if i == len(order) - 1:
+        if not left:
             return None
         line = _widest(region, axis, at, hi, over, row, tables, t)
         strip = band(region, axis, at, line)
