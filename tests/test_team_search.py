@@ -6,6 +6,7 @@ Pure logic: no clock, no network.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -16,7 +17,9 @@ from delegation.allocation import check_invariants, plan_mission
 from delegation.allocation.sharing import (
     MIN_SHARE,
     Sharer,
+    band,
     divide,
+    extent,
     fill_time,
     lower_bound,
     pieces_xy,
@@ -124,6 +127,32 @@ def test_parts_cover_the_area_inside_without_overlap_or_slivers(name: str, n: in
         assert part.area == pytest.approx(wanted[k] / total * region.area, rel=1e-3)
         assert thinness(part) >= 3 * 37.0  # thicker than three drone lanes
         assert len(pieces_xy(part)) <= 2  # contiguous, or (a cut through a tooth) two pieces
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.7, 2.0])
+def test_cut_along_one_axis_in_a_given_order_gives_strips_in_that_order(angle: float) -> None:
+    region = region_of([COAST])
+    axis = np.array([math.cos(angle), math.sin(angle)])
+    wanted = {0: 1.0, 1: 2.0, 2: 1.0, 3: 1.5}
+    order = [2, 0, 3, 1]
+    parts = divide(region, wanted, {k: (0.0, 0.0) for k in wanted}, axis=axis, order=order)
+    spans = {k: (shapely.get_coordinates(p) @ axis) for k, p in parts.items()}
+    for a, b in itertools.pairwise(order):  # each strip ends where the next begins
+        assert spans[a].max() == pytest.approx(spans[b].min(), abs=1e-3)
+    for k, part in parts.items():
+        assert part.area == pytest.approx(wanted[k] / 5.5 * region.area, rel=1e-3)
+    union = shapely.union_all(list(parts.values()))
+    assert abs(union.area - region.area) <= 1e-6 * region.area
+
+
+def test_a_band_is_the_area_between_two_lines_across_an_axis() -> None:
+    region = region_of([COMB])
+    axis = np.array([0.0, 1.0])
+    lo, hi = extent(region, axis)
+    assert (lo, hi) == (0.0, 600.0)
+    assert band(region, axis, 0.0, 200.0).area == pytest.approx(1000.0 * 200.0)
+    assert band(region, axis, lo - 5.0, hi + 5.0).area == pytest.approx(region.area)
+    assert band(region, axis, hi + 1.0, hi + 2.0).is_empty
 
 
 # --------------------------------------------------------------------------- in the allocation

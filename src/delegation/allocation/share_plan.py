@@ -24,16 +24,21 @@ import numpy as np
 import shapely
 
 from delegation.allocation.sharing import (
+    MIN_SHARE,
     PLAN_OVERHEAD,
     SHAREABLE,
     Sharer,
+    band,
     divide,
+    extent,
+    falsi,
     fill_time,
     lower_bound,
     pieces_xy,
     region_of,
     shares,
 )
+from delegation.errors import InputError
 from delegation.tst import ExecUnitKind, TstNode, classify_execunit, map_tree
 
 if TYPE_CHECKING:
@@ -57,6 +62,21 @@ RESEAT_GAIN = 1.05
 #: How many times at most the parts are cut again when a unit cannot fly its part within its
 #: endurance (``overrun``): each time the units that fell short get a smaller share.
 ENDURANCE_ROUNDS = 4
+#: When endurance is tight (some part sized above ``FIT_NEAR`` of what its unit's endurance
+#: could sweep: the parts are then judged as flown, ``_cut_search``) and the usual cut's parts
+#: do not all fit their units (``_fitted``): how many times the usual cut is sized again from
+#: its own parts (``_damped``); how many directions strips are tried across (every 360 /
+#: FIT_AXES degrees, ``_filled``); at most how many sweeps find each strip's width and how close
+#: to its unit's endurance it is then (``_widest``); the share of the whole area's sweep
+#: overhead below which the area is out of reach and no cut is tried (``_may_fit``).
+FIT_NEAR = 0.8
+FIT_ROUNDS = 6
+FIT_AXES = 12
+FIT_STEPS = 8
+FIT_TOL = 0.002
+FIT_HOPE = 0.95
+#: A rest of the area under this fraction of it is left to the cut's rounding.
+_CUT_EPS = 1e-6
 #: Fraction of a unit's remaining endurance a part may be sized to use (the sweep's real overhead
 #: is known only once the part is cut; the refinement and the plan's check do the rest).
 ENDURANCE_MARGIN = 0.97
@@ -64,11 +84,13 @@ ENDURANCE_MARGIN = 0.97
 
 @dataclass(frozen=True, slots=True)
 class Fit:
-    """What a unit's earlier part measured: its sweep overhead (path / (A / w)) and where its
-    sweep started (east, north m)."""
+    """What a unit's earlier part measured: its sweep overhead (path / (A / w)), where its
+    sweep started (east, north m) and how far from its end the unit's home is (m; None: not
+    measured, the area's nearest point is used)."""
 
     overhead: float
     start: tuple[float, float] | None = None
+    home: float | None = None
 
 
 #: Per shared search uuid, per unit index: what its part measured.
@@ -173,17 +195,25 @@ def before_search(problem: Problem, tables: CostTables, schedule: Schedule | Non
     return Before(act, units)
 
 
-def _sharers(problem: Problem, tables: CostTables, before: Before, t: int,
-             region: shapely.Geometry, fits: dict[int, Fit], margin: float = ENDURANCE_MARGIN
-             ) -> list[Sharer]:
+@dataclass(frozen=True, slots=True)
+class _Ready:
+    """A unit that could sweep part of a search: free from ``free`` (s), having used ``used`` s
+    of its endurance, at ``here`` (east, north m) by then."""
+
+    unit: int
+    free: float
+    used: float
+    here: tuple[float, float]
+
+
+def _ready(problem: Problem, tables: CostTables, before: Before, t: int) -> list[_Ready]:
     """The units that could sweep part of task ``t``'s area, free after what ``before`` says
-    they do first; ``margin``: the share of what endurance is left that a part may be sized to
-    use."""
+    they do first."""
     act = before.act
     width_col, speed_col = tables.width[:, t].tolist(), tables.speed[:, t].tolist()
     listed = tables.listed[:, t].tolist()
     ready = None if problem.ready is None else problem.ready.tolist()
-    rows: list[tuple[int, float, float, tuple[float, float]]] = []  # (unit, free, used, here)
+    rows: list[_Ready] = []
     for u, unit in enumerate(tables.units):
         width, speed = width_col[u], speed_col[u]
         if not (unit.alive and "search-area" in unit.tasks and listed[u]
@@ -197,31 +227,57 @@ def _sharers(problem: Problem, tables: CostTables, before: Before, t: int,
         if busy is not None:
             free, used = max(free, busy.free), busy.used
             here = here if busy.here is None else busy.here
-        rows.append((u, free, used, (float(here[0]), float(here[1]))))
+        rows.append(_Ready(u, free, used, (float(here[0]), float(here[1]))))
+    return rows
+
+
+def _sharers(problem: Problem, tables: CostTables, before: Before, t: int,
+             region: shapely.Geometry, fits: dict[int, Fit], margin: float = ENDURANCE_MARGIN
+             ) -> list[Sharer]:
+    """The units that could sweep part of task ``t``'s area, free after what ``before`` says
+    they do first; ``margin``: the share of what endurance is left that a part may be sized to
+    use."""
+    return _sharers_of(_ready(problem, tables, before, t), tables, t, region, fits, margin)
+
+
+def _sharers_of(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry,
+                fits: dict[int, Fit], margin: float) -> list[Sharer]:
+    """``_sharers`` for the units ``rows``: each one's arrival, sweep rate (over its fit's
+    overhead) and the area its endurance left can sweep."""
     if not rows:
         return []
     # Distances to the area in one vectorised call each (a shapely call per unit cost ~20 us).
-    to_area = shapely.distance(region, shapely.points([r[3] for r in rows])).tolist()
-    homes = tables.home_xy[[r[0] for r in rows]]
-    has_home = ~np.isnan(homes).any(axis=1)
-    back_d = np.zeros(len(rows))
-    if has_home.any():
-        back_d[has_home] = shapely.distance(region, shapely.points(homes[has_home]))
+    to_area = shapely.distance(region, shapely.points([r.here for r in rows])).tolist()
+    back_d = _to_home(tables, [r.unit for r in rows], region)
+    width_col, speed_col = tables.width[:, t].tolist(), tables.speed[:, t].tolist()
     out = []
-    for (u, free, used, here), near, back_m in zip(rows, to_area, back_d.tolist(), strict=True):
+    for row, near, back_m in zip(rows, to_area, back_d, strict=True):
+        u, here = row.unit, row.here
         width, speed = width_col[u], speed_col[u]
         fit = fits.get(u, Fit(PLAN_OVERHEAD))
         if fit.start is not None:
             near = math.hypot(fit.start[0] - here[0], fit.start[1] - here[1])
+        if fit.home is not None:
+            back_m = fit.home
         travel = near / speed
         rate = speed * width / fit.overhead
         cap = math.inf
         endurance = float(tables.endurance[u])
         if math.isfinite(endurance):
-            left = (endurance - used - travel - back_m / speed) * margin
+            left = (endurance - row.used - travel - back_m / speed) * margin
             cap = max(0.0, left) * rate
-        out.append(Sharer(u, free + travel, rate, cap, here))
+        out.append(Sharer(u, row.free + travel, rate, cap, here))
     return out
+
+
+def _to_home(tables: CostTables, units: list[int], region: shapely.Geometry) -> list[float]:
+    """Metres from ``region`` to each of ``units``' homes (0 without a home)."""
+    homes = tables.home_xy[units]
+    has_home = ~np.isnan(homes).any(axis=1)
+    back_d = np.zeros(len(units))
+    if has_home.any():
+        back_d[has_home] = shapely.distance(region, shapely.points(homes[has_home]))
+    return [float(d) for d in back_d.tolist()]
 
 
 def _part_node(original: TstNode, polygons: list[np.ndarray], frame: LocalFrame, unit: str,
@@ -355,11 +411,9 @@ def share_searches(
             continue
         fit = (fits or {}).get(task.uuid, {})
         before = (seen or {}).get(task.uuid) or before_search(problem, tables, schedule, [t])
-        sharers = _sharers(problem, tables, before, t, region, fit, margin)
-        wanted = shares(float(region.area), sharers)
-        if not wanted or (len(wanted) == 1 and int(schedule.assign[t]) in wanted):
+        geoms = _cut_search(problem, tables, before, t, region, fit, margin)
+        if not geoms or (len(geoms) == 1 and int(schedule.assign[t]) in geoms):
             continue
-        geoms = divide(region, wanted, {s.key: s.point for s in sharers})
         bound = search_bound(problem, tables, schedule, t)
         nodes, parts = [], []
         for u in sorted(geoms, key=lambda k: tables.units[k].name):
@@ -382,6 +436,201 @@ def share_searches(
         return replace(node, children=children) if node.is_control else node
 
     return SharedTree(map_tree(tree, swap), searches)
+
+
+def _cut_search(problem: Problem, tables: CostTables, before: Before, t: int,
+                region: shapely.Geometry, fit: dict[int, Fit], margin: float
+                ) -> dict[int, shapely.Geometry]:
+    """Unit index -> its part of task ``t``'s ``region`` (empty: no parts): sized by water
+    filling with what earlier parts measured (``fit``) and cut by ``divide``. When endurance
+    may limit some unit (its part sized above ``FIT_NEAR`` of what it could sweep, or the
+    units together short of the area) and a part so cut is over what its unit has left (its
+    real sweep, flight there and home), other cuts are tried (``_fitted``)."""
+    rows = _ready(problem, tables, before, t)
+    sharers = _sharers_of(rows, tables, t, region, fit, margin)
+    wanted = shares(float(region.area), sharers)
+    geoms = divide(region, wanted, {s.key: s.point for s in sharers}) if wanted else {}
+    if wanted and not any(wanted.get(s.key, 0.0) > FIT_NEAR * s.cap for s in sharers):
+        return geoms  # (endurance is not what limits any part: nothing to judge)
+    if geoms and _judged(geoms, rows, tables, t)[0] <= 1.0:
+        return geoms
+    return _fitted(rows, tables, t, region) or geoms
+
+
+def _judged(geoms: dict[int, shapely.Geometry], rows: list[_Ready], tables: CostTables, t: int
+            ) -> tuple[float, dict[int, Fit]]:
+    """(the largest over the parts ``geoms`` of what its unit needs for it, flight there from
+    where it is, its real sweep (``coverage.flown_sweep``, what the cost tables count) and the
+    way home, over the endurance it has left; what each part measured)."""
+    from delegation.coverage import flown_sweep, path_length
+
+    by_unit = {r.unit: r for r in rows}
+    worst = 0.0
+    fits: dict[int, Fit] = {}
+    for u, geom in geoms.items():
+        row, width = by_unit[u], float(tables.width[u, t])
+        speed, area = float(tables.speed[u, t]), float(geom.area)
+        try:
+            path = flown_sweep(pieces_xy(geom), width)
+        except InputError:  # (a cut left a degenerate sliver: such parts are not sent)
+            return math.inf, fits
+        if len(path) == 0 or area <= 0.0:
+            continue
+        start, end, sweep = path[0], path[-1], path_length(path)
+        home = tables.home_xy[u]
+        back = 0.0 if np.isnan(home).any() else math.hypot(*(end - home))
+        need = (math.hypot(start[0] - row.here[0], start[1] - row.here[1]) + sweep + back) / speed
+        left = float(tables.endurance[u]) - row.used
+        worst = max(worst, need / left if left > 0.0 else math.inf)
+        fits[u] = Fit(max(1.0, sweep / (area / width)), (float(start[0]), float(start[1])),
+                      back)
+    return worst, fits
+
+
+def _fitted(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry
+            ) -> dict[int, shapely.Geometry] | None:
+    """Parts of ``region`` that each fit their unit's endurance, or None when no cut tried
+    does. The usual cut (``divide``: across each piece's long axis) sizes the parts for an
+    overhead and a flight to where each sweep starts that the cut itself then changes; with
+    endurance tight every part must fit as it will be flown (coast3-0.2km2, four drones at 40 %
+    of one's need, 12 % slack: sizing again from what the parts measured went round in circles
+    a few per cent over). So, unless the area is out of reach anyway (``_may_fit``): the usual
+    cut sized again with damping (``_damped``), then strips across ``FIT_AXES`` directions,
+    the units in the order they lie along each, then each strip to the unit with most room
+    (``_filled``); the first whose every part fits is kept. Remembered (the planner cuts the
+    same search again in each refinement)."""
+    key = _fitted_key(rows, tables, t, region)
+    if key in _FITTED:
+        return _FITTED[key]
+    found = None
+    if _may_fit(rows, tables, t, region):
+        found = _damped(rows, tables, t, region)
+        tries = [(k, by_room) for by_room in (False, True) for k in range(FIT_AXES)]
+        for k, by_room in tries if found is None else []:
+            angle = 2.0 * math.pi * k / FIT_AXES
+            axis = np.array([math.cos(angle), math.sin(angle)])
+            found = _filled(rows, tables, t, region, axis, by_room)
+            if found is not None:
+                break
+    if len(_FITTED) >= 32:
+        _FITTED.pop(next(iter(_FITTED)))
+    _FITTED[key] = found
+    return found
+
+
+def _may_fit(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry,
+             whole_m2: float | None = None) -> bool:
+    """Whether the units' endurance left could cover ``region`` (task ``t``'s area, or a part of
+    it: ``whole_m2`` the area's): each flying to the region's nearest point (and home from it)
+    and sweeping at ``FIT_HOPE`` of the whole area's sweep overhead at its width (parts measured
+    1.13-1.24 where the whole area's was 1.17: a part's is seldom much less). When not, no cut
+    is tried, or no strip more (each try costs sweeps)."""
+    area = float(region.area)
+    whole_m2 = area if whole_m2 is None else whole_m2
+    fits: dict[int, Fit] = {}
+    for row in rows:
+        u = row.unit
+        whole = float(tables.work_distance[u, t]) / (whole_m2 / float(tables.width[u, t]))
+        fits[u] = Fit(max(1.0, FIT_HOPE * whole) if math.isfinite(whole) else 1.0)
+    return sum(s.cap for s in _sharers_of(rows, tables, t, region, fits, 1.0)) >= area
+
+
+def _damped(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry
+            ) -> dict[int, shapely.Geometry] | None:
+    """The usual cut (``divide``) sized again from what its own parts measured, ``FIT_ROUNDS``
+    times, each time half way from the last sizing to the new one (undamped, a part's sweep
+    start moving with the cut made the sizes go round in circles a few per cent over): the
+    first whose every part fits, or None. When what endurance is left cannot cover the area as
+    measured, every unit is sized at its cap (``_at_caps``)."""
+    area = float(region.area)
+    wanted: dict[int, float] = {}
+    fits: dict[int, Fit] = {}
+    for _ in range(FIT_ROUNDS):
+        sharers = _sharers_of(rows, tables, t, region, fits, 1.0)
+        target = shares(area, sharers) or _at_caps(area, sharers)
+        if not target:
+            return None
+        wanted = {u: 0.5 * (wanted.get(u, target.get(u, 0.0)) + target.get(u, 0.0))
+                  for u in set(wanted) | set(target)} if wanted else target
+        geoms = divide(region, wanted, {s.key: s.point for s in sharers})
+        worst, fits = _judged(geoms, rows, tables, t)
+        if worst <= 1.0:
+            return geoms
+    return None
+
+
+def _at_caps(area: float, sharers: list[Sharer]) -> dict[int, float]:
+    """Every sharer's part at its cap, scaled to ``area`` (the caps together short of it)."""
+    caps = {s.key: s.cap for s in sharers if 0.0 < s.cap < math.inf}
+    total = sum(caps.values())
+    return {k: c * area / total for k, c in caps.items()} if total > 0.0 else {}
+
+
+def _filled(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry,
+            axis: np.ndarray, by_room: bool = False) -> dict[int, shapely.Geometry] | None:
+    """Strips of ``region`` across ``axis``, one per unit, each as wide as its unit can fly
+    within its endurance left (``_widest``), the last unit the rest: None when the rest is more
+    than it can fly. The units take their strips in the order they lie along ``axis``, or
+    (``by_room``) each strip goes to the unit that could fly most of the rest (the least over
+    its endurance on all of it): a part's sweep starts where its lanes do, not where its unit
+    comes from, so the order along the axis is not always the one that fits (coast3-0.2km2 at
+    39-39.5 % of one unit's need: feasible only so). A unit whose strip would be under
+    ``MIN_SHARE`` of the area gets none."""
+    lo, hi = extent(region, axis)
+    left = sorted(rows, key=lambda r: (float(np.dot(r.here, axis)), r.unit))
+    area, at = float(region.area), lo
+    out: dict[int, shapely.Geometry] = {}
+    while left:
+        rest = band(region, axis, at, hi + 1.0)
+        if rest.is_empty or rest.area <= _CUT_EPS * area:
+            at = hi
+            break
+        if out and not _may_fit(left, tables, t, rest, area):
+            return None  # (the units left cannot cover the rest: no need to sweep it)
+        overs = [(_judged({r.unit: rest}, [r], tables, t)[0] - 1.0, i)
+                 for i, r in enumerate(left if by_room else left[:1])]
+        over, i = min(overs)
+        row = left.pop(i)
+        if over <= 0.0:
+            out[row.unit], at = rest, hi
+            break
+        if not left:
+            return None
+        line = _widest(region, axis, at, hi, over, row, tables, t)
+        strip = band(region, axis, at, line)
+        if strip.area >= MIN_SHARE * area:
+            out[row.unit], at = strip, line
+    return out if at >= hi and out else None
+
+
+def _widest(region: shapely.Geometry, axis: np.ndarray, at: float, hi: float, over: float,
+            row: _Ready, tables: CostTables, t: int) -> float:
+    """The farthest line (projection on ``axis``, between ``at`` and ``hi``) such that the strip
+    of ``region`` from ``at`` to it is within ``row``'s endurance left, its real sweep, flight
+    there and home (``_judged``; ``over``: the whole rest's need over it, less 1, > 0). Regula
+    falsi (Illinois) on need / endurance - 1, nearly linear in the strip's area: within
+    ``FIT_TOL`` in a few sweeps, ``FIT_STEPS`` at most (``at``: none fits)."""
+    def over_of(line: float) -> float:
+        return _judged({row.unit: band(region, axis, at, line)}, [row], tables, t)[0] - 1.0
+
+    def close(f: float, lo: float, hi: float) -> bool:
+        return -FIT_TOL <= f <= 0.0
+
+    return falsi(over_of, (at, -1.0), (hi, over), FIT_STEPS, close)[0]
+
+
+#: ``_fitted``'s answers by ``_fitted_key``.
+_FITTED: dict[tuple[Any, ...], dict[int, shapely.Geometry] | None] = {}
+
+
+def _fitted_key(rows: list[_Ready], tables: CostTables, t: int, region: shapely.Geometry
+                ) -> tuple[Any, ...]:
+    """What ``_fitted``'s answer depends on: the area, each unit's state, speed, width,
+    endurance and home (None, not NaN: NaN equals nothing), and how hard it looks."""
+    homes = [None if np.isnan(h).any() else tuple(h.tolist()) for h in tables.home_xy]
+    units = tuple((r, float(tables.speed[r.unit, t]), float(tables.width[r.unit, t]),
+                   float(tables.endurance[r.unit]), homes[r.unit]) for r in rows)
+    return (shapely.to_wkb(region), units, FIT_ROUNDS, FIT_AXES, FIT_STEPS, FIT_TOL, FIT_HOPE)
 
 
 def seen_in(shared: SharedTree, problem: Problem, tables: CostTables, schedule: Schedule

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,6 +142,18 @@ def _half(region: shapely.Geometry, axis: np.ndarray, cut: float, far: bool = Fa
     return shapely.intersection(region, Polygon(world))
 
 
+def band(region: shapely.Geometry, axis: np.ndarray, lo: float, hi: float) -> shapely.Geometry:
+    """The part of ``region`` whose projection on ``axis`` lies between ``lo`` and ``hi``."""
+    near = _areal(_half(region, axis, hi))
+    return near if near.is_empty else _areal(_half(near, axis, lo, far=True))
+
+
+def extent(region: shapely.Geometry, axis: np.ndarray) -> tuple[float, float]:
+    """The smallest and largest projection of ``region``'s points on ``axis``."""
+    proj = shapely.get_coordinates(region) @ axis
+    return float(proj.min()), float(proj.max())
+
+
 def cut(region: shapely.Geometry, axis: np.ndarray, fraction: float
         ) -> tuple[shapely.Geometry, shapely.Geometry]:
     """(near, far): ``region`` cut across ``axis`` so that ``near`` (low projections) holds
@@ -149,33 +161,48 @@ def cut(region: shapely.Geometry, axis: np.ndarray, fraction: float
 
     The near side's area grows monotonically with the line's position: regula falsi (the
     Illinois variant) finds it in a few intersections where halving the interval took ~20."""
-    xy = shapely.get_coordinates(region)
-    proj = xy @ axis
-    lo, hi = float(proj.min()), float(proj.max())
+    lo, hi = extent(region, axis)
     total = float(region.area)
     target = fraction * total
-    f_lo, f_hi = -target, total - target  # near area - target at lo and hi
-    side = 0
-    line = 0.5 * (lo + hi)
-    for _ in range(80):
+
+    def near_less_target(line: float) -> float:
+        return float(_half(region, axis, line).area) - target
+
+    def close(f: float, lo: float, hi: float) -> bool:
+        return abs(f) <= _CUT_TOL * total or hi - lo <= _CUT_TOL * max(1.0, abs(hi))
+
+    _, line = falsi(near_less_target, (lo, -target), (hi, total - target), 80, close)
+    near, far = _half(region, axis, line), _half(region, axis, line, far=True)
+    return _areal(near), _areal(far)
+
+
+def falsi(f: Callable[[float], float], low: tuple[float, float], high: tuple[float, float],
+          steps: int, done: Callable[[float, float, float], bool]) -> tuple[float, float]:
+    """Regula falsi (the Illinois variant) for where the increasing ``f`` crosses 0 between
+    ``low`` and ``high`` ((x, f(x)) each, f negative at ``low``, positive at ``high``): at most
+    ``steps`` evaluations, stopping at the first ``x`` where ``done(f(x), lo, hi)`` (the
+    bracket before it). Returns (the last ``x`` found with ``f(x) <= 0``, or ``low``'s; the
+    last ``x`` tried). ``cut`` places its line with it, ``share_plan`` a strip's edge."""
+    (lo, f_lo), (hi, f_hi) = low, high
+    side, line = 0, 0.5 * (lo + hi)
+    for _ in range(steps):
         line = hi - f_hi * (hi - lo) / (f_hi - f_lo) if f_hi != f_lo else 0.5 * (lo + hi)
         if not lo < line < hi:
             line = 0.5 * (lo + hi)
-        f = float(_half(region, axis, line).area) - target
-        if abs(f) <= _CUT_TOL * total or hi - lo <= _CUT_TOL * max(1.0, abs(hi)):
-            break
-        if f < 0.0:
-            lo, f_lo = line, f
+        value = f(line)
+        if done(value, lo, hi):
+            return (line if value <= 0.0 else lo), line
+        if value < 0.0:
+            lo, f_lo = line, value
             if side == -1:
                 f_hi *= 0.5
             side = -1
         else:
-            hi, f_hi = line, f
+            hi, f_hi = line, value
             if side == 1:
                 f_lo *= 0.5
             side = 1
-    near, far = _half(region, axis, line), _half(region, axis, line, far=True)
-    return _areal(near), _areal(far)
+    return lo, line
 
 
 def _areal(geom: shapely.Geometry) -> shapely.Geometry:
@@ -187,23 +214,31 @@ def _areal(geom: shapely.Geometry) -> shapely.Geometry:
 
 
 def divide(region: shapely.Geometry, wanted: dict[int, float],
-           points: dict[int, tuple[float, float]]) -> dict[int, shapely.Geometry]:
+           points: dict[int, tuple[float, float]], axis: np.ndarray | None = None,
+           order: Sequence[int] | None = None) -> dict[int, shapely.Geometry]:
     """Key -> part of ``region`` with area proportional to ``wanted[key]`` (recursive bisection,
     module docstring); ``points`` (where each key's unit comes from) orders the keys along each
-    cut's axis so that a unit gets the side it comes from."""
+    cut's axis so that a unit gets the side it comes from. With ``axis`` every cut is across it
+    (strips) instead of across each piece's long axis; with ``order`` the keys lie along the axis
+    in that order instead (``share_plan`` tries other cuts when the usual parts do not fit their
+    units' endurance)."""
     keys = [k for k, v in wanted.items() if v > 0.0]
     if not keys:
         return {}
     if len(keys) == 1:
         return {keys[0]: region}
-    axis = _long_axis(region)
-    keys.sort(key=lambda k: (float(np.dot(points[k], axis)), k))
+    along = _long_axis(region) if axis is None else axis
+    if order is None:
+        keys.sort(key=lambda k: (float(np.dot(points[k], along)), k))
+    else:
+        rank = {k: i for i, k in enumerate(order)}
+        keys.sort(key=lambda k: (rank.get(k, len(rank)), k))
     weights = np.array([wanted[k] for k in keys], dtype=float)
     running = np.cumsum(weights)[:-1] / weights.sum()
     split = int(np.argmin(np.abs(running - 0.5))) + 1  # the two groups of closest share
-    near, far = cut(region, axis, float(running[split - 1]))
-    out = divide(near, {k: wanted[k] for k in keys[:split]}, points)
-    out.update(divide(far, {k: wanted[k] for k in keys[split:]}, points))
+    near, far = cut(region, along, float(running[split - 1]))
+    out = divide(near, {k: wanted[k] for k in keys[:split]}, points, axis, order)
+    out.update(divide(far, {k: wanted[k] for k in keys[split:]}, points, axis, order))
     return out
 
 
@@ -239,5 +274,5 @@ def thinness(part: shapely.Geometry) -> float:
     return float(min(np.hypot(*(pts[1] - pts[0])), np.hypot(*(pts[2] - pts[1]))))
 
 
-__all__ = ["MIN_SHARE", "PLAN_OVERHEAD", "SHAREABLE", "Sharer", "cut", "divide",
-           "fill_time", "lower_bound", "pieces_xy", "region_of", "shares", "thinness"]
+__all__ = ["MIN_SHARE", "PLAN_OVERHEAD", "SHAREABLE", "Sharer", "band", "cut", "divide", "extent",
+           "falsi", "fill_time", "lower_bound", "pieces_xy", "region_of", "shares", "thinness"]
