@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +45,9 @@ GUARDED = 3
 #: Vehicle tasks above which the search is skipped (the auction must scale to 1000 tasks).
 MAX_TASKS = 120
 
+#: ``routes.route_points`` of one route: where the unit is before each position, where it goes
+#: next, and at what speed.
+_Points = tuple[np.ndarray, np.ndarray, np.ndarray]
 #: A candidate: (estimated key, tie-break, the move).
 _Move = tuple[tuple[float, float], int, "_Relocation | _Swap"]
 
@@ -96,6 +99,7 @@ class _Search:
         self.left = EVALUATIONS
         self.plain = problem.plain
         self._times: dict[tuple[int, tuple[int, ...]], float] = {}
+        self._points: dict[tuple[int, tuple[int, ...]], _Points] = {}
 
     def route_time(self, v: int, route: Sequence[int]) -> float:
         """``route_time``, remembered per (unit, route): moves meet the same routes again."""
@@ -103,6 +107,15 @@ class _Search:
         found = self._times.get(key)
         if found is None:
             found = self._times[key] = route_time(self.problem, v, route)
+        return found
+
+    def route_points(self, v: int, route: Sequence[int]) -> _Points:
+        """``routes.route_points``, remembered per (unit, route): a kept move changes two
+        routes, and each round prices moves against every route."""
+        key = (v, tuple(route))
+        found = self._points.get(key)
+        if found is None:
+            found = self._points[key] = route_points(self.problem, v, route)
         return found
 
     def run(self) -> Schedule:
@@ -205,7 +218,7 @@ class _Search:
         swaps of one of them with another unit's task: (added time per unit, new routes)."""
         orders = self.best.orders
         route = orders[s]
-        flat = _FlatRoutes(self.problem, orders)
+        flat = _FlatRoutes(self.problem, orders, self.route_points)
         for i in range(len(route)):
             for k in range(1, SEGMENT + 1):
                 seg = route[i:i + k]
@@ -294,9 +307,10 @@ class _FlatRoutes:
     """Every unit's route points (``routes.route_points``) end to end, to price inserting a run
     of tasks at every position of every route with one numpy pass."""
 
-    def __init__(self, problem: Problem, orders: Sequence[Sequence[int]]) -> None:
+    def __init__(self, problem: Problem, orders: Sequence[Sequence[int]],
+                 points: Callable[[int, Sequence[int]], _Points]) -> None:
         self.problem = problem
-        parts = [route_points(problem, v, r) for v, r in enumerate(orders)]
+        parts = [points(v, r) for v, r in enumerate(orders)]
         self.prev = np.concatenate([p[0] for p in parts])
         self.next = np.concatenate([p[1] for p in parts])
         speed = np.concatenate([p[2] for p in parts])
