@@ -27,11 +27,7 @@ import numpy as np
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
 from delegation.allocation.schedule import Schedule, better_key, evaluate
-from delegation.allocation.series_parallel import (
-    best_decomposition,
-    precedence_graph,
-    sp_times,
-)
+from delegation.allocation.series_parallel import schedule_decomposition, sp_times
 from delegation.allocation.strategies import Objective
 
 #: Longest run of consecutive tasks moved as one (a ``seq`` of a few tasks moves whole).
@@ -144,9 +140,8 @@ class _Search:
         """``_key`` with the tree the plan would send: the best series-parallel decomposition
         or the old rule's wrapped tree, whichever is shorter (``sent_tree.choose_tree``)."""
         problem = self.problem
-        graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
-                                 schedule.home_time)
-        sent, _, _ = sp_times(best_decomposition(graph, schedule.makespan), graph)
+        graph, tree = schedule_decomposition(problem, schedule)
+        sent, _, _ = sp_times(tree, graph)
         wrapped = evaluate(problem, schedule.assign, schedule.orders, wrapped=True)
         if wrapped.valid:
             sent = min(sent, wrapped.makespan)
