@@ -230,8 +230,7 @@ class _Search:
                 for v in np.flatnonzero(takers).tolist():
                     yield ({s: -gain, v: float(cost[v])},
                            _Relocation(s, rest, v, int(place[v]), seg))
-        for i in range(len(route)):
-            yield from self._swaps(s, i, flat)
+        yield from self._swaps(s, flat)
 
     def _bundle(self, seg: list[int]) -> bool:
         """Whether the run ``seg`` lies under one node below the root (a ``seq`` or subtree
@@ -239,20 +238,25 @@ class _Search:
         r = np.asarray(seg, dtype=int)
         return bool((self.problem.lca_depth(r[:1], r[1:]) >= 2).all())
 
-    def _swaps(self, s: int, i: int, flat: _FlatRoutes
+    def _swaps(self, s: int, flat: _FlatRoutes
                ) -> Iterator[tuple[dict[int, float], _Relocation | _Swap]]:
-        """Swaps of ``s``'s ``i``-th task with one task of another unit (both travelling)."""
-        problem, orders = self.problem, self.best.orders
-        t = orders[s][i]
-        if not self.movable[t] or not problem.travels[t]:
+        """Swaps of each of ``s``'s tasks with one task of another unit (both travelling), in
+        route order; priced for all of ``s``'s tasks at once (rows), not task by task."""
+        problem, route = self.problem, self.best.orders[s]
+        rows = [i for i, t in enumerate(route) if self.movable[t] and problem.travels[t]]
+        if not rows:
             return
-        mine, theirs = flat.swap_costs(s, i, t)
+        ts = np.asarray([route[i] for i in rows], dtype=int)
+        mine, theirs = flat.swap_costs(s, np.asarray(rows, dtype=int), ts)  # (rows, F)
         ok = (flat.owner_at != s) & self.movable[flat.task_at] & problem.travels[flat.task_at]
-        ok &= problem.allowed[flat.owner_at, t] & problem.allowed[s, flat.task_at]
+        ok = ok & problem.allowed[flat.owner_at[None, :], ts[:, None]] \
+            & problem.allowed[s, flat.task_at]
         ok &= ~self._hopeless(theirs, -mine, self.finish[flat.owner_at])
-        for f in np.flatnonzero(ok).tolist():
-            v = int(flat.owner_at[f])
-            yield {s: float(mine[f]), v: float(theirs[f])}, _Swap(s, i, v, int(flat.k_at[f]))
+        for r, i in enumerate(rows):
+            for f in np.flatnonzero(ok[r]).tolist():
+                v = int(flat.owner_at[f])
+                yield ({s: float(mine[r, f]), v: float(theirs[r, f])},
+                       _Swap(s, i, v, int(flat.k_at[f])))
 
     def _whole(self, route: list[int]) -> bool:
         """Whether the unit's tasks under every node of the tree are one run of ``route`` (as
@@ -322,35 +326,34 @@ class _FlatRoutes:
         self.owner_at = np.repeat(np.arange(len(orders)), sizes - 1)
         self.ordered = bool(problem.before.any())
         self.at = self.offsets[self.owner_at] + self.k_at  # the point before the task
-        self._own: np.ndarray | None = None
         if self.ordered:  # the tree's order between the routes' tasks and any task
             self.preceding = problem.before[self.task_at]  # (F, T): route task before t
             self.following = problem.before[:, self.task_at].T  # (F, T): t before route task
             self.ends = np.diff(np.append(self.offsets, self.owner.size)) - 1
             self.place = np.arange(self.owner.size) - self.offsets[self.owner]
 
-    def _in_place(self, f: np.ndarray, units: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def _in_place(self, f: np.ndarray, units: np.ndarray | int, t: np.ndarray) -> np.ndarray:
         """Travel + work time of travelling task(s) ``t`` on ``units`` put between the points
         before and after route position(s) ``f`` (broadcast)."""
         p = self.problem
-        into = np.hypot(*(self.prev[f] - p.start_at(units, t)).T) / p.speed[units, t]
+        gap = self.prev[f] - p.start_at(units, t)
+        into = np.hypot(gap[..., 0], gap[..., 1]) / p.speed[units, t]
+        gap = self.next[f + 1] - p.end_at(units, t)
         out = np.where(self.has_next[f + 1],
-                       np.hypot(*(self.next[f + 1] - p.end_at(units, t)).T) / self.speed[f + 1],
-                       0.0)
+                       np.hypot(gap[..., 0], gap[..., 1]) / self.speed[f + 1], 0.0)
         return np.asarray(into + p.work_time[units, t] + out)
 
-    def swap_costs(self, s: int, i: int, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """For every task w on a route: the time unit ``s`` adds with w in place of its ``i``-th
-        task ``t``, and w's unit adds with ``t`` in place of w (travelling tasks only)."""
+    def swap_costs(self, s: int, rows: np.ndarray, ts: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """For each of unit ``s``'s tasks ``ts`` (at its route places ``rows``) and every task
+        w on a route, (rows, F): the time ``s`` adds with w in place of that task, and w's unit
+        adds with that task in place of w (travelling tasks only)."""
         f = self.at
-        n = f.size
-        fi = np.full(n, self.offsets[s] + i)
-        s_units = np.full(n, s)
-        mine = self._in_place(fi, s_units, self.task_at) \
-            - self._in_place(fi[:1], s_units[:1], np.array([t]))
-        if self._own is None:  # (the same for every swap: each task in its own place)
-            self._own = self._in_place(f, self.owner_at, self.task_at)
-        theirs = self._in_place(f, self.owner_at, np.full(n, t)) - self._own
+        fi = (self.offsets[s] + rows)[:, None]
+        mine = self._in_place(np.broadcast_to(fi, (rows.size, f.size)), s, self.task_at[None, :]) \
+            - self._in_place(fi, s, ts[:, None])
+        own = self._in_place(f, self.owner_at, self.task_at)  # each task in its own place
+        theirs = self._in_place(f[None, :], self.owner_at[None, :], ts[:, None]) - own
         return mine, theirs
 
     def insertion(self, seg: list[int]) -> tuple[np.ndarray, np.ndarray]:
