@@ -72,16 +72,22 @@ def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
     """Unit ``u``'s travel + work time for ``route`` and the way home (0 when empty)."""
     if not route:
         return 0.0
-    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
-    here = problem.unit_xy[u]
+    idx = np.asarray(route, dtype=int)
+    start, end, travels = problem.points_for(u, idx)
+    # Plain floats (one conversion per array): numpy scalars cost more than the arithmetic.
+    start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
+    speeds, works = problem.speed[u, idx].tolist(), problem.work_time[u, idx].tolist()
+    hx, hy = problem.unit_xy[u].tolist()
     total = 0.0
-    for k, t in enumerate(route):
-        if travels[k]:
-            total += math.hypot(*(start[k] - here)) / float(problem.speed[u, t])
-            here = end[k]
-        total += float(problem.work_time[u, t])
+    for k in range(len(route)):
+        if travels_l[k]:
+            sx, sy = start_l[k]
+            total += math.hypot(sx - hx, sy - hy) / speeds[k]
+            hx, hy = end_l[k]
+        total += works[k]
     if problem.has_home[u]:
-        total += math.hypot(*(problem.home_xy[u] - here)) / float(problem.home_speed[u])
+        gx, gy = problem.home_xy[u].tolist()
+        total += math.hypot(gx - hx, gy - hy) / float(problem.home_speed[u])
     return total
 
 
