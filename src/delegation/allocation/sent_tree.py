@@ -20,11 +20,7 @@ import numpy as np
 from delegation.allocation.instantiate import Placement, instantiate
 from delegation.allocation.problem import Problem, Structure, flatten_tree, precedence
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate, restructured
-from delegation.allocation.series_parallel import (
-    best_decomposition,
-    build_tree,
-    precedence_graph,
-)
+from delegation.allocation.series_parallel import build_tree, schedule_decomposition
 from delegation.tst import TstNode, leaves
 
 #: The names of the two instantiation rules, as the plan's notes give them.
@@ -121,10 +117,8 @@ def choose_tree(
     for route in schedule.orders:
         for a, b in itertools.pairwise(route):
             need[a, b] = True
-    graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
-                             schedule.home_time)
     filled = {leaf.node_uuid or "": leaf for leaf in leaves(old)}
-    order = best_decomposition(graph, schedule.makespan)
+    _, order = schedule_decomposition(problem, schedule)
     sp = build_tree(order, prepared, filled, uuids, engine_unit, new_uuid)
     sp_structure = _remapped(sp, index)  # (build_tree keeps the leaves: KeyError otherwise)
     missing = _missing(need, sp_structure, uuids)

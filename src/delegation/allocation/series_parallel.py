@@ -24,11 +24,15 @@ import itertools
 import uuid as uuid_module
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.tst import ExecUnitKind, TstNode, classify_execunit, leaves, make_node, walk
+
+if TYPE_CHECKING:
+    from delegation.allocation.schedule import Schedule
 
 
 @dataclass
@@ -193,6 +197,30 @@ def best_decomposition(
         if span < best_span - 1e-9 * max(1.0, best_span):
             best, best_span = current, span
     return best
+
+
+#: Decompositions remembered per problem (``schedule_decomposition``).
+_REMEMBERED = 4
+
+
+def schedule_decomposition(problem: Problem, schedule: Schedule
+                           ) -> tuple[PrecedenceGraph, SpNode]:
+    """``precedence_graph`` and ``best_decomposition`` of ``schedule`` (a schedule of
+    ``problem``), remembered on the problem for the last few schedules: the auction's search
+    judges its result by the tree it would send (``improve``), and the plan then builds that
+    tree from the same schedule (``sent_tree.choose_tree``): one decomposition, not two."""
+    memo: dict[int, tuple[Schedule, PrecedenceGraph, SpNode]] = \
+        problem.cache.setdefault("decompositions", {})
+    found = memo.get(id(schedule))
+    if found is not None and found[0] is schedule:
+        return found[1], found[2]
+    graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
+                             schedule.home_time)
+    tree = best_decomposition(graph, schedule.makespan)
+    if len(memo) >= _REMEMBERED:
+        memo.clear()
+    memo[id(schedule)] = (schedule, graph, tree)  # (the schedule held: its id stays its own)
+    return graph, tree
 
 
 def tree_makespan(problem: Problem, orders: Sequence[Sequence[int]], start: np.ndarray,

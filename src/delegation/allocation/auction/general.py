@@ -481,12 +481,15 @@ def _suffix_minima(table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per row p of ``table`` (positions x tasks): the minimum over rows p.. and the first row
     holding it (``np.argmin`` of the rows from p on, offset by p)."""
     low = np.minimum.accumulate(table[::-1], axis=0)[::-1]
-    arg = np.empty(table.shape, dtype=int)
-    last = table.shape[0] - 1
-    arg[last] = last
-    for p in range(last - 1, -1, -1):
-        arg[p] = np.where(table[p] <= low[p + 1], p, arg[p + 1])
-    return low, arg
+    # Row p holds its suffix's minimum when it is no more than the minimum from p + 1 on (the
+    # last row always); the answer for p is the first such row from p on: a reversed running
+    # minimum of those rows' indices (one pass, not a numpy call per row).
+    rows = np.arange(table.shape[0])[:, None]
+    holds = np.ones(table.shape, dtype=bool)
+    holds[:-1] = table[:-1] <= low[1:]
+    marked = np.where(holds, rows, table.shape[0])
+    arg = np.minimum.accumulate(marked[::-1], axis=0)[::-1]
+    return low, np.ascontiguousarray(arg)
 
 
 def _slack(value: float) -> float:

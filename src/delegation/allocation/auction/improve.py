@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,11 +27,7 @@ import numpy as np
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
 from delegation.allocation.schedule import Schedule, better_key, evaluate
-from delegation.allocation.series_parallel import (
-    best_decomposition,
-    precedence_graph,
-    sp_times,
-)
+from delegation.allocation.series_parallel import schedule_decomposition, sp_times
 from delegation.allocation.strategies import Objective
 
 #: Longest run of consecutive tasks moved as one (a ``seq`` of a few tasks moves whole).
@@ -45,6 +41,9 @@ GUARDED = 3
 #: Vehicle tasks above which the search is skipped (the auction must scale to 1000 tasks).
 MAX_TASKS = 120
 
+#: ``routes.route_points`` of one route: where the unit is before each position, where it goes
+#: next, and at what speed.
+_Points = tuple[np.ndarray, np.ndarray, np.ndarray]
 #: A candidate: (estimated key, tie-break, the move).
 _Move = tuple[tuple[float, float], int, "_Relocation | _Swap"]
 
@@ -73,16 +72,22 @@ def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
     """Unit ``u``'s travel + work time for ``route`` and the way home (0 when empty)."""
     if not route:
         return 0.0
-    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
-    here = problem.unit_xy[u]
+    idx = np.asarray(route, dtype=int)
+    start, end, travels = problem.points_for(u, idx)
+    # Plain floats (one conversion per array): numpy scalars cost more than the arithmetic.
+    start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
+    speeds, works = problem.speed[u, idx].tolist(), problem.work_time[u, idx].tolist()
+    hx, hy = problem.unit_xy[u].tolist()
     total = 0.0
-    for k, t in enumerate(route):
-        if travels[k]:
-            total += math.hypot(*(start[k] - here)) / float(problem.speed[u, t])
-            here = end[k]
-        total += float(problem.work_time[u, t])
+    for k in range(len(route)):
+        if travels_l[k]:
+            sx, sy = start_l[k]
+            total += math.hypot(sx - hx, sy - hy) / speeds[k]
+            hx, hy = end_l[k]
+        total += works[k]
     if problem.has_home[u]:
-        total += math.hypot(*(problem.home_xy[u] - here)) / float(problem.home_speed[u])
+        gx, gy = problem.home_xy[u].tolist()
+        total += math.hypot(gx - hx, gy - hy) / float(problem.home_speed[u])
     return total
 
 
@@ -96,6 +101,7 @@ class _Search:
         self.left = EVALUATIONS
         self.plain = problem.plain
         self._times: dict[tuple[int, tuple[int, ...]], float] = {}
+        self._points: dict[tuple[int, tuple[int, ...]], _Points] = {}
 
     def route_time(self, v: int, route: Sequence[int]) -> float:
         """``route_time``, remembered per (unit, route): moves meet the same routes again."""
@@ -103,6 +109,15 @@ class _Search:
         found = self._times.get(key)
         if found is None:
             found = self._times[key] = route_time(self.problem, v, route)
+        return found
+
+    def route_points(self, v: int, route: Sequence[int]) -> _Points:
+        """``routes.route_points``, remembered per (unit, route): a kept move changes two
+        routes, and each round prices moves against every route."""
+        key = (v, tuple(route))
+        found = self._points.get(key)
+        if found is None:
+            found = self._points[key] = route_points(self.problem, v, route)
         return found
 
     def run(self) -> Schedule:
@@ -131,9 +146,8 @@ class _Search:
         """``_key`` with the tree the plan would send: the best series-parallel decomposition
         or the old rule's wrapped tree, whichever is shorter (``sent_tree.choose_tree``)."""
         problem = self.problem
-        graph = precedence_graph(problem, schedule.orders, schedule.start, schedule.end,
-                                 schedule.home_time)
-        sent, _, _ = sp_times(best_decomposition(graph, schedule.makespan), graph)
+        graph, tree = schedule_decomposition(problem, schedule)
+        sent, _, _ = sp_times(tree, graph)
         wrapped = evaluate(problem, schedule.assign, schedule.orders, wrapped=True)
         if wrapped.valid:
             sent = min(sent, wrapped.makespan)
@@ -205,7 +219,7 @@ class _Search:
         swaps of one of them with another unit's task: (added time per unit, new routes)."""
         orders = self.best.orders
         route = orders[s]
-        flat = _FlatRoutes(self.problem, orders)
+        flat = _FlatRoutes(self.problem, orders, self.route_points)
         for i in range(len(route)):
             for k in range(1, SEGMENT + 1):
                 seg = route[i:i + k]
@@ -222,8 +236,7 @@ class _Search:
                 for v in np.flatnonzero(takers).tolist():
                     yield ({s: -gain, v: float(cost[v])},
                            _Relocation(s, rest, v, int(place[v]), seg))
-        for i in range(len(route)):
-            yield from self._swaps(s, i, flat)
+        yield from self._swaps(s, flat)
 
     def _bundle(self, seg: list[int]) -> bool:
         """Whether the run ``seg`` lies under one node below the root (a ``seq`` or subtree
@@ -231,20 +244,25 @@ class _Search:
         r = np.asarray(seg, dtype=int)
         return bool((self.problem.lca_depth(r[:1], r[1:]) >= 2).all())
 
-    def _swaps(self, s: int, i: int, flat: _FlatRoutes
+    def _swaps(self, s: int, flat: _FlatRoutes
                ) -> Iterator[tuple[dict[int, float], _Relocation | _Swap]]:
-        """Swaps of ``s``'s ``i``-th task with one task of another unit (both travelling)."""
-        problem, orders = self.problem, self.best.orders
-        t = orders[s][i]
-        if not self.movable[t] or not problem.travels[t]:
+        """Swaps of each of ``s``'s tasks with one task of another unit (both travelling), in
+        route order; priced for all of ``s``'s tasks at once (rows), not task by task."""
+        problem, route = self.problem, self.best.orders[s]
+        rows = [i for i, t in enumerate(route) if self.movable[t] and problem.travels[t]]
+        if not rows:
             return
-        mine, theirs = flat.swap_costs(s, i, t)
+        ts = np.asarray([route[i] for i in rows], dtype=int)
+        mine, theirs = flat.swap_costs(s, np.asarray(rows, dtype=int), ts)  # (rows, F)
         ok = (flat.owner_at != s) & self.movable[flat.task_at] & problem.travels[flat.task_at]
-        ok &= problem.allowed[flat.owner_at, t] & problem.allowed[s, flat.task_at]
+        ok = ok & problem.allowed[flat.owner_at[None, :], ts[:, None]] \
+            & problem.allowed[s, flat.task_at]
         ok &= ~self._hopeless(theirs, -mine, self.finish[flat.owner_at])
-        for f in np.flatnonzero(ok).tolist():
-            v = int(flat.owner_at[f])
-            yield {s: float(mine[f]), v: float(theirs[f])}, _Swap(s, i, v, int(flat.k_at[f]))
+        for r, i in enumerate(rows):
+            for f in np.flatnonzero(ok[r]).tolist():
+                v = int(flat.owner_at[f])
+                yield ({s: float(mine[r, f]), v: float(theirs[r, f])},
+                       _Swap(s, i, v, int(flat.k_at[f])))
 
     def _whole(self, route: list[int]) -> bool:
         """Whether the unit's tasks under every node of the tree are one run of ``route`` (as
@@ -294,9 +312,10 @@ class _FlatRoutes:
     """Every unit's route points (``routes.route_points``) end to end, to price inserting a run
     of tasks at every position of every route with one numpy pass."""
 
-    def __init__(self, problem: Problem, orders: Sequence[Sequence[int]]) -> None:
+    def __init__(self, problem: Problem, orders: Sequence[Sequence[int]],
+                 points: Callable[[int, Sequence[int]], _Points]) -> None:
         self.problem = problem
-        parts = [route_points(problem, v, r) for v, r in enumerate(orders)]
+        parts = [points(v, r) for v, r in enumerate(orders)]
         self.prev = np.concatenate([p[0] for p in parts])
         self.next = np.concatenate([p[1] for p in parts])
         speed = np.concatenate([p[2] for p in parts])
@@ -313,35 +332,34 @@ class _FlatRoutes:
         self.owner_at = np.repeat(np.arange(len(orders)), sizes - 1)
         self.ordered = bool(problem.before.any())
         self.at = self.offsets[self.owner_at] + self.k_at  # the point before the task
-        self._own: np.ndarray | None = None
         if self.ordered:  # the tree's order between the routes' tasks and any task
             self.preceding = problem.before[self.task_at]  # (F, T): route task before t
             self.following = problem.before[:, self.task_at].T  # (F, T): t before route task
             self.ends = np.diff(np.append(self.offsets, self.owner.size)) - 1
             self.place = np.arange(self.owner.size) - self.offsets[self.owner]
 
-    def _in_place(self, f: np.ndarray, units: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def _in_place(self, f: np.ndarray, units: np.ndarray | int, t: np.ndarray) -> np.ndarray:
         """Travel + work time of travelling task(s) ``t`` on ``units`` put between the points
         before and after route position(s) ``f`` (broadcast)."""
         p = self.problem
-        into = np.hypot(*(self.prev[f] - p.start_at(units, t)).T) / p.speed[units, t]
+        gap = self.prev[f] - p.start_at(units, t)
+        into = np.hypot(gap[..., 0], gap[..., 1]) / p.speed[units, t]
+        gap = self.next[f + 1] - p.end_at(units, t)
         out = np.where(self.has_next[f + 1],
-                       np.hypot(*(self.next[f + 1] - p.end_at(units, t)).T) / self.speed[f + 1],
-                       0.0)
+                       np.hypot(gap[..., 0], gap[..., 1]) / self.speed[f + 1], 0.0)
         return np.asarray(into + p.work_time[units, t] + out)
 
-    def swap_costs(self, s: int, i: int, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """For every task w on a route: the time unit ``s`` adds with w in place of its ``i``-th
-        task ``t``, and w's unit adds with ``t`` in place of w (travelling tasks only)."""
+    def swap_costs(self, s: int, rows: np.ndarray, ts: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """For each of unit ``s``'s tasks ``ts`` (at its route places ``rows``) and every task
+        w on a route, (rows, F): the time ``s`` adds with w in place of that task, and w's unit
+        adds with that task in place of w (travelling tasks only)."""
         f = self.at
-        n = f.size
-        fi = np.full(n, self.offsets[s] + i)
-        s_units = np.full(n, s)
-        mine = self._in_place(fi, s_units, self.task_at) \
-            - self._in_place(fi[:1], s_units[:1], np.array([t]))
-        if self._own is None:  # (the same for every swap: each task in its own place)
-            self._own = self._in_place(f, self.owner_at, self.task_at)
-        theirs = self._in_place(f, self.owner_at, np.full(n, t)) - self._own
+        fi = (self.offsets[s] + rows)[:, None]
+        mine = self._in_place(np.broadcast_to(fi, (rows.size, f.size)), s, self.task_at[None, :]) \
+            - self._in_place(fi, s, ts[:, None])
+        own = self._in_place(f, self.owner_at, self.task_at)  # each task in its own place
+        theirs = self._in_place(f[None, :], self.owner_at[None, :], ts[:, None]) - own
         return mine, theirs
 
     def insertion(self, seg: list[int]) -> tuple[np.ndarray, np.ndarray]:
