@@ -157,9 +157,10 @@ def _parts_cover(plan, tree: TstNode) -> tuple[float, float]:  # type: ignore[no
 
 def _swept(plan, tree: TstNode, units: list[UnitState]  # type: ignore[no-untyped-def]
            ) -> tuple[float, float]:
-    """(area within w/2 of some unit's flown path / area, area swept by two units' paths /
-    area): what the paths the simulator flies (``costs.task_path``) cover, each part with its
-    unit's own width; the single-unit path for an unshared plan."""
+    """(area some unit's camera footprint covers along its flown path / area, area swept by two
+    units' paths / area; ``coverage.footprint``, as the simulated units count what they saw):
+    what the paths the simulator flies (``costs.task_path``) cover, each part with its unit's own
+    width; the single-unit path for an unshared plan."""
     frame = LocalFrame(57.76, 16.68)
     area = region_of(search_polygons_xy(tree, frame))
     by_name = {u.name: u for u in units}
@@ -172,8 +173,7 @@ def _swept(plan, tree: TstNode, units: list[UnitState]  # type: ignore[no-untype
         xy = frame.points_xy(points)
         g = node.params.get("target-size", 2.0)
         w = sweep_width(unit, float(g))
-        bands.append(shapely.LineString(xy).buffer(w / 2.0, cap_style="flat")
-                     if len(xy) > 1 else shapely.Point(xy[0]).buffer(w / 2.0))
+        bands.append(footprint(xy, w))
     union = shapely.union_all(bands)
     covered = float(shapely.intersection(union, area).area) / area.area
     twice = (sum(float(shapely.intersection(b, area).area) for b in bands)
@@ -217,7 +217,7 @@ def team(seeds: int) -> None:
     print(f"parts: union covers >= {min(covers):.3%} of the area, overlap <= {max(overlaps):.3%}; "
           f"auction CPU time (first plan of each area, caches cold) median "
           f"{sorted(solves)[len(solves) // 2]:.3f} s, max {max(solves):.3f} s")
-    print(f"flown paths (w/2 either side): cover >= {min(swept):.2%} of the area (geo-mean "
+    print(f"flown paths (camera footprint): cover >= {min(swept):.2%} of the area (geo-mean "
           f"{_geo_mean(swept):.2%}), swept twice <= {max(twice):.2%}")
 
 
