@@ -17,6 +17,7 @@ from delegation.coverage import (
     coverage_estimate,
     coverage_length,
     coverage_path,
+    footprint,
     multi_coverage_path,
     path_length,
     sweep_axes,
@@ -146,14 +147,30 @@ def test_a_lane_along_an_inner_edge_is_one_segment() -> None:
 
 def test_the_u_is_swept_along_its_arms_in_one_cell() -> None:
     # Lanes north-south run along the arms: one cell, no transition over the gap, shorter than
-    # the long axis (east-west) even with 50 % more lanes.
-    for width in WIDTHS:
+    # the long axis (east-west) even with 50 % more lanes. Not at 7 m: 43 lanes spread evenly
+    # over the 300 m put none within reach of the 2.3 m next to each arm's inner edge, and the
+    # lanes that strip needs (``_gap_lanes``) make north-south longer than east-west there.
+    for width in [w for w in WIDTHS if w != 7.0]:
         along = sweep_direction(U_SHAPE, width)
         assert abs(float(along[1])) == pytest.approx(1.0)
         assert len(sweep_cells(U_SHAPE, width)) == 1
         assert coverage_length(U_SHAPE, width) < coverage_length(
             U_SHAPE, width, along=np.array([1.0, 0.0])
         )
+
+
+def test_a_strip_along_an_arm_that_the_even_lanes_miss_gets_a_lane() -> None:
+    # North-south at 7 m: lanes 6.98 m apart, the two next to the gap's edges 2.3 m beyond a
+    # lane's reach from it (a 2.3 m x 100 m strip along each arm, unseen without a lane of its own).
+    north = np.array([0.0, 1.0])
+    shape = Polygon(U_SHAPE)
+    path = coverage_path(U_SHAPE, 7.0, along=north)
+    assert covered_fraction(path, shape, 7.0) > 0.999
+    strips = [shapely.box(98.0, 100.0, 100.0, 200.0), shapely.box(200.0, 100.0, 202.0, 200.0)]
+    seen = footprint(path, 7.0)
+    for strip in strips:
+        assert seen.intersection(strip).area == pytest.approx(strip.area, rel=1e-6)
+    assert coverage_length(U_SHAPE, 7.0) <= coverage_length(U_SHAPE, 7.0, along=north)
 
 
 def test_candidates_are_the_rectangle_axes_and_the_edge_directions() -> None:
