@@ -68,7 +68,7 @@ def pytest_collection_modifyitems_xdist_groups(
     started on every worker that drew one of their tests (measured: 4 browsers, 2 clusters).
     This runs after xdist's hook and adds the suffix only where it is still missing.
     """
-    if not config.getvalue("loadgroup"):
+    if not config.getoption("loadgroup", default=False):  # set on workers only
         return
     for item in items:
         groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
