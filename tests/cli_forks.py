@@ -14,10 +14,14 @@ both sides of a small fork server:
 * `run` is `subprocess.run` for the CLI: through a server of this process's own (`CliForks`,
   started on first use, one at a time; it ends when this process closes its stdin, at exit).
 
+* `relay` lets a shell script do the same: while it is open, ``python cli_forks.py --via SOCKET
+  ARGS`` (a client importing only the standard library, ~20 ms) has the test process run
+  ``delegation ARGS`` through `run` with the client's environment and directory, writes the
+  command's stdout and stderr as its own and exits with its code (the deployment doc's session).
+
 Each command is still its own process, forked from a parent that has imported the CLI and done
 nothing else, so commands share nothing. What this does not cover is the import itself: tests
-that start ``python -m delegation`` with `subprocess` (long-running commands, signals, the
-deployment doc's shell session) still do.
+that start ``python -m delegation`` with `subprocess` (long-running commands, signals) still do.
 """
 
 from __future__ import annotations
@@ -31,10 +35,12 @@ import os
 import runpy
 import select
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -181,5 +187,70 @@ def run(argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
     return _shared.run(argv, env, cwd, timeout)
 
 
+# --------------------------------------------------------------------------- shell scripts
+
+
+#: Exit code of a relayed command that outlived its timeout (as coreutils' ``timeout``).
+TIMED_OUT = 124
+
+
+def _relay_one(connection: socket.socket) -> None:
+    """Answer one client: its request line in, the command's result line out."""
+    with connection, connection.makefile("rwb") as stream:
+        request = json.loads(stream.readline())
+        try:
+            done = run(request["argv"], request["env"], request["cwd"], request["timeout"])
+            answer = {"code": done.returncode, "stdout": done.stdout, "stderr": done.stderr}
+        except subprocess.TimeoutExpired:
+            answer = {"code": TIMED_OUT, "stdout": "",
+                      "stderr": f"delegation {request['argv']}: no exit within "
+                                f"{request['timeout']} s (killed)\n"}
+        stream.write(json.dumps(answer).encode() + b"\n")
+
+
+@contextlib.contextmanager
+def relay(path: Path) -> Iterator[list[str]]:
+    """Serve `run` on the UNIX socket ``path`` while open; yields the client's command line
+    (append the CLI's arguments). Clients are answered one after another, as `run` runs one
+    command at a time."""
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen()
+
+    def accept() -> None:
+        while True:
+            try:
+                connection, _ = listener.accept()
+            except OSError:  # closed: the relay ends
+                return
+            _relay_one(connection)
+
+    thread = threading.Thread(target=accept, name="cli-forks-relay", daemon=True)
+    thread.start()
+    try:
+        yield [sys.executable, __file__, "--via", str(path)]
+    finally:
+        with contextlib.suppress(OSError):
+            listener.shutdown(socket.SHUT_RDWR)  # wakes the accept
+        listener.close()
+        thread.join(10)
+
+
+def client(path: str, argv: list[str], timeout: float = 120.0) -> int:
+    """The shell's side of `relay`: run ``delegation ARGV`` there, as if here."""
+    request = {"argv": argv, "env": dict(os.environ), "cwd": os.getcwd(), "timeout": timeout}
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as connection:
+        connection.connect(path)
+        with connection.makefile("rwb") as stream:
+            stream.write(json.dumps(request).encode() + b"\n")
+            stream.flush()
+            answer = json.loads(stream.readline())
+    sys.stdout.write(answer["stdout"])
+    sys.stderr.write(answer["stderr"])
+    return int(answer["code"])
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--via"]:
+        sys.exit(client(sys.argv[2], sys.argv[3:]))
     serve()
