@@ -50,7 +50,9 @@ _REPLIES = -1
 #: What most commands import: the CLI, planning, the broker client, bench, the tables.
 PRELOAD = ("delegation.cli", "delegation.cli.demo", "delegation.allocation.planner",
            "delegation.scenario", "delegation.runtime.client", "delegation.messages",
-           "delegation.bench.runner", "rich.console", "rich.table")
+           "delegation.bench.runner", "rich.console", "rich.table",
+           # and what ``serve``, ``engine`` and ``sim`` import (`spawn`)
+           "delegation.cli.serve", "delegation.local", "delegation.service.store")
 
 
 # --------------------------------------------------------------------------- the server side
@@ -93,8 +95,29 @@ def _exits_within(pid: int, timeout: float) -> bool:
     return exited.wait(timeout)
 
 
+def _spawn(request: dict[str, Any]) -> dict[str, Any]:
+    """Fork one command and answer its pid at once; its stdout and stderr append to a file.
+    It is reaped by a later ``reap`` request (the test waits for its exit on a pidfd)."""
+    log = os.open(request["log"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    pid = os.fork()
+    if pid == 0:
+        _child(request, log, log)
+    os.close(log)
+    return {"pid": pid}
+
+
+def _reap(pid: int) -> dict[str, Any]:
+    """The exit code of a spawned command that has exited."""
+    _, status = os.waitpid(pid, 0)
+    return {"code": os.waitstatus_to_exitcode(status)}
+
+
 def _answer(request: dict[str, Any]) -> dict[str, Any] | None:
     """Fork one command and wait for it; None in the child (which then exits)."""
+    if "log" in request:
+        return _spawn(request)
+    if "reap" in request:
+        return _reap(int(request["reap"]))
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         pid = os.fork()
         if pid == 0:
@@ -147,10 +170,8 @@ class CliForks:
                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return self._proc
 
-    def run(self, argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
-            timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-        """``python -m delegation *argv`` with exactly ``env``, in ``cwd``, stdin empty."""
-        request = {"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()), "timeout": timeout}
+    def ask(self, request: dict[str, Any]) -> dict[str, Any]:
+        """One request to the server, one answer."""
         with self._lock:
             proc = self._server()
             assert proc.stdin is not None and proc.stdout is not None
@@ -159,7 +180,13 @@ class CliForks:
             line = proc.stdout.readline()
         if not line:
             raise RuntimeError("the CLI fork server ended")
-        answer = json.loads(line)
+        return dict(json.loads(line))
+
+    def run(self, argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
+            timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+        """``python -m delegation *argv`` with exactly ``env``, in ``cwd``, stdin empty."""
+        answer = self.ask({"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()),
+                           "timeout": timeout})
         if answer.get("timeout"):
             raise subprocess.TimeoutExpired(["delegation", *argv], timeout)
         return subprocess.CompletedProcess(["delegation", *argv], answer["code"],
@@ -177,8 +204,58 @@ class CliForks:
             self._proc = None
 
 
+class Forked:
+    """A `spawn`ed command: the part of `subprocess.Popen` the tests use. Its parent is the fork
+    server, so its exit is seen on a pidfd and its code asked of the server."""
+
+    def __init__(self, forks: CliForks, argv: list[str], pid: int) -> None:
+        self.args, self.pid, self._forks = ["delegation", *argv], pid, forks
+        self.returncode: int | None = None
+        self._exited = os.pidfd_open(pid)  # readable once the process has exited
+
+    def poll(self) -> int | None:
+        return self._returncode_within(0.0)
+
+    def wait(self, timeout: float | None = None) -> int:
+        code = self._returncode_within(timeout)
+        if code is None:
+            raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+        return code
+
+    def _returncode_within(self, timeout: float | None) -> int | None:
+        if self.returncode is None and select.select([self._exited], [], [], timeout)[0]:
+            self.returncode = int(self._forks.ask({"reap": self.pid})["code"])
+            os.close(self._exited)
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        if self.returncode is None:  # never a pid the server has reaped (and may be reused)
+            os.kill(self.pid, sig)
+
+    def terminate(self) -> None:
+        self.send_signal(signal.SIGTERM)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
 _shared = CliForks()
 atexit.register(_shared.close)
+
+
+def spawn(argv: list[str], env: dict[str, str], log: Path, cwd: Path | str | None = None
+          ) -> Forked:
+    """``python -m delegation *argv`` started as `subprocess.Popen` would, without its imports:
+    forked by the server, stdin empty, stdout and stderr appended to ``log``. Where no pidfd
+    exists (not Linux), a real `subprocess.Popen` of the same command."""
+    if not hasattr(os, "pidfd_open"):
+        with log.open("ab") as out:
+            return subprocess.Popen(  # type: ignore[return-value]
+                [sys.executable, "-m", "delegation", *argv], stdin=subprocess.DEVNULL,
+                stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd)
+    answer = _shared.ask({"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()),
+                          "log": str(log)})
+    return Forked(_shared, argv, int(answer["pid"]))
 
 
 def run(argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
