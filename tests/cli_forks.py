@@ -42,7 +42,7 @@ import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The server's answers go out on this descriptor (a copy of its stdout; closed in children).
@@ -211,6 +211,7 @@ class Forked:
     def __init__(self, forks: CliForks, argv: list[str], pid: int) -> None:
         self.args, self.pid, self._forks = ["delegation", *argv], pid, forks
         self.returncode: int | None = None
+        self.stdout: TextIO | None = None  # set by `spawn_piped`
         self._exited = os.pidfd_open(pid)  # readable once the process has exited
 
     def poll(self) -> int | None:
@@ -256,6 +257,25 @@ def spawn(argv: list[str], env: dict[str, str], log: Path, cwd: Path | str | Non
     answer = _shared.ask({"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()),
                           "log": str(log)})
     return Forked(_shared, argv, int(answer["pid"]))
+
+
+def spawn_piped(argv: list[str], env: dict[str, str], workdir: Path,
+                cwd: Path | str | None = None) -> Forked:
+    """`spawn` with stdout and stderr on a pipe read from ``.stdout`` (text), as
+    ``Popen(stdout=PIPE, stderr=STDOUT, text=True)``: a FIFO in ``workdir``, opened for reading
+    before the server opens it for writing, so neither side blocks; it ends when the command
+    and whatever inherited its output have exited."""
+    fifo = workdir / f"cli-forks-{len(list(workdir.glob('cli-forks-*')))}.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        forked = spawn(argv, env, fifo, cwd)
+    except BaseException:
+        os.close(reader)
+        raise
+    os.set_blocking(reader, True)
+    forked.stdout = os.fdopen(reader, "r")
+    return forked
 
 
 def run(argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
