@@ -99,10 +99,13 @@ def _spawn(request: dict[str, Any]) -> dict[str, Any]:
     """Fork one command and answer its pid at once; its stdout and stderr append to a file.
     It is reaped by a later ``reap`` request (the test waits for its exit on a pidfd)."""
     log = os.open(request["log"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    err = os.open(request["err"], os.O_WRONLY | os.O_APPEND) if "err" in request else log
     pid = os.fork()
     if pid == 0:
-        _child(request, log, log)
+        _child(request, log, err)
     os.close(log)
+    if err != log:
+        os.close(err)
     return {"pid": pid}
 
 
@@ -212,6 +215,7 @@ class Forked:
         self.args, self.pid, self._forks = ["delegation", *argv], pid, forks
         self.returncode: int | None = None
         self.stdout: TextIO | None = None  # set by `spawn_piped`
+        self.stderr: TextIO | None = None  # set by `spawn_piped(..., stderr=True)`
         self._exited = os.pidfd_open(pid)  # readable once the process has exited
 
     def poll(self) -> int | None:
@@ -244,44 +248,57 @@ _shared = CliForks()
 atexit.register(_shared.close)
 
 
-def spawn(argv: list[str], env: dict[str, str], log: Path, cwd: Path | str | None = None
-          ) -> Forked:
-    """``python -m delegation *argv`` started as `subprocess.Popen` would, without its imports:
-    forked by the server, stdin empty, stdout and stderr appended to ``log``. Where no pidfd
-    exists (not Linux), a real `subprocess.Popen` of the same command."""
-    if not hasattr(os, "pidfd_open"):
-        with log.open("ab") as out:
-            return subprocess.Popen(  # type: ignore[return-value]
-                [sys.executable, "-m", "delegation", *argv], stdin=subprocess.DEVNULL,
-                stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd)
-    answer = _shared.ask({"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()),
-                          "log": str(log)})
-    return Forked(_shared, argv, int(answer["pid"]))
-
-
-def spawn_piped(argv: list[str], env: dict[str, str], workdir: Path,
-                cwd: Path | str | None = None) -> Forked:
-    """`spawn` with stdout and stderr on a pipe read from ``.stdout`` (text), as
-    ``Popen(stdout=PIPE, stderr=STDOUT, text=True)``: a FIFO in ``workdir``, opened for reading
-    before the server opens it for writing, so neither side blocks; it ends when the command
-    and whatever inherited its output have exited."""
-    fifo = workdir / f"cli-forks-{len(list(workdir.glob('cli-forks-*')))}.fifo"
-    os.mkfifo(fifo)
-    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
-    try:
-        forked = spawn(argv, env, fifo, cwd)
-    except BaseException:
-        os.close(reader)
-        raise
-    os.set_blocking(reader, True)
-    forked.stdout = os.fdopen(reader, "r")
-    return forked
-
-
 def run(argv: list[str], env: dict[str, str], cwd: Path | str | None = None,
         timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
     """``python -m delegation *argv`` with exactly ``env``, in ``cwd`` (`CliForks.run`)."""
     return _shared.run(argv, env, cwd, timeout)
+
+
+def spawn(argv: list[str], env: dict[str, str], log: Path, cwd: Path | str | None = None,
+          err: Path | None = None) -> Forked:
+    """``python -m delegation *argv`` started as `subprocess.Popen` would, without its imports:
+    forked by the server, stdin empty, stdout appended to ``log`` and stderr to ``err`` (default:
+    ``log`` too). Where no pidfd exists (not Linux), a real `subprocess.Popen` of the command."""
+    if not hasattr(os, "pidfd_open"):
+        with log.open("ab") as out, (err or log).open("ab") as errors:
+            return subprocess.Popen(  # type: ignore[return-value]
+                [sys.executable, "-m", "delegation", *argv], stdin=subprocess.DEVNULL,
+                stdout=out, stderr=errors, env=env, cwd=cwd)
+    request = {"argv": argv, "env": env, "cwd": str(cwd or os.getcwd()), "log": str(log)}
+    if err is not None:
+        request["err"] = str(err)
+    return Forked(_shared, argv, int(_shared.ask(request)["pid"]))
+
+
+def _fifo(workdir: Path) -> tuple[Path, int]:
+    """A new FIFO in ``workdir`` and its read end, opened without waiting for a writer."""
+    fifo = workdir / f"cli-forks-{len(list(workdir.glob('cli-forks-*')))}.fifo"
+    os.mkfifo(fifo)
+    return fifo, os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+
+
+def spawn_piped(argv: list[str], env: dict[str, str], workdir: Path,
+                cwd: Path | str | None = None, stderr: bool = False) -> Forked:
+    """`spawn` with its output on a pipe read from ``.stdout`` (text), as ``Popen(stdout=PIPE,
+    stderr=STDOUT, text=True)``, or with ``stderr`` its errors on another, ``.stderr``, as
+    ``stderr=PIPE``. The pipes are FIFOs in ``workdir``, opened for reading before the server
+    opens them for writing, so neither side blocks; each ends when the command and whatever
+    inherited it have exited."""
+    out, out_fd = _fifo(workdir)
+    err, err_fd = _fifo(workdir) if stderr else (None, -1)
+    try:
+        forked = spawn(argv, env, out, cwd, err)
+    except BaseException:
+        for fd in (out_fd, err_fd):
+            if fd >= 0:
+                os.close(fd)
+        raise
+    os.set_blocking(out_fd, True)
+    forked.stdout = os.fdopen(out_fd, "r")
+    if err_fd >= 0:
+        os.set_blocking(err_fd, True)
+        forked.stderr = os.fdopen(err_fd, "r")
+    return forked
 
 
 # --------------------------------------------------------------------------- shell scripts
