@@ -30,6 +30,7 @@ import atexit
 import contextlib
 import gc
 import importlib
+import io
 import json
 import os
 import runpy
@@ -71,6 +72,11 @@ def _child(request: dict[str, Any], out: int, err: int) -> None:
     sys.path[0] = os.getcwd()  # as ``python -m`` has it, and after it PYTHONPATH's folders
     sys.path[1:1] = [p for p in request["env"].get("PYTHONPATH", "").split(os.pathsep)
                      if p and p not in sys.path]
+    if request["env"].get("PYTHONUNBUFFERED"):  # as a new interpreter would read it (-u)
+        sys.stdout, sys.stderr = (
+            io.TextIOWrapper(open(fd, "wb", buffering=0, closefd=False),  # noqa: SIM115
+                             encoding=stream.encoding, errors=stream.errors, write_through=True)
+            for fd, stream in ((1, sys.stdout), (2, sys.stderr)))
     sys.argv = ["delegation", *request["argv"]]
     runpy.run_module("delegation", run_name="__main__", alter_sys=True)
     raise SystemExit(0)  # the interpreter's own exit: atexit handlers, non-daemon threads
