@@ -41,6 +41,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
@@ -246,6 +247,22 @@ class Forked:
     def terminate(self) -> None:
         self.send_signal(signal.SIGTERM)
 
+    def communicate(self, timeout: float | None = None) -> tuple[str, str]:
+        """The rest of its piped output and errors, read to their ends, then its exit."""
+        read: dict[int, str] = {}
+        readers = [threading.Thread(target=lambda i=i, s=s: read.__setitem__(i, s.read()),
+                                    daemon=True)
+                   for i, s in enumerate((self.stdout, self.stderr)) if s is not None]
+        for reader in readers:
+            reader.start()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        for reader in readers:
+            reader.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+            if reader.is_alive():
+                raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+        self.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        return read.get(0, ""), read.get(1, "")
+
     def kill(self) -> None:
         self.send_signal(signal.SIGKILL)
 
@@ -284,14 +301,15 @@ def _fifo(workdir: Path) -> tuple[Path, int]:
 
 
 def spawn_piped(argv: list[str], env: dict[str, str], workdir: Path,
-                cwd: Path | str | None = None, stderr: bool = False) -> Forked:
+                cwd: Path | str | None = None, stderr: bool | Path = False) -> Forked:
     """`spawn` with its output on a pipe read from ``.stdout`` (text), as ``Popen(stdout=PIPE,
-    stderr=STDOUT, text=True)``, or with ``stderr`` its errors on another, ``.stderr``, as
-    ``stderr=PIPE``. The pipes are FIFOs in ``workdir``, opened for reading before the server
-    opens them for writing, so neither side blocks; each ends when the command and whatever
-    inherited it have exited."""
+    stderr=STDOUT, text=True)``; with ``stderr=True`` its errors on another, ``.stderr``, as
+    ``stderr=PIPE``; with a path, its errors to that file (``os.devnull``: ``DEVNULL``). The
+    pipes are FIFOs in ``workdir``, opened for reading before the server opens them for
+    writing, so neither side blocks; each ends when the command and whatever inherited it have
+    exited."""
     out, out_fd = _fifo(workdir)
-    err, err_fd = _fifo(workdir) if stderr else (None, -1)
+    err, err_fd = _fifo(workdir) if stderr is True else (stderr or None, -1)
     try:
         forked = spawn(argv, env, out, cwd, err)
     except BaseException:
