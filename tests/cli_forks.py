@@ -12,16 +12,20 @@ both sides of a small fork server:
   atexit handlers, a traceback and exit 1 for an uncaught exception. The answer (exit code and
   both outputs) goes back as one JSON line;
 * `run` is `subprocess.run` for the CLI: through a server of this process's own (`CliForks`,
-  started on first use, one at a time; it ends when this process closes its stdin, at exit).
-
+  started on first use, one at a time; it ends when this process closes its stdin, at exit);
+* `spawn` and `spawn_piped` are `subprocess.Popen` for the long-running commands (``serve``,
+  ``engine``, ``sim``, ``ui``, ``demo``): the server forks the command and answers its pid at
+  once; `Forked` waits for its exit on a pidfd and asks the server (its parent) for the code.
+  Signals go straight to its pid. Output goes to a file, or to FIFOs read as Popen's pipes;
 * `relay` lets a shell script do the same: while it is open, ``python cli_forks.py --via SOCKET
   ARGS`` (a client importing only the standard library, ~20 ms) has the test process run
   ``delegation ARGS`` through `run` with the client's environment and directory, writes the
   command's stdout and stderr as its own and exits with its code (the deployment doc's session).
 
 Each command is still its own process, forked from a parent that has imported the CLI and done
-nothing else, so commands share nothing. What this does not cover is the import itself: tests
-that start ``python -m delegation`` with `subprocess` (long-running commands, signals) still do.
+nothing else, so commands share nothing. What this does not cover is the import itself: a test
+whose subject is a fresh interpreter (`test_validate_cli`'s console script) or a process group
+(the bench's Ctrl-C tests) still starts ``python -m delegation`` with `subprocess`.
 """
 
 from __future__ import annotations
