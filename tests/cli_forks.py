@@ -46,6 +46,7 @@ import sys
 import tempfile
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
@@ -228,6 +229,8 @@ class Forked:
         self.stdout: TextIO | None = None  # set by `spawn_piped`
         self.stderr: TextIO | None = None  # set by `spawn_piped(..., stderr=True)`
         self._exited = os.pidfd_open(pid)  # readable once the process has exited
+        weakref.finalize(self, os.close, self._exited)  # not before: another thread may wait
+        self._reaping = threading.Lock()
 
     def poll(self) -> int | None:
         return self._returncode_within(0.0)
@@ -240,8 +243,9 @@ class Forked:
 
     def _returncode_within(self, timeout: float | None) -> int | None:
         if self.returncode is None and select.select([self._exited], [], [], timeout)[0]:
-            self.returncode = int(self._forks.ask({"reap": self.pid})["code"])
-            os.close(self._exited)
+            with self._reaping:  # reaped once, whichever thread asks first
+                if self.returncode is None:
+                    self.returncode = int(self._forks.ask({"reap": self.pid})["code"])
         return self.returncode
 
     def send_signal(self, sig: int) -> None:
