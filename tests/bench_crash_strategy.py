@@ -19,3 +19,11 @@ def sleepy(problem: Any, objective: Any, time_limit: float, /) -> Any:
     with open(os.environ["BENCH_TEST_MARKER"], "w") as marker:
         marker.write("started\n")
     time.sleep(120)
+
+
+def stuck(problem: Any, objective: Any, time_limit: float, /) -> Any:
+    """Never answers (within any test's patience): a run that always outlives its timeout,
+    however briefly the machine lets its parent wait."""
+    import time
+
+    time.sleep(120)

@@ -56,6 +56,33 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: item.module is None or item.module.__name__ not in slow_modules)
 
 
+@pytest.hookimpl(trylast=True, specname="pytest_collection_modifyitems")
+def pytest_collection_modifyitems_xdist_groups(
+    config: pytest.Config, items: list[pytest.Item]
+) -> None:
+    """On an xdist worker under ``--dist loadgroup``, end each ``xdist_group`` test's node id in
+    ``@<group>``, which is how the controller keeps a group on one worker.
+
+    pytest-xdist 3.8 does it by setting ``item._nodeid``, which pytest 9 no longer reads (the id
+    lives in ``item._id``): the groups were silently ignored, and Chromium and the Dask cluster
+    started on every worker that drew one of their tests (measured: 4 browsers, 2 clusters).
+    This runs after xdist's hook and adds the suffix only where it is still missing.
+    """
+    if not config.getoption("loadgroup", default=False):  # set on workers only
+        return
+    for item in items:
+        groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                         for m in item.iter_markers("xdist_group")})
+        if not groups or "@" in item.nodeid:
+            continue
+        grouped = f"{item.nodeid}@{'_'.join(groups)}"
+        node_id = getattr(item, "_id", None)
+        if node_id is not None and hasattr(type(node_id), "parse"):
+            item._id = type(node_id).parse(grouped)
+        else:
+            item._nodeid = grouped
+
+
 def _broker_kinds() -> list[Any]:
     wanted = os.environ.get("DELEGATION_TEST_BROKERS", "mosquitto,amqtt").split(",")
     kinds: list[Any] = []

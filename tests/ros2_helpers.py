@@ -8,10 +8,11 @@ import random
 import socket
 import struct
 import subprocess
-import sys
 import time
 from collections.abc import Collection
 from pathlib import Path
+
+import cli_forks
 
 ROOT = Path(__file__).resolve().parent.parent
 SRC = str(ROOT / "src")
@@ -30,7 +31,7 @@ class RosProcesses:
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("WARAPS_")}
         self.env.update(PYTHONPATH=SRC, ROS_DOMAIN_ID=str(self.domain), PYTHONUNBUFFERED="1",
                         FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILE))
-        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self.procs: dict[str, subprocess.Popen[str] | cli_forks.Forked] = {}
 
     def start(self, key: str, *argv: str) -> subprocess.Popen[str]:
         log = (self.workdir / f"{key}.log").open("a")
@@ -42,16 +43,17 @@ class RosProcesses:
         return proc
 
     def delegation(self, key: str, *args: str, transport: str = "ros2"
-                   ) -> subprocess.Popen[str]:
-        return self.start(key, sys.executable, "-m", "delegation", *args,
-                          "--transport", transport)
+                   ) -> cli_forks.Forked:
+        """``delegation ARGS``, a process of its own forked with the CLI imported."""
+        proc = cli_forks.spawn([*args, "--transport", transport], self.env,
+                               self.workdir / f"{key}.log", cwd=self.workdir)
+        self.procs[key] = proc
+        return proc
 
     def run(self, *args: str, transport: str = "ros2", timeout: float = 120.0
             ) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "delegation", *args,
-                               "--transport", transport],
-                              capture_output=True, text=True, env=self.env, timeout=timeout,
-                              cwd=self.workdir)
+        """A one-shot command, forked with the CLI imported (`cli_forks.run`)."""
+        return cli_forks.run([*args, "--transport", transport], self.env, self.workdir, timeout)
 
     def log(self, key: str) -> str:
         return (self.workdir / f"{key}.log").read_text()

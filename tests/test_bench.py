@@ -253,17 +253,25 @@ def test_isolated_bench_gives_the_same_plans(result: BenchResult) -> None:
 
 
 def test_a_run_past_its_timeout_is_a_named_failure_and_the_rest_go_on() -> None:
+    from delegation.allocation import STRATEGIES
+
+    # A run that never answers, not a quick one given 1 us: the timeout starts once the child
+    # is started, and on a loaded machine a 3-task run could answer before its parent looked.
+    stuck = "bench_crash_strategy:stuck"
     data = [
         generate_scenario(seed=1, units=2, tasks=3),
         generate_scenario(seed=2, units=2, tasks=3),
     ]
-    result = run_bench(
-        scenarios_from_dicts(data),
-        strategies=["nearest"],
-        objectives=["makespan"],
-        isolate=True,
-        run_timeout=1e-6,
-    )
+    try:
+        result = run_bench(
+            scenarios_from_dicts(data),
+            strategies=[stuck],
+            objectives=["makespan"],
+            isolate=True,
+            run_timeout=0.3,
+        )
+    finally:
+        STRATEGIES.unregister(stuck)  # registered in this process by the spec
     assert result.records == []
     assert [f.source for f in result.failures] == [f"generated:{d['name']}" for d in data]
-    assert all("nearest/makespan run 1: stopped after" in f.message for f in result.failures)
+    assert all(f"{stuck}/makespan run 1: stopped after" in f.message for f in result.failures)

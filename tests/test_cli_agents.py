@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import socket
-import subprocess
-import sys
 import time
 
 import pytest
+
+import cli_forks
 
 
 @pytest.mark.slow  # a fresh process waits out its bound
@@ -19,11 +20,9 @@ def test_agents_against_a_silent_broker_is_bounded_by_wait() -> None:
         silent.listen(8)
         port = silent.getsockname()[1]
         started = time.monotonic()
-        done = subprocess.run(
-            [sys.executable, "-m", "delegation", "agents", "--broker", "127.0.0.1",
-             "--port", str(port), "--wait", "1"],
-            capture_output=True, text=True, timeout=30,
-        )
+        done = cli_forks.run(  # a process of its own, forked with the CLI imported
+            ["agents", "--broker", "127.0.0.1", "--port", str(port), "--wait", "1"],
+            dict(os.environ), timeout=30)
         took = time.monotonic() - started
     assert done.returncode == 1, done.stderr
     assert done.stderr.strip().startswith("error: cannot connect to mqtt://127.0.0.1"), done.stderr

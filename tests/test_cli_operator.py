@@ -83,12 +83,11 @@ def _env() -> dict[str, str]:
 
 class Child:
     """A long-running command; its output lines are collected by a thread (waited on with a
-    deadline, never slept on)."""
+    deadline, never slept on). Its own process, forked with the CLI imported (`cli_forks`),
+    stdout and stderr on pipes (FIFOs in ``workdir``)."""
 
-    def __init__(self, argv: list[str]) -> None:
-        self.proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True,
-                                     stdin=subprocess.DEVNULL)
+    def __init__(self, argv: list[str], workdir: Path) -> None:
+        self.proc = cli_forks.spawn_piped(argv[3:], _env(), workdir, stderr=True)
         self.lines: queue.Queue[str] = queue.Queue()
         self.out: list[str] = []
         self.err: list[str] = []
@@ -227,7 +226,7 @@ def test_follow_stops_on_sigint_and_says_how_to_go_on(live: dict[str, str],
     root = str(uuid.uuid4())
     f = _mission_file(tmp_path, "c.json", open_ended(root, "/usv0"))
     assert cli(live, ["submit", f, "--timeout", "1"]).returncode == 1
-    child = Child(_argv(live, ["follow", root[:8]]))
+    child = Child(_argv(live, ["follow", root[:8]]), tmp_path)
     child.wait_line(f"mission {root[:8]}")
     code, _ = child.stop(signal.SIGINT)
     assert code == 130
@@ -242,7 +241,7 @@ def test_submit_stops_on_sigterm_and_the_mission_goes_on(live: dict[str, str],
                                                         tmp_path: Path) -> None:
     root = str(uuid.uuid4())
     f = _mission_file(tmp_path, "d.json", open_ended(root, "/dji1"))
-    child = Child(_argv(live, ["submit", f]))
+    child = Child(_argv(live, ["submit", f]), tmp_path)
     child.wait_line(f"mission {root} started")
     code, _ = child.stop(signal.SIGTERM)
     assert code == 0
@@ -259,7 +258,7 @@ def test_serve_logs_mission_events_and_stops_on_sigterm(live: dict[str, str],
     """A second service (no profiles) on the same fleet: its log, in JSON, at INFO by default,
     says what happened to each mission and unit; SIGTERM stops it with exit 0."""
     name = f"delegator{uuid.uuid4().hex[:4]}"
-    serve = Child(_argv(live, ["serve", "--name", name, "--log-json"]))
+    serve = Child(_argv(live, ["serve", "--name", name, "--log-json"]), tmp_path)
     try:
         serve.wait_line("serving on")
         serve.wait_line("appeared")
@@ -299,7 +298,7 @@ def test_long_running_commands_stop_on_signals(live: dict[str, str], command: li
                                                tmp_path: Path) -> None:
     """Each on a prefix of its own (a second simulated dji0 would confuse the shared fleet)."""
     own = {**live, "prefix": f"sig-{uuid.uuid4().hex[:8]}"}
-    child = Child(_argv(own, [c.replace("{tmp}", str(tmp_path)) for c in command]))
+    child = Child(_argv(own, [c.replace("{tmp}", str(tmp_path)) for c in command]), tmp_path)
     child.wait_line(ready)
     got, _ = child.stop(sig)
     assert got == code, child.out + child.err

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_forks
 from delegation.cli import main
 from delegation.cli.demo import DEMO_FLEET_TICKS_PER_S, demo_rates
 from delegation.cli.inputs import find_scenario, read_mission
@@ -135,18 +136,15 @@ def test_submit_without_a_service_fails_clearly(mqtt_settings: BrokerSettings, p
 @pytest.mark.slow
 def test_serve_answers_on_the_broker_and_stops_on_sigterm(mqtt_settings: BrokerSettings,
                                                           prefix: str, tmp_path: Path) -> None:
+    import os
     import signal
-    import subprocess
-    import sys
 
     from delegation.runtime.client import ServiceClient
 
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "serve", "--broker", mqtt_settings.host,
-         "--port", str(mqtt_settings.port), "--prefix", prefix, "--name", "svc7",
-         "--state", str(tmp_path / "state.sqlite")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
+    proc = cli_forks.spawn_piped(  # a process of its own, forked with the CLI imported
+        ["serve", "--broker", mqtt_settings.host, "--port", str(mqtt_settings.port),
+         "--prefix", prefix, "--name", "svc7", "--state", str(tmp_path / "state.sqlite")],
+        dict(os.environ), tmp_path, stderr=True)
     try:
         with ServiceClient(mqtt_settings, prefix=prefix, service="svc7",
                            service_timeout=20) as client:

@@ -4,7 +4,9 @@ mosquitto: each command must exit 0, or the code its ``# exit N`` comment names.
 The simulated fleet flies at ``--speedup 50`` here, not the doc's 10 (the doc's pace is for a
 person watching; the commands and what they must answer are the same), and ``submit`` gives up
 following its open-ended mission after 1 s, not the doc's 3 s and 2 s (the exit code is the same:
-the timeout starts once the mission has started)."""
+the timeout starts once the mission has started). The one-shot commands are forked from a
+process that imported the CLI once (`cli_forks.relay`), the long-running ones started as the doc
+starts them."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_forks
 from delegation.runtime.broker import PrivateMosquitto, mosquitto_binary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,10 +78,33 @@ def test_the_doc_has_commands_to_check() -> None:
         assert any(c.startswith(needed) or f" {needed}" in c for c in commands), needed
 
 
+#: The commands that run until stopped (started with ``&``): a process of their own.
+LONG_RUNNING = ("engine", "sim", "serve")
+
+
+def wrapper_script(relayed: list[str]) -> str:
+    """``delegation`` as this checkout's: the long-running commands exec'd so that the script's
+    ``kill`` reaches them, the one-shot ones forked by `cli_forks` (the CLI imported once)."""
+    python = shlex.quote(sys.executable)
+    return (f'#!/bin/sh\ncase "$1" in {"|".join(LONG_RUNNING)}) '
+            f'exec {python} -m delegation "$@";; esac\n'
+            f'exec {shlex.join(relayed)} "$@"\n')
+
+
+def test_every_long_running_command_is_started_in_the_background() -> None:
+    for command, _ in console_commands(DOC.read_text()):
+        name = command.split()[1] if command.startswith("delegation ") else ""
+        assert (name in LONG_RUNNING) == command.endswith("&"), command
+
+
 def test_documented_commands_run(mosquitto: PrivateMosquitto, tmp_path: Path) -> None:
-    # ``delegation`` as this checkout's, exec'd so that the script's ``kill`` reaches it
+    with cli_forks.relay(tmp_path / "cli.sock") as relayed:
+        _run_the_doc(mosquitto, tmp_path, relayed)
+
+
+def _run_the_doc(mosquitto: PrivateMosquitto, tmp_path: Path, relayed: list[str]) -> None:
     wrapper = tmp_path / "delegation"
-    wrapper.write_text(f'#!/bin/sh\nexec {shlex.quote(sys.executable)} -m delegation "$@"\n')
+    wrapper.write_text(wrapper_script(relayed))
     wrapper.chmod(0o755)
     env = {k: v for k, v in os.environ.items() if not k.startswith("WARAPS_")}
     env.update(WARAPS_BROKER="127.0.0.1", WARAPS_PORT=str(mosquitto.settings().port),

@@ -10,6 +10,8 @@ counted from the units' own ``exec/feedback``. Every wait has a deadline.
 Time is scaled down, not skipped: the simulated units fly 20 times faster than real time, and the
 service judges a unit lost after 3 heartbeat periods but at least `MIN_TIMEOUT` (2.5 s, not the
 default 5 s): the units beat at 2 Hz, the engine at 1 Hz, so every loss rule still applies.
+The processes are forked from one that imported the CLI once (`cli_forks.spawn`): each is still
+a process of its own, killed and restarted as one.
 """
 
 from __future__ import annotations
@@ -17,8 +19,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Iterator
@@ -27,6 +27,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from conftest import Collector
 from delegation.engine import TstEngine
 from delegation.runtime.broker import PrivateMosquitto, free_port, mosquitto_binary
@@ -82,22 +83,20 @@ class Processes:
 
     def __init__(self, settings: BrokerSettings, prefix: str, workdir: Path) -> None:
         self.settings, self.prefix, self.workdir = settings, prefix, workdir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.procs: dict[str, cli_forks.Forked] = {}
 
-    def _run(self, key: str, *args: str) -> subprocess.Popen[bytes]:
+    def _run(self, key: str, *args: str) -> cli_forks.Forked:
+        """``delegation ARGS`` as its own process, forked with the CLI imported (`cli_forks`)."""
         env = {**os.environ, "PYTHONPATH": SRC}
         for k in [k for k in env if k.startswith("WARAPS_")]:
             del env[k]
-        log = (self.workdir / f"{key}.log").open("ab")
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "delegation", *args, "--broker", self.settings.host,
-             "--port", str(self.settings.port), "--prefix", self.prefix],
-            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env)
-        log.close()
+        proc = cli_forks.spawn(
+            [*args, "--broker", self.settings.host, "--port", str(self.settings.port),
+             "--prefix", self.prefix], env, self.workdir / f"{key}.log")
         self.procs[key] = proc
         return proc
 
-    def sim(self, name: str, speedup: float = SPEEDUP) -> subprocess.Popen[bytes]:
+    def sim(self, name: str, speedup: float = SPEEDUP) -> cli_forks.Forked:
         lat, lon = HOME[name]
         scenario = {
             "name": name, "description": "one unit of a fault test",
@@ -111,7 +110,7 @@ class Processes:
         path.write_text(json.dumps(scenario))
         return self._run(name, "sim", str(path), "--speedup", str(speedup))
 
-    def engine(self) -> subprocess.Popen[bytes]:
+    def engine(self) -> cli_forks.Forked:
         return self._run("op0", "engine")
 
     def kill(self, key: str) -> None:

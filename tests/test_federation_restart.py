@@ -10,9 +10,9 @@ in this process; the partner a fake delegator that never answers in time.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from delegation.fleet import make_unit
 from delegation.local import LocalSystem
 from delegation.runtime.broker import PrivateMosquitto
@@ -41,19 +42,18 @@ def mqtt_settings(mosquitto: PrivateMosquitto) -> BrokerSettings:
 
 @pytest.fixture
 def serve(mqtt_settings: BrokerSettings, prefix: str, tmp_path: Path
-          ) -> Iterator[Callable[[str], subprocess.Popen[bytes]]]:
-    """Starts ``delegation serve NAME`` (state in tmp_path, a 30 s bid window, fleet dji0);
-    every process started is ended at the end."""
-    started: list[subprocess.Popen[bytes]] = []
+          ) -> Iterator[Callable[[str], cli_forks.Forked]]:
+    """Starts ``delegation serve NAME`` (state in tmp_path, a 30 s bid window, fleet dji0), a
+    process of its own forked with the CLI imported (`cli_forks`); every process started is
+    ended at the end."""
+    started: list[cli_forks.Forked] = []
 
-    def start(name: str) -> subprocess.Popen[bytes]:
-        log = (tmp_path / f"serve{len(started)}.log").open("wb")
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "delegation", "-v", "serve", "--broker", mqtt_settings.host,
+    def start(name: str) -> cli_forks.Forked:
+        proc = cli_forks.spawn(
+            ["-v", "serve", "--broker", mqtt_settings.host,
              "--port", str(mqtt_settings.port), "--prefix", prefix, "--name", name,
              "--state", str(tmp_path / "state.sqlite"), "--bid-window", "30",
-             "--fleet", "dji0"], stdout=log, stderr=subprocess.STDOUT)
-        log.close()
+             "--fleet", "dji0"], dict(os.environ), tmp_path / f"serve{len(started)}.log")
         started.append(proc)
         return proc
 
@@ -83,7 +83,7 @@ def _request(watch: Any, base: str, body: dict[str, Any], timeout: float = 20.0
 
 def test_a_restart_mid_round_answers_the_command_failed_and_ignores_the_old_offers(
         mqtt_settings: BrokerSettings, prefix: str, collector: Callable[..., Any],
-        serve: Callable[[str], subprocess.Popen[bytes]]) -> None:
+        serve: Callable[[str], cli_forks.Forked]) -> None:
     name = f"fed{uuid.uuid4().hex[:6]}"
     config = ServiceConfig(prefix=prefix, name=name)
     base = config.base_topic

@@ -7,14 +7,13 @@ from __future__ import annotations
 import os
 import select
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+import cli_forks
 from delegation.runtime.broker import PrivateMosquitto
 from delegation.service import ServiceConfig, ServiceCore, run_job
 from delegation.service.jobs import Job, JobFailed, PlanDone
@@ -93,11 +92,10 @@ def test_no_planner_outlives_a_service_killed_with_kill_9(mosquitto: PrivateMosq
                                                           tmp_path: Path) -> None:
     settings = mosquitto.settings()
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "serve", "--broker", settings.host, "--port",
-         str(settings.port), "--prefix", "pp", "--name", "pp0", "--state",
-         str(tmp_path / "state.sqlite"), "--planner", "process"],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+    serve = cli_forks.spawn_piped(  # a process of its own, forked with the CLI imported
+        ["serve", "--broker", settings.host, "--port", str(settings.port), "--prefix", "pp",
+         "--name", "pp0", "--state", str(tmp_path / "state.sqlite"), "--planner", "process"],
+        env, tmp_path, stderr=Path(os.devnull))
     try:
         assert serve.stdout is not None
         for line in serve.stdout:  # the planner starts before the service says it is active

@@ -6,8 +6,7 @@ planned normally."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+import os
 import threading
 import uuid
 from collections.abc import Callable
@@ -16,6 +15,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from delegation.runtime.core import Effects, JobDone
 from delegation.runtime.settings import BrokerSettings
 from delegation.service import DelegationService, Job, ServiceConfig, ServiceCore, run_job
@@ -122,7 +122,7 @@ def test_a_busy_planner_on_a_broker_turns_a_command_away_unstored(
 @pytest.mark.parametrize("value, says", [("0", "must be at least 1, not 0"),
                                           ("many", "'many' is not a whole number")])
 def test_serve_names_a_wrong_planner_queue(value: str, says: str) -> None:
-    done = subprocess.run([sys.executable, "-m", "delegation", "serve", "--planner-queue", value],
-                          capture_output=True, text=True, timeout=60)
+    # forked with the CLI imported (`cli_forks`): still a process of its own
+    done = cli_forks.run(["serve", "--planner-queue", value], dict(os.environ), timeout=60)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert f"argument --planner-queue: {says}" in done.stderr

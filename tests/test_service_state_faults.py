@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 import uuid
@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 
+import cli_forks
 from conftest import one_broker
 from delegation.fleet import make_unit
 from delegation.geo import LocalFrame
@@ -82,12 +83,11 @@ class Serve:
         self._lines: list[str] = []
         self._ended = False
         self._cond = threading.Condition()
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "delegation", "-v", "serve", "--broker", settings.host,
+        # forked with the CLI imported (`cli_forks`): still a process of its own
+        self.proc = cli_forks.spawn_piped(
+            ["-v", "serve", "--broker", settings.host,
              "--port", str(settings.port), "--prefix", prefix, "--name", name,
-             "--state", state, "--retention", "1"],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )
+             "--state", state, "--retention", "1"], dict(os.environ), log.parent)
         self._reader = threading.Thread(target=self._read, name=f"serve-{name}", daemon=True)
         self._reader.start()
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import tomllib
 from collections.abc import Iterator
 from importlib import metadata
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_forks
 from delegation.allocation import STRATEGIES, check_invariants, plan_mission
 from delegation.allocation.strategies import (
     BUILTIN_STRATEGIES,
@@ -143,8 +143,7 @@ def test_bench_runs_a_plugin_spec(plugin_path: None) -> None:
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(PLUGIN_DIR)])}
-    return subprocess.run([sys.executable, "-m", "delegation", *args], capture_output=True,
-                          text=True, env=env, timeout=120, cwd=ROOT)
+    return cli_forks.run(list(args), env, ROOT, timeout=120)  # forked with the CLI imported
 
 
 def test_plan_cli_runs_the_example_plugin_by_spec() -> None:

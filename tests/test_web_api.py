@@ -17,7 +17,6 @@ import select
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 import tracemalloc
@@ -502,14 +501,13 @@ def test_cli_usage_errors_are_one_line_and_exit_2(args: tuple[str, ...], says: s
 
 @one_broker()
 @pytest.mark.parametrize("command", [("ui",), ("serve", "--state", ":memory:")])
-def test_cli_serves_the_api_and_stops_within_seconds_on_sigterm(page: Page,
-                                                                command: tuple[str, ...]) -> None:
+def test_cli_serves_the_api_and_stops_within_seconds_on_sigterm(
+        page: Page, command: tuple[str, ...], tmp_path: Path) -> None:
     # serve runs a second service: under a prefix of its own
     prefix = page.prefix if command[0] == "ui" else f"{page.prefix}-serve"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", *command, "--http", "127.0.0.1:0", "--broker",
-         page.settings.host, "--port", str(page.settings.port), "--prefix", prefix],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = cli_forks.spawn_piped(  # a process of its own, forked with the CLI imported
+        [*command, "--http", "127.0.0.1:0", "--broker", page.settings.host, "--port",
+         str(page.settings.port), "--prefix", prefix], dict(os.environ), tmp_path, stderr=True)
     try:
         assert proc.stdout is not None
         ready, _, _ = select.select([proc.stdout], [], [], 30.0)
@@ -581,9 +579,9 @@ def test_buffered_reads_over_tls(tmp_path: Path, prefix: str) -> None:
 
 
 def test_cli_demo_serves_the_page_while_its_mission_runs(tmp_path: Path) -> None:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "delegation", "demo", "--http", "127.0.0.1:0", "--speedup", "40",
-         "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = cli_forks.spawn_piped(  # a process of its own, forked with the CLI imported
+        ["demo", "--http", "127.0.0.1:0", "--speedup", "40", "--out", str(tmp_path)],
+        dict(os.environ), tmp_path, stderr=True)
     try:
         assert proc.stdout is not None
         url = None
