@@ -13,7 +13,7 @@ from delegation.service import ServiceConfig, ServiceCore
 from delegation.service.missions import MissionBook, mission_from_record, mission_record
 from delegation.service.unit_catch_up import decide, task_of, tasks_by_unit
 from delegation.tst.node import TstNode, parse_tree, walk
-from test_service_core import BASE, ENGINE, _unit_topic, on
+from test_service_core import BASE, ENGINE, _unit_topic, engine_answers, on, run_jobs, start_tst
 from test_service_redelegation import _task, _tree, feedback, fleet, started_mission, statuses
 
 
@@ -129,6 +129,33 @@ def test_a_start_task_from_anyone_but_the_engine_is_not_kept() -> None:
     started_mission(core, _tree("conc", "root-1", N0, N1))
     _start_task(core, "u0", N0, "task-x", 101.2, sender="someone")
     assert core.book.get("root-1").node_tasks == {}
+
+
+def test_the_start_task_index_keeps_in_step_with_the_book() -> None:
+    """`start_seen` looks only at the missions with such a task on that unit: a mission added
+    later, a task moved to another unit (its tree replaced) and a mission ended are seen."""
+    core = ServiceCore(ServiceConfig(prefix="t"))
+    fleet(core, 100.0)
+    started_mission(core, _tree("conc", "root-1", N0, N1))
+    _start_task(core, "u0", N0, "task-0", 101.0)
+    n2, n3 = _task("n2", "/u0"), _task("n3", "/u2")
+    n2["params"] = {"waypoint": {**n2["params"]["waypoint"], "latitude": 57.7621}}  # not n0's
+    planned = run_jobs(core, core.on_message(f"{BASE}/tst/command",
+                                             start_tst(_tree("conc", "root-2", n2, n3), "c-2"),
+                                             101.5), 101.5)
+    engine_answers(core, planned, "started", 101.5)  # a mission added after the index was made
+    _start_task(core, "u0", n2, "task-2", 102.0)
+    assert core.book.get("root-2").node_tasks == {"n2": ("u0", "task-2")}
+    mission = core.book.get("root-1")
+    core.book.rebind(mission, {"n1": "/u2"})  # n1 now runs on u2
+    _start_task(core, "u2", N1, "task-1", 103.0)
+    assert mission.node_tasks == {"n0": ("u0", "task-0"), "n1": ("u2", "task-1")}
+    catch_up = core.unit_catch_up
+    assert set(catch_up._by_task[("u2", "move-to")]) == {"root-1", "root-2"}
+    core.book.set_status("root-2", MissionStatus.SUCCEEDED, 104.0)
+    _start_task(core, "u0", N0, "task-0", 105.0)  # a re-send: the index is brought in step
+    assert "root-2" not in catch_up._index
+    assert set(catch_up._by_task[("u0", "move-to")]) == {"root-1"}
 
 
 # --------------------------------------------------------------------------- the service

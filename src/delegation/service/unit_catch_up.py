@@ -36,7 +36,7 @@ from delegation.messages import (
     decode,
 )
 from delegation.runtime.core import Effects, Outgoing
-from delegation.service.missions import Mission
+from delegation.service.missions import Mission, MissionBook
 from delegation.service.planning import MissionPart
 from delegation.tst.node import TstNode, parse_tree, walk
 
@@ -58,6 +58,9 @@ ANSWER_STATUS: dict[str, str | None] = {
 
 #: Task statuses after which a task has nothing more to say.
 _DONE_OK = frozenset({"succeeded", "revoked"})
+
+#: A tree's task nodes by (unit, task name): [(node uuid, params)] in tree order (`tasks_by_unit`).
+TaskIndex = dict[tuple[str, str], list[tuple[str, dict[str, Any]]]]
 
 
 def decide(tree: TstNode, tasks: Mapping[str, tuple[str, str]]
@@ -110,7 +113,7 @@ def _conc(children: list[tuple[str, TstNode, tuple[str, str] | None]]
     return "succeeded", ""
 
 
-def tasks_by_unit(tst: dict[str, Any]) -> dict[tuple[str, str], list[tuple[str, dict[str, Any]]]]:
+def tasks_by_unit(tst: dict[str, Any]) -> TaskIndex:
     """(unit, task name) -> [(node uuid, params)] of every task node of a tree, in tree order:
     what a ``start-task`` on that unit is matched against."""
     out: dict[tuple[str, str], list[tuple[str, dict[str, Any]]]] = {}
@@ -182,17 +185,67 @@ class UnitCatchUp(MissionPart):
     #: Root uuid -> the round of queries of that mission under way.
     rounds: dict[str, _Round] = field(default_factory=dict)
     #: Root uuid -> (the tree indexed, `tasks_by_unit` of it): made again when the tree changes.
-    _index: dict[str, tuple[dict[str, Any], dict[tuple[str, str], list[tuple[str, dict[str, Any]]]]]
-                 ] = field(default_factory=dict)
+    _index: dict[str, tuple[dict[str, Any], TaskIndex]] = field(default_factory=dict)
+    #: (unit, task name) -> the open missions whose running tree has such a task (in the order
+    #: they were indexed), so that a ``start-task`` is matched against those alone.
+    _by_task: dict[tuple[str, str], dict[str, None]] = field(default_factory=dict)
+    #: The book and its `MissionBook.revision` when the index was last brought in step.
+    _synced: tuple[MissionBook | None, int] = (None, -1)
 
-    def _tasks(self, mission: Mission
-               ) -> dict[tuple[str, str], list[tuple[str, dict[str, Any]]]]:
+    def _tasks(self, mission: Mission) -> TaskIndex:
+        """The mission's running tree indexed (made again, and `_by_task` with it, when the
+        tree was replaced)."""
         cached = self._index.get(mission.root_uuid)
         if cached is not None and cached[0] is mission.current_tst:
             return cached[1]
+        self._drop(mission.root_uuid)
         index = tasks_by_unit(mission.current_tst)
         self._index[mission.root_uuid] = (mission.current_tst, index)
+        for key in index:
+            self._by_task.setdefault(key, {})[mission.root_uuid] = None
         return index
+
+    def _drop(self, root: str) -> None:
+        """Forget a mission's index (it ended, left memory, or its tree is indexed again)."""
+        cached = self._index.pop(root, None)
+        for key in cached[1] if cached is not None else ():
+            roots = self._by_task.get(key)
+            if roots is not None:
+                roots.pop(root, None)
+                if not roots:
+                    del self._by_task[key]
+
+    def _sync(self) -> None:
+        """Index the missions changed since the last call (added, a tree replaced, ended); those
+        that left memory are dropped when met (`_candidates`)."""
+        book = self.book
+        last_book, last = self._synced
+        if last_book is not book:
+            self._index.clear()
+            self._by_task.clear()
+            last = -1
+        elif last == book.revision:
+            return
+        self._synced = (book, book.revision)
+        for root in [r for r, at in book.changed_at.items() if at > last]:
+            mission = book.in_memory(root)
+            if mission is None or mission.ended:
+                self._drop(root)
+            else:
+                self._tasks(mission)
+
+    def _candidates(self, unit: str, name: str) -> list[Mission]:
+        """The open missions in memory whose running tree has a task ``name`` on ``unit``."""
+        self._sync()
+        out = []
+        for root in list(self._by_task.get((unit, name), ())):
+            mission = self.book.in_memory(root)
+            if mission is None or mission.ended:
+                self._drop(root)
+            else:
+                out.append(mission)
+        out.sort(key=lambda m: self.book.order.get(m.root_uuid, 0))  # the book's order
+        return out
 
     def start_seen(self, unit: str, topic: str, payload: bytes) -> None:
         """A message on ``unit``'s ``exec/command``: a ``start-task`` from our engine for a task
@@ -206,23 +259,16 @@ class UnitCatchUp(MissionPart):
         if not isinstance(cmd, StartTask) or not cmd.task_uuid \
                 or cmd.sender.strip("/") != self.config.engine:
             return
-        open_roots: set[str] = set()
-        found = False
-        for mission in self.book:
-            if mission.ended:
-                continue
-            open_roots.add(mission.root_uuid)
-            if found or mission.redelegating:
+        for mission in self._candidates(unit, cmd.task.name):
+            if mission.redelegating:
                 continue
             uid = task_of(mission, self._tasks(mission), unit, cmd)
             if uid is None:
                 continue
-            found = True
             if mission.node_tasks.get(uid) != (unit, cmd.task_uuid):
                 mission.node_tasks[uid] = (unit, cmd.task_uuid)
                 self.book.touch(mission.root_uuid)
-        for root in [r for r in self._index if r not in open_roots]:
-            del self._index[root]
+            return
 
     def ask(self, root: str, now: float) -> tuple[Effects, UnitsSay | None]:
         """``query-status`` to the unit of each task of the mission that had not ended (one
