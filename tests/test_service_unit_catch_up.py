@@ -131,6 +131,22 @@ def test_a_start_task_from_anyone_but_the_engine_is_not_kept() -> None:
     assert core.book.get("root-1").node_tasks == {}
 
 
+def test_tasks_by_unit_walks_the_json_as_the_parsed_tree_reads() -> None:
+    """The index is made from the JSON the service sent, without parsing it again: the same
+    (unit, name) -> [(uuid, params)] in tree order as a walk of the parsed tree."""
+    other = {"name": "look-at", "common-params": {"execunit": "u1", "node-uuid": "n4"},
+             "params": {"target": [1, 2]}}
+    tree = _tree("seq", "r", _tree("conc", "c", _task("a", "/u0"), _task("b", "/u1"), other),
+                 _task("d", "/u0"), _tree("seq", "s", _task("e", "/u0", name="land")))
+    parsed: dict[tuple[str, str], list[tuple[str, dict[str, Any]]]] = {}
+    for _, node in walk(parse_tree(tree)):
+        if not node.is_control and node.node_uuid:
+            parsed.setdefault((node.execunit.strip("/"), node.name), []).append(
+                (node.node_uuid, node.params))
+    assert tasks_by_unit(tree) == parsed
+    assert [uid for uid, _ in tasks_by_unit(tree)[("u0", "move-to")]] == ["a", "d"]
+
+
 def test_the_start_task_index_keeps_in_step_with_the_book() -> None:
     """`start_seen` looks only at the missions with such a task on that unit: a mission added
     later, a task moved to another unit (its tree replaced) and a mission ended are seen."""

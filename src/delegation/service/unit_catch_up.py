@@ -38,7 +38,7 @@ from delegation.messages import (
 from delegation.runtime.core import Effects, Outgoing
 from delegation.service.missions import Mission, MissionBook
 from delegation.service.planning import MissionPart
-from delegation.tst.node import TstNode, parse_tree, walk
+from delegation.tst.node import COMMON_KEYS, CONTROL_NODES, TstNode, parse_tree, walk
 
 log = logging.getLogger(__name__)
 
@@ -115,12 +115,23 @@ def _conc(children: list[tuple[str, TstNode, tuple[str, str] | None]]
 
 def tasks_by_unit(tst: dict[str, Any]) -> TaskIndex:
     """(unit, task name) -> [(node uuid, params)] of every task node of a tree, in tree order:
-    what a ``start-task`` on that unit is matched against."""
-    out: dict[tuple[str, str], list[tuple[str, dict[str, Any]]]] = {}
-    for _, node in walk(parse_tree(tst)):
-        if not node.is_control and node.node_uuid:
-            out.setdefault((node.execunit.strip("/"), node.name), []).append(
-                (node.node_uuid, node.params))
+    what a ``start-task`` on that unit is matched against. The tree is one the service built
+    and sent (valid): it is walked as JSON, not parsed again."""
+    out: TaskIndex = {}
+    stack: list[Any] = [tst]
+    while stack:
+        raw = stack.pop()
+        if not isinstance(raw, dict):
+            continue
+        name = raw.get("name")
+        if name in CONTROL_NODES:
+            stack.extend(reversed(raw.get("children") or ()))
+            continue
+        common = next((raw[k] for k in COMMON_KEYS if k in raw), None) or {}
+        uid = common.get("node-uuid")
+        if isinstance(name, str) and isinstance(uid, str) and uid:
+            unit = str(common.get("execunit") or "").strip("/")
+            out.setdefault((unit, name), []).append((uid, dict(raw.get("params") or {})))
     return out
 
 
