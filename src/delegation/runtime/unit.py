@@ -326,7 +326,8 @@ class CoreUnit(MqttUnit, Generic[C]):
         self.core = core
         self.wall = wall
         self._worker = worker
-        self._jobs: queue.Queue[Any] = queue.Queue()
+        # SimpleQueue: put is one C call (no Condition to notify), done for every job a step asks.
+        self._jobs: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._worker_thread: threading.Thread | None = None
         self._state = threading.Condition()
         self._next_status = 0.0
