@@ -11,7 +11,7 @@ from delegation.messages import ExecResponse, MissionStatus, StartTask, TaskSpec
 from delegation.runtime.core import Effects
 from delegation.service import ServiceConfig, ServiceCore
 from delegation.service.missions import MissionBook, mission_from_record, mission_record
-from delegation.service.unit_catch_up import decide, task_of, tasks_by_unit
+from delegation.service.unit_catch_up import decide, frozen, task_of, tasks_by_unit
 from delegation.tst.node import TstNode, parse_tree, walk
 from test_service_core import BASE, ENGINE, _unit_topic, engine_answers, on, run_jobs, start_tst
 from test_service_redelegation import _task, _tree, feedback, fleet, started_mission, statuses
@@ -167,11 +167,23 @@ def test_the_start_task_index_keeps_in_step_with_the_book() -> None:
     _start_task(core, "u2", N1, "task-1", 103.0)
     assert mission.node_tasks == {"n0": ("u0", "task-0"), "n1": ("u2", "task-1")}
     catch_up = core.unit_catch_up
-    assert set(catch_up._by_task[("u2", "move-to")]) == {"root-1", "root-2"}
+    u0 = [roots for (unit, _, _), roots in catch_up._by_task.items() if unit == "u0"]
+    assert sorted(list(roots) for roots in u0) == [["root-1"], ["root-2"]]  # n0's, n2's
     core.book.set_status("root-2", MissionStatus.SUCCEEDED, 104.0)
     _start_task(core, "u0", N0, "task-0", 105.0)  # a re-send: the index is brought in step
     assert "root-2" not in catch_up._index
-    assert set(catch_up._by_task[("u0", "move-to")]) == {"root-1"}
+    assert [set(r) for (unit, _, _), r in catch_up._by_task.items() if unit == "u0"] == [
+        {"root-1"}]
+
+
+def test_frozen_json_values_are_equal_exactly_when_the_values_are() -> None:
+    values = [{"a": 1, "b": [1, 2.5]}, {"b": [1, 2.5], "a": 1.0}, {"a": 1, "b": [2.5, 1]},
+              {}, [], {"a": None}, {"a": "1"}, {"a": True}, {"a": {"x": [1]}}]
+    for x in values:
+        for y in values:
+            assert (frozen(x) == frozen(y)) == (x == y), (x, y)
+            if x == y:
+                assert hash(frozen(x)) == hash(frozen(y))
 
 
 # --------------------------------------------------------------------------- the service

@@ -22,7 +22,7 @@ feedback, and is asked about again while the engine stays silent (``catch_up_att
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,6 +32,7 @@ from delegation.messages import (
     ExecResponse,
     QueryStatus,
     StartTask,
+    TaskSpecMsg,
     TstFeedback,
     decode,
 )
@@ -135,6 +136,22 @@ def tasks_by_unit(tst: dict[str, Any]) -> TaskIndex:
     return out
 
 
+def frozen(value: Any) -> Hashable:
+    """A hashable stand-in for a JSON value, equal to another's exactly when the values are
+    equal (``==``): objects as their sorted items, arrays as tuples (each marked, so that
+    ``{}`` and ``[]`` differ); numbers, strings, booleans and null as they are (their hashes
+    agree with ``==``)."""
+    if isinstance(value, dict):
+        return ("{", tuple(sorted((k, frozen(v)) for k, v in value.items())))
+    if isinstance(value, list):
+        return ("[", tuple(frozen(v) for v in value))
+    return value  # type: ignore[no-any-return]
+
+
+#: What a ``start-task`` is looked up by: (unit, task name, `frozen` params).
+TaskKey = tuple[str, str, Hashable]
+
+
 def task_of(mission: Mission, index: Mapping[tuple[str, str], list[tuple[str, dict[str, Any]]]],
             unit: str, cmd: StartTask) -> str | None:
     """The task node of ``mission`` (its tree indexed by `tasks_by_unit`) that ``cmd``, a
@@ -195,11 +212,13 @@ class UnitCatchUp(MissionPart):
     asked: dict[str, _Asked] = field(default_factory=dict)
     #: Root uuid -> the round of queries of that mission under way.
     rounds: dict[str, _Round] = field(default_factory=dict)
-    #: Root uuid -> (the tree indexed, `tasks_by_unit` of it): made again when the tree changes.
-    _index: dict[str, tuple[dict[str, Any], TaskIndex]] = field(default_factory=dict)
-    #: (unit, task name) -> the open missions whose running tree has such a task (in the order
-    #: they were indexed), so that a ``start-task`` is matched against those alone.
-    _by_task: dict[tuple[str, str], dict[str, None]] = field(default_factory=dict)
+    #: Root uuid -> (the tree indexed, `tasks_by_unit` of it, its tasks' `TaskKey`s): made
+    #: again when the tree changes.
+    _index: dict[str, tuple[dict[str, Any], TaskIndex, frozenset[TaskKey]]] = field(
+        default_factory=dict)
+    #: (unit, task name, params) -> the open missions whose running tree has such a task, so
+    #: that a ``start-task`` is matched against those alone (usually one).
+    _by_task: dict[TaskKey, dict[str, None]] = field(default_factory=dict)
     #: The book and its `MissionBook.revision` when the index was last brought in step.
     _synced: tuple[MissionBook | None, int] = (None, -1)
 
@@ -211,15 +230,17 @@ class UnitCatchUp(MissionPart):
             return cached[1]
         self._drop(mission.root_uuid)
         index = tasks_by_unit(mission.current_tst)
-        self._index[mission.root_uuid] = (mission.current_tst, index)
-        for key in index:
+        keys = frozenset((unit, name, frozen(params))
+                         for (unit, name), tasks in index.items() for _, params in tasks)
+        self._index[mission.root_uuid] = (mission.current_tst, index, keys)
+        for key in keys:
             self._by_task.setdefault(key, {})[mission.root_uuid] = None
         return index
 
     def _drop(self, root: str) -> None:
         """Forget a mission's index (it ended, left memory, or its tree is indexed again)."""
         cached = self._index.pop(root, None)
-        for key in cached[1] if cached is not None else ():
+        for key in cached[2] if cached is not None else ():
             roots = self._by_task.get(key)
             if roots is not None:
                 roots.pop(root, None)
@@ -245,11 +266,12 @@ class UnitCatchUp(MissionPart):
             else:
                 self._tasks(mission)
 
-    def _candidates(self, unit: str, name: str) -> list[Mission]:
-        """The open missions in memory whose running tree has a task ``name`` on ``unit``."""
+    def _candidates(self, unit: str, task: TaskSpecMsg) -> list[Mission]:
+        """The open missions in memory whose running tree has ``task`` (its name and params)
+        on ``unit``, in the book's order."""
         self._sync()
         out = []
-        for root in list(self._by_task.get((unit, name), ())):
+        for root in list(self._by_task.get((unit, task.name, frozen(task.params)), ())):
             mission = self.book.in_memory(root)
             if mission is None or mission.ended:
                 self._drop(root)
@@ -270,7 +292,7 @@ class UnitCatchUp(MissionPart):
         if not isinstance(cmd, StartTask) or not cmd.task_uuid \
                 or cmd.sender.strip("/") != self.config.engine:
             return
-        for mission in self._candidates(unit, cmd.task.name):
+        for mission in self._candidates(unit, cmd.task):
             if mission.redelegating:
                 continue
             uid = task_of(mission, self._tasks(mission), unit, cmd)
