@@ -17,7 +17,10 @@ otherwise), and how many plans the service made (more than one per mission: plan
 ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
 the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
 ``--profile-gil`` only the thread holding the GIL:
-collapsed stacks, one line per stack with its sample count).
+collapsed stacks, one line per stack with its sample count). With py-spy installed, the
+service's CPU to the last answer is also split per thread (``/proc/PID/task/TID/stat``, the
+threads named by ``py-spy dump``: the unit's loop, the planner worker, paho's network loop, the
+store writer).
 
     PYTHONPATH=src python benchmarks/burst.py [--missions 500] [--clients 5] [--units 15]
 """
@@ -28,6 +31,7 @@ import argparse
 import json
 import os
 import random
+import re
 import shutil
 import statistics
 import subprocess
@@ -67,6 +71,44 @@ def cpu_seconds(pid: int) -> float:
     for task in Path(f"/proc/{pid}/task").glob("*/children"):
         children.extend(int(c) for c in task.read_text().split())
     return own + sum(cpu_seconds(child) for child in children)
+
+
+def thread_cpu(pid: int) -> dict[int, float]:
+    """User + system CPU seconds of each thread of process ``pid`` so far, by thread id."""
+    out: dict[int, float] = {}
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        out[int(task.name)] = (int(fields[11]) + int(fields[12])) / TICKS
+    return out
+
+
+def thread_names(pid: int) -> dict[int, str]:
+    """Thread id -> Python thread name (``py-spy dump``; empty without py-spy). A random
+    suffix (paho's client id) is cut, so that runs compare."""
+    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(spy).exists():
+        return {}
+    try:
+        dump = subprocess.run([spy, "dump", "--pid", str(pid), "--nonblocking"],
+                              capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return {}
+    return {int(tid): re.sub(r"-[0-9a-f]{8}$", "", name)
+            for tid, name in re.findall(r'^Thread (\d+) \([^)]*\): "([^"]*)"', dump, re.M)}
+
+
+def per_thread(names: dict[int, str], before: dict[int, float], after: dict[int, float],
+               missions: int) -> str:
+    """``name ms/mission`` of each named thread between two `thread_cpu` readings (the
+    threads py-spy did not name counted together as ``other``)."""
+    spent: Counter[str] = Counter()
+    for tid, cpu in after.items():
+        spent[names.get(tid, "other")] += cpu - before.get(tid, 0.0)
+    return ", ".join(f"{name} {seconds * 1000 / missions:.1f}"
+                     for name, seconds in spent.most_common())
 
 
 class Watch:
@@ -266,11 +308,15 @@ def main(argv: list[str] | None = None) -> int:
             idle0, i0 = cpu_seconds(proc.pid), time.monotonic()
             watch.wait(lambda: False, args.idle)  # the fleet's periodic messages alone
             idle = (cpu_seconds(proc.pid) - idle0) / (time.monotonic() - i0)
+            names = thread_names(proc.pid)
             if args.profile:
                 spy = profiler(proc.pid, args.profile, args.profile_gil)
+            threads0 = thread_cpu(proc.pid)
             cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
             sent = publish_burst(settings, base, watch, bodies)
             cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle}
+            threads = per_thread(names, threads0, thread_cpu(proc.pid), len(sent)) \
+                if names else ""
             if spy is not None and args.profile_until == "answers":
                 spy.send_signal(2)
                 spy.wait(30)
@@ -294,6 +340,8 @@ def main(argv: list[str] | None = None) -> int:
             system.stop()
             watch.client.disconnect()
     ok = report(args, watch, sent, cpu, t0)
+    if threads:
+        print(f"service threads, CPU ms/mission up to the last answer: {threads}")
     print(plans_made(tmp / "serve.log", len(sent)))
     shutil.rmtree(tmp, ignore_errors=True)
     return 0 if ok else 1
