@@ -75,7 +75,7 @@ from delegation.messages import (
     WireModel,
 )
 from delegation.runtime.commands import CommandKey, CommandLog
-from delegation.runtime.core import Effects, JobDone, Outgoing
+from delegation.runtime.core import Effects, Identified, JobDone, Outgoing
 from delegation.service.access import client_of
 from delegation.service.cancels import Cancels
 from delegation.service.catch_up import CatchUp
@@ -99,8 +99,10 @@ log = logging.getLogger(__name__)
 __all__ = ["LEVELS", "ServiceCore", "Timing"]
 
 
-class ServiceCore:
-    """Every decision of the delegation service (a `JobCore`: planning runs as jobs)."""
+class ServiceCore(Identified):
+    """Every decision of the delegation service (a `JobCore`: planning runs as jobs); who it is
+    on the broker (``name``, ``status_period``, ...) comes from its `Identity`, which its config
+    makes (`ServiceConfig.identity`)."""
 
     def __init__(
         self,
@@ -142,18 +144,6 @@ class ServiceCore:
         self.unit_catch_up = UnitCatchUp(*shared)
         self.engine_use = EngineUse(*shared, repair=self.repair, catch_up=self.catch_up,
                                     units=self.unit_catch_up)
-
-    @property
-    def name(self) -> str:
-        return self.config.name
-
-    @property
-    def status_period(self) -> float:
-        return 1.0 / self.config.rate
-
-    @property
-    def agent_uuid(self) -> str:
-        return self.identity.agent_uuid
 
     @property
     def book(self) -> MissionBook:
