@@ -158,8 +158,27 @@ def test_any_payload_on_every_topic(fuzzed: Fuzzed, payload: bytes) -> None:
     assert fuzzed.bridge.client.client.loop_alive
 
 
+def _planned_for_again(f: Fuzzed, timeout: float = 20.0) -> None:
+    """Wait until the service would plan with both units again. The fuzz sends well-formed
+    readings too: a ``sensor/battery_state`` of 0 % on a unit's topic (no broker checks who
+    publishes there, docs/security.md) leaves the unit out, rightly, until its own next reading,
+    which the page may have taken before the service has (a mission refused with "battery 0 %
+    is below 20 %" was the result, 1 run in 3 with 400 fuzz examples)."""
+    service = f.system.service
+    assert service is not None
+    names = {"dji0", "dji1"}
+
+    def usable(core: Any) -> bool:
+        units = core.view.units(service.clock())
+        return names <= {u.name for u in units if u.alive and (
+            u.battery is None or u.battery >= core.config.min_battery)}
+
+    assert service.wait_until(usable, timeout), "the service never planned with both units again"
+
+
 def test_after_the_fuzz_a_mission_runs_to_the_end_on_the_page(fuzzed: Fuzzed) -> None:
     _alive_and_updating(fuzzed)
+    _planned_for_again(fuzzed)
     events = Events(fuzzed.url, "no users").start()
     try:
         tree = {"name": "move-to", "params": {"waypoint": pt(60.0, 40.0)}}
