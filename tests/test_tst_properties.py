@@ -25,6 +25,7 @@ from delegation.tst import (
     with_defaults,
     with_uuids,
 )
+from delegation.tst.node import stored_nodes
 from delegation.tst.validate import INT32_MAX, INT32_MIN
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -205,6 +206,17 @@ def test_catalogue_trees_round_trip_exactly_and_validate(data: dict[str, Any]) -
         assert after.extra == before.extra
         assert after.common_key == before.common_key
         assert {k: v for k, v in after.params.items() if k in before.params} == before.params
+
+
+@SETTINGS
+@given(trees)
+def test_stored_nodes_reads_the_json_as_walk_reads_the_tree(data: dict[str, Any]) -> None:
+    # The service reads the trees it keeps as JSON without parsing them (`stored_nodes`): the
+    # same nodes, in the same order, with the same common parameters as the parsed tree.
+    tree = with_uuids(parse_and_validate(data))
+    raw = [(node.get("name"), common.get("node-uuid"), node.get("params", {}))
+           for node, common in stored_nodes(to_dict(tree))]
+    assert raw == [(n.name, n.node_uuid, n.params) for _, n in walk(tree)]
 
 
 @SETTINGS

@@ -24,7 +24,7 @@ from delegation.service.config import ServiceConfig
 from delegation.service.engine_link import EngineLink
 from delegation.service.missions import Mission, MissionBook
 from delegation.topics import parse_unit_topic
-from delegation.tst.node import COMMON_KEYS, TstNode, walk
+from delegation.tst.node import TstNode, stored_nodes, walk
 
 log = logging.getLogger(__name__)
 
@@ -314,13 +314,8 @@ def _held_units(m: Mission, starting: bool) -> tuple[str, ...]:
 def _node_in(tree: dict[str, Any], node_uuid: str) -> tuple[str, dict[str, Any]]:
     """(name, params) of the node ``node_uuid`` in an instantiated tree as stored (JSON), or
     ("", {}): read without building the tree, as it is asked for every busy unit per plan."""
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        common: dict[str, Any] = next(
-            (node[k] for k in COMMON_KEYS if isinstance(node.get(k), dict)), {})
+    for node, common in stored_nodes(tree):
         if common.get("node-uuid") == node_uuid:
             params = node.get("params")
             return str(node.get("name", "")), params if isinstance(params, dict) else {}
-        stack.extend(c for c in node.get("children") or () if isinstance(c, dict))
     return "", {}

@@ -39,7 +39,7 @@ from delegation.messages import (
 from delegation.runtime.core import Effects, Outgoing
 from delegation.service.missions import Mission, MissionBook
 from delegation.service.planning import MissionPart
-from delegation.tst.node import COMMON_KEYS, CONTROL_NODES, TstNode, parse_tree, walk
+from delegation.tst.node import CONTROL_NODES, TstNode, parse_tree, stored_nodes, walk
 
 log = logging.getLogger(__name__)
 
@@ -119,18 +119,9 @@ def tasks_by_unit(tst: dict[str, Any]) -> TaskIndex:
     what a ``start-task`` on that unit is matched against. The tree is one the service built
     and sent (valid): it is walked as JSON, not parsed again."""
     out: TaskIndex = {}
-    stack: list[Any] = [tst]
-    while stack:
-        raw = stack.pop()
-        if not isinstance(raw, dict):
-            continue
-        name = raw.get("name")
-        if name in CONTROL_NODES:
-            stack.extend(reversed(raw.get("children") or ()))
-            continue
-        common = next((raw[k] for k in COMMON_KEYS if k in raw), None) or {}
-        uid = common.get("node-uuid")
-        if isinstance(name, str) and isinstance(uid, str) and uid:
+    for raw, common in stored_nodes(tst):
+        name, uid = raw.get("name"), common.get("node-uuid")
+        if name not in CONTROL_NODES and isinstance(name, str) and isinstance(uid, str) and uid:
             unit = str(common.get("execunit") or "").strip("/")
             out.setdefault((unit, name), []).append((uid, dict(raw.get("params") or {})))
     return out

@@ -119,6 +119,21 @@ def walk(root: TstNode, root_path: str = "root") -> Iterator[tuple[str, TstNode]
             stack.append((f"{path}/children[{i}]", node.children[i]))
 
 
+def stored_nodes(tree: dict[str, Any]) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
+    """Every node of a tree as JSON with its common parameters (``{}`` without), parents before
+    children, in tree order: for trees the service built itself and keeps as JSON (the tree sent,
+    the tree the engine runs), read per message or per plan without building `TstNode`s."""
+    stack: list[Any] = [tree]
+    while stack:
+        raw = stack.pop()
+        if not isinstance(raw, dict):
+            continue
+        yield raw, next((raw[k] for k in COMMON_KEYS if isinstance(raw.get(k), dict)), {})
+        children = raw.get("children")
+        if isinstance(children, list):
+            stack.extend(reversed(children))
+
+
 def where(path: str, node: TstNode | None = None) -> str:
     """A node's name for messages: its path, plus name and uuid where known."""
     if node is None:
