@@ -25,7 +25,7 @@ from delegation.allocation.auction.general import _GeneralAuction, _suffix_minim
 from delegation.allocation.problem import Problem
 from delegation.allocation.schedule import Schedule
 from delegation.allocation.strategies import Objective
-from delegation.coverage import _close
+from delegation.lanes import _close
 
 CASES = [(seed, shape, objective) for seed in range(3) for shape in SHAPES
          for objective in ("makespan", "total")]

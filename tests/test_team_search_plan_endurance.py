@@ -35,7 +35,7 @@ COMB = [(879.8, -315.8), (36.8, 934.0), (-713.1, 428.2), (-544.5, 178.2), (-44.6
 DRONES = [(1706.4, -1086.4, 3.1892), (2242.9, 2588.3, 2.7320), (-1209.9, -2336.0, 3.5719),
           (-1857.1, 1170.0, 3.0998)]
 #: Re-derived once the sweeps gave the strips along the comb's teeth that the even lanes missed
-#: lanes of their own (``coverage._gap_lanes``): sized once, this case is infeasible up to
+#: lanes of their own (``lanes._gap_lanes``): sized once, this case is infeasible up to
 #: 3,010 s, and re-cut feasible from 2,930 s (scanned in 10 s steps; before: 3,024 and 3,016 s).
 ENDURANCE_S = 2970.0
 
