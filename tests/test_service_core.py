@@ -345,6 +345,25 @@ def test_a_command_that_arrives_before_the_engine_is_heard_waits_for_it() -> Non
         ("delegation", "b-1")]
 
 
+def test_a_started_service_listens_a_round_of_heartbeats_before_it_plans() -> None:
+    # ``listen_round`` (``delegation serve``: 1.2 s): hearing the engine is not enough, a unit's
+    # beat of the same second may come after it; the command waits for the round to pass.
+    core = ServiceCore(ServiceConfig(prefix=PREFIX, listen_round=1.2))
+    assert core.on_message(f"{BASE}/tst/command", start_tst(partial_tree()), 50.0) == Effects()
+    feed_unit(core, "dji0", 57.7605, 16.6815, ["move-to"], 50.4)
+    hb = HeartBeat(agent_type="ground", agent_uuid="engine", levels=["tst execution"],
+                   name="op0", rate=1.0, stamp=50.6)
+    assert core.on_message(f"{ENGINE}/heartbeat", encode(hb), 50.6).jobs == []
+    feed_unit(core, "dji1", 57.7610, 16.6820, ["move-to"], 50.7)  # after the engine
+    assert core.on_tick(51.0).jobs == []
+    released = core.on_tick(51.2)
+    assert [j.key for j in released.jobs] == [("tst", "c-1")]
+    assert [u.name for u in released.jobs[0].units] == ["dji0", "dji1"]
+    bids = json.dumps({"com-uuid": "b-1", "command": "get-bids", "tst": partial_tree()}).encode()
+    assert [j.key for j in core.on_message(f"{BASE}/delegation/command", bids, 51.4).jobs] == [
+        ("delegation", "b-1")]
+
+
 def test_status_messages(core: ServiceCore) -> None:
     out: list[Outgoing] = core.status(123.0, 123.0)
     topics = {o.topic.rsplit("/", 1)[1]: json.loads(o.payload) for o in out}

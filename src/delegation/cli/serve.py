@@ -109,6 +109,10 @@ def _service_args(p: argparse.ArgumentParser) -> None:
                    "hung plan is then ended without the service")
     p.add_argument("--planner-queue", type=_queue_size, default=1000, metavar="N", help="plans "
                    "waiting or being made past which a command that plans is refused (busy)")
+    p.add_argument("--listen-round", type=float, default=1.2, metavar="SECONDS",
+                   help="after starting, hold commands that plan until this long has been "
+                   "listened (one round of the fleet's heartbeats) and the engine is heard, at "
+                   "most 3 s (0: as soon as the engine is heard)")
     p.add_argument("--fleet", action="append", default=[], metavar="UNIT",
                    help="a unit this service manages (repeatable; default: every unit no other "
                    "delegator says it manages); said in its delegation_info")
@@ -159,6 +163,7 @@ def _serve(args: argparse.Namespace) -> int:
         federate=args.bid_window > 0,
         partners=frozenset(args.partner),
         planner_queue=args.planner_queue,
+        listen_round=args.listen_round,
     )
     if config.time_limit > config.max_time_limit:
         raise UsageError(f"--time-limit: {config.time_limit:g} s is above the service's maximum "

@@ -57,6 +57,13 @@ class ServiceConfig:
     #: (rather than being refused or planned for the part of the fleet heard so far) until the
     #: engine has been heard: peers' heartbeats come once a second and are not retained.
     listen_first: float = 3.0
+    #: ... and, within ``listen_first``, until it has listened this long: one round of its
+    #: peers' heartbeats (once a second) and some jitter. Hearing the engine says nothing of the
+    #: units, whose beats of the same second may come after it (the deployment doc's ``submit``
+    #: right after ``serve`` started was planned for none of its three units, 16-31 ms early).
+    #: ``delegation serve`` listens 1.2 s (``--listen-round``); 0 here, where a caller feeds the
+    #: core its peers itself (the pure tests, on their own clocks, hear the engine last).
+    listen_round: float = 0.0
     #: Planning jobs handed to the planner and not finished yet (waiting or being planned)
     #: beyond which a command that plans is refused, "busy", and not kept: a re-send once the
     #: planner has caught up is planned (issue 22; re-delegations are never refused). 1000:

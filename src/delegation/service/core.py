@@ -118,7 +118,8 @@ class ServiceCore(Identified):
         self.identity = c.identity(agent_uuid or str(uuid.uuid4()))
         self._offline_since: float | None = None
         #: When this core first heard anything (its listening began), and the planning commands
-        #: that arrived before the engine was heard, held until it is or ``listen_first`` passed.
+        #: that arrived before the engine and a round of heartbeats were heard (``listen_round``),
+        #: held until they are or ``listen_first`` passed.
         self._listening_since: float | None = None
         self._held: list[tuple[Face, WireModel, CommandKey]] = []
         #: Jobs handed to the planner whose results have not come back (`ServiceConfig.
@@ -369,17 +370,19 @@ class ServiceCore(Identified):
                 f"most {self.config.planner_queue}); nothing was accepted: send the command "
                 "again later")).fail_reason)
         if self._warming(now) and plans:
-            log.info("command %s on %s held until the engine %s is heard (at most %.1f s)",
-                     key[1], face, self.config.engine, self.config.listen_first)
+            log.info("command %s on %s held until the engine %s and a round of heartbeats "
+                     "are heard (at most %.1f s)", key[1], face, self.config.engine,
+                     self.config.listen_first)
             self._held.append((face, arrival.command, key))
             return Effects()
         return self._act(face, arrival.command, key, now)
 
     def _warming(self, now: float) -> bool:
-        """True while the service has just begun listening and has not heard its engine yet."""
+        """True while the service has just begun listening (within ``listen_first``) and has not
+        heard its engine yet, or not yet one round of its peers' heartbeats (``listen_round``)."""
         since = self._listening_since
         return (since is not None and now < since + self.config.listen_first
-                and self.engine.base(now) is None)
+                and (self.engine.base(now) is None or now < since + self.config.listen_round))
 
     def _release_held(self, now: float) -> Effects:
         """Act on the held commands, in arrival order, once the engine is heard or the wait ends."""
