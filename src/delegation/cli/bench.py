@@ -10,7 +10,7 @@ cluster (``--executor dask``). The library does the work; this module parses and
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +20,14 @@ from delegation.errors import InputError, InputProblem
 
 if TYPE_CHECKING:
     from delegation.bench.runner import BenchResult, LoadedScenario, ScenarioFailure
+
+
+#: ``--units``/``--tasks`` when not given, for ``--generate`` and (units) for ``--tsplib``;
+#: ``--scale`` sweeps the grid of `delegation.bench.scale` (named in the help, not imported: it
+#: loads numpy, and ``--help`` stays fast).
+GENERATE_UNITS: tuple[int, ...] = (5,)
+GENERATE_TASKS: tuple[int, ...] = (20,)
+TSPLIB_UNITS: tuple[int, ...] = (3,)
 
 
 def _words(text: str) -> list[str]:
@@ -179,18 +187,8 @@ def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
         help="scenarios per size, seeds SEED, SEED+1, ... (default 1)",
     )
     gen.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    gen.add_argument(
-        "--units",
-        type=_ints,
-        default=None,
-        help="units per scenario, comma-separated (default 5; --scale: 5,20,50,200)",
-    )
-    gen.add_argument(
-        "--tasks",
-        type=_ints,
-        default=None,
-        help="tasks per scenario, comma-separated (default 20; --scale: 10,30,100,300,1000)",
-    )
+    _grid_axis(gen, "units", GENERATE_UNITS, scale=(5, 20, 50, 200))
+    _grid_axis(gen, "tasks", GENERATE_TASKS, scale=(10, 30, 100, 300, 1000))
     gen.add_argument(
         "--site", default="granso", help="granso, motala or linkoping (default granso)"
     )
@@ -219,6 +217,22 @@ def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
         "('auction --no-split')",
     )
 
+
+def _grid_axis(gen: Any, axis: str, default: Sequence[int], scale: Sequence[int]) -> None:
+    """``--units`` or ``--tasks``: one axis of the grid of generated scenarios, ``default``
+    without ``--scale``, ``scale`` (the sweep's own grid, said in the help) with it."""
+    gen.add_argument(
+        f"--{axis}",
+        type=_ints,
+        default=None,
+        help=f"{axis} per scenario, comma-separated (default {_listed(default)}; --scale: "
+        f"{_listed(scale)})",
+    )
+
+
+def _listed(values: Sequence[int]) -> str:
+    """``5,20,50``: a comma-separated axis as the flags take it."""
+    return ",".join(map(str, values))
 
 
 def _scale_options(parser: argparse.ArgumentParser) -> None:
@@ -308,8 +322,8 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
     if getattr(args, "family", "mixed") == "team-search":  # (its sizes are the family's own)
         return generate_many(_generator_options(args, 1, 1, args.seed), args.count)
     out = []
-    for units in args.units or [5]:
-        for tasks in args.tasks or [20]:
+    for units in args.units or GENERATE_UNITS:
+        for tasks in args.tasks or GENERATE_TASKS:
             out += generate_many(_generator_options(args, units, tasks, args.seed), args.count)
     return out
 
@@ -324,7 +338,7 @@ def _tsplib(args: argparse.Namespace) -> list[Any]:
     for path in args.tsplib:
         if not path.is_file():
             raise InputError(InputProblem(str(path), "--tsplib", "no such file"))
-        for units in args.units or [3]:
+        for units in args.units or TSPLIB_UNITS:
             scenario = tsplib_scenario(path, units)
             out.append(LoadedScenario(f"{path} (m={units})", scenario,
                                       best_known(path.stem, units)))
@@ -581,15 +595,15 @@ def _command_line(args: argparse.Namespace) -> str:
     for path in args.tsplib:
         words += ["--tsplib", str(path)]
     if args.tsplib and not args.generate:
-        words += ["--units", ",".join(map(str, args.units or [3]))]
+        words += ["--units", _listed(args.units or TSPLIB_UNITS)]
     family = getattr(args, "family", "mixed")
     if args.generate and family != "mixed":
         words += ["--generate", "--family", family, "--seed", str(args.seed),
                   "--count", str(args.count)]
     elif args.generate:
         words += ["--generate", "--seed", str(args.seed), "--site", args.site]
-        words += ["--units", ",".join(map(str, args.units or [5]))]
-        words += ["--tasks", ",".join(map(str, args.tasks or [20]))]
+        words += ["--units", _listed(args.units or GENERATE_UNITS)]
+        words += ["--tasks", _listed(args.tasks or GENERATE_TASKS)]
     if args.strategies:
         words += ["--strategies", ",".join(args.strategies)]
     if args.objectives:
