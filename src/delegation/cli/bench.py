@@ -19,7 +19,9 @@ from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, InputProblem
 
 if TYPE_CHECKING:
+    from delegation.bench.generate import GeneratorOptions
     from delegation.bench.runner import BenchResult, LoadedScenario, ScenarioFailure
+    from delegation.bench.scale import ScaleRecord
 
 
 #: ``--units``/``--tasks`` when not given, for ``--generate`` and (units) for ``--tsplib``;
@@ -496,20 +498,9 @@ def _run_compare(args: argparse.Namespace, console: Any) -> int:
 
 
 def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
-    from delegation.bench.report import compact_table
-    from delegation.bench.scale import (
-        DEFAULT_BUDGET,
-        DEFAULT_TASKS,
-        DEFAULT_UNITS,
-        ScaleInterrupted,
-        run_scale,
-        scale_plot,
-        summary_rows,
-        write_scale_csv,
-    )
+    from delegation.bench.scale import DEFAULT_BUDGET, DEFAULT_TASKS, DEFAULT_UNITS, summary_rows
 
     budget = args.budget if args.budget is not None else DEFAULT_BUDGET
-    out: Path = args.out or Path("bench-out")
     units, tasks = args.units or DEFAULT_UNITS, args.tasks or DEFAULT_TASKS
     generator = _generator_options(args, 1, 1, args.seed)
     if args.time_limit >= budget:
@@ -517,10 +508,49 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
             f"{budget:g} s: optimal will exceed it at the first size"
         )
-    interrupted = False
+    records, interrupted = _scale_sweep(args, units, tasks, budget, generator, err)
+    if interrupted and not records:
+        err.print("interrupted: no run had finished; nothing written")
+        return 130
+    rows = summary_rows(records)
+    console.print(_scale_table(rows, budget, args.time_limit))
+    console.print(
+        "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
+        "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
+        "where it beat every other strategy (a returned plan of another never counts); copied: "
+        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
+        style="dim",
+    )
+    setup = (
+        f"Grid: units {', '.join(map(str, units))} x tasks "
+        f"{', '.join(map(str, tasks))}; budget {budget:g} s per plan; "
+        f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
+        f"structure {generator.structure}, radius {generator.radius:g} m)."
+    )
+    for path in _write_scale(records, rows, args.out or Path("bench-out"), setup, budget,
+                             plots=not args.no_plots):
+        err.print(f"wrote {path}")
+    problems = _print_scale_problems(records, err)
+    if interrupted:
+        err.print(f"interrupted: wrote the {len(records)} runs that finished")
+        return 130
+    return 1 if problems else 0
+
+
+def _scale_sweep(
+    args: argparse.Namespace,
+    units: Sequence[int],
+    tasks: Sequence[int],
+    budget: float,
+    generator: GeneratorOptions,
+    err: Any,
+) -> tuple[list[ScaleRecord], bool]:
+    """The sweep's records, and whether Ctrl-C stopped it (then the records that finished)."""
+    from delegation.bench.scale import ScaleInterrupted, run_scale
+
     try:
         with _executor(args) as executor, _progress(err, "scale sweep") as update:
-            records = run_scale(
+            return run_scale(
                 args.strategies,
                 objectives=args.objectives or ["makespan"],
                 units=units,
@@ -531,19 +561,18 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
                 progress=update,
                 isolate=not args.in_process,
                 executor=executor,
-            )
+            ), False
     except ScaleInterrupted as stop:  # Ctrl-C: write what finished, then exit 130
-        records, interrupted = stop.records, True
-        if not records:
-            err.print("interrupted: no run had finished; nothing written")
-            return 130
-    rows = summary_rows(records)
-    table = compact_table(
-        f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s"
-    )
-    headers = _SCALE_HEADERS
+        return stop.records, True
+
+
+def _scale_table(rows: list[dict[str, Any]], budget: float, time_limit: float) -> Any:
+    """The sweep's summary for the terminal, a row per strategy x objective."""
+    from delegation.bench.report import compact_table
+
+    table = compact_table(f"Scale sweep: budget {budget:g} s per plan, time limit {time_limit:g} s")
     cells = [_scale_cells(row) for row in rows]
-    for i, header in enumerate(headers):
+    for i, header in enumerate(_SCALE_HEADERS):
         table.add_column(
             header,
             justify="left" if i < 2 else "right",
@@ -552,28 +581,32 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         )
     for row_cells in cells:
         table.add_row(*row_cells)
-    console.print(table)
-    console.print(
-        "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
-        "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
-        "where it beat every other strategy (a returned plan of another never counts); copied: "
-        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
-        style="dim",
-    )
+    return table
+
+
+def _write_scale(
+    records: list[ScaleRecord],
+    rows: list[dict[str, Any]],
+    out: Path,
+    setup: str,
+    budget: float,
+    *,
+    plots: bool,
+) -> list[Path]:
+    """``scale.csv``, ``scale.md`` (``setup``, then the summary) and ``scale.png`` in ``out``."""
+    from delegation.bench.scale import scale_plot, write_scale_csv
+
     written = [write_scale_csv(records, out / "scale.csv")]
     md = out / "scale.md"
-    setup = (
-        f"Grid: units {', '.join(map(str, units))} x tasks "
-        f"{', '.join(map(str, tasks))}; budget {budget:g} s per plan; "
-        f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
-        f"structure {generator.structure}, radius {generator.radius:g} m)."
-    )
     md.write_text(setup + "\n\n" + _scale_markdown(rows) + "\n", encoding="utf-8")
     written.append(md)
-    if not args.no_plots:
+    if plots:
         written.append(scale_plot(records, out / "scale.png", budget=budget))
-    for path in written:
-        err.print(f"wrote {path}")
+    return written
+
+
+def _print_scale_problems(records: list[ScaleRecord], err: Any) -> bool:
+    """Each violated invariant, then each failed run, on ``err``; True when there was any."""
     violations = [r for r in records if r.problems]
     for r in violations:
         err.print(
@@ -583,10 +616,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     failed = [r for r in records if r.status == "failed"]
     for r in failed:
         err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
-    if interrupted:
-        err.print(f"interrupted: wrote the {len(records)} runs that finished")
-        return 130
-    return 1 if violations or failed else 0
+    return bool(violations or failed)
 
 
 def _command_line(args: argparse.Namespace) -> str:
