@@ -207,3 +207,19 @@ def test_results_page_is_made_from_the_same_records(tmp_path: Path) -> None:
     assert "](bench/gen-granso-u2-t3-s0-objective.png)" in page
     assert "![scale sweep](scale.png)" in page
     assert "| makespan | auction | 1 |" in page  # the summary row
+
+
+def test_grid_help_names_the_scale_sweeps_own_grid() -> None:
+    """``--units``/``--tasks`` say the --scale defaults in their help without importing
+    `delegation.bench.scale` (numpy) at parse time: the help must not drift from the sweep."""
+    import argparse
+
+    from delegation.bench.scale import DEFAULT_TASKS, DEFAULT_UNITS
+    from delegation.cli import bench
+
+    sub = argparse.ArgumentParser().add_subparsers()
+    bench.register(sub)
+    parser = sub.choices["bench"]
+    helps = {a.dest: a.help or "" for a in parser._actions}
+    assert f"--scale: {','.join(map(str, DEFAULT_UNITS))})" in helps["units"]
+    assert f"--scale: {','.join(map(str, DEFAULT_TASKS))})" in helps["tasks"]

@@ -41,17 +41,6 @@ def write_results_page(
     """Write the page's markdown to ``page``; ``plots_dir`` holds the bar charts
     (``<scenario>-objective.png``), linked relative to the page."""
     page = Path(page)
-    violated = [r for r in records if r.problems]
-    if violated:
-        checks = (
-            f"**{len(violated)} of {len(records)} plans failed the planner's invariant checks** "
-            "(`check_invariants`): see the `checks` column."
-        )
-    else:
-        checks = (
-            f"All {len(records)} plans passed the planner's invariant checks (`check_invariants`)."
-        )
-    scenarios = list(dict.fromkeys((r.scenario, r.units, r.tasks) for r in records))
     parts = [
         "# Allocation strategies: results",
         "",
@@ -64,7 +53,7 @@ def write_results_page(
         "",
         "(the second command writes `scale.png`, `scale.csv` and `scale.md` next to this page).",
         f"Each strategy planned each scenario once per objective; `optimal` had a time limit of "
-        f"{time_limit:g} s. {checks}",
+        f"{time_limit:g} s. {_checks(records)}",
         "",
         "## Summary",
         "",
@@ -88,32 +77,55 @@ def write_results_page(
         "",
     ]
     if plots_dir is not None:
-        parts += ["## Objective per strategy, per scenario", ""]
-        for name, units, tasks in scenarios:
-            png = Path(plots_dir) / f"{name}-objective.png"
-            if png.exists():
-                parts.append(f"- [{name}]({_rel(png, page)}) ({units} units, {tasks} tasks)")
-        parts.append("")
-    scale_png = page.parent / "scale.png"
-    scale_md = page.parent / "scale.md"
-    if scale_png.exists():
-        parts += [
-            "## Scale",
-            "",
-            "Generated scenarios (as `delegation bench --generate` makes them) on a grid of "
-            "units x tasks, one scenario per cell shared by all strategies. Left: wall time per "
-            "plan; a strategy that exceeds the budget is stopped there, and larger cells (at "
-            "least as many units and tasks) are skipped for it. Right: objective relative to the "
-            "best strategy on the same scenario; *strictly best* counts the cells where a "
-            "strategy beat every other one. Raw numbers, with what each strategy reported doing "
-            "(column `notes`: e.g. whether CP-SAT ran or the auction's plan was kept): "
-            "[scale.csv](scale.csv).",
-            "",
-            f"![scale sweep]({_rel(scale_png, page)})",
-            "",
-        ]
-        if scale_md.exists():
-            parts += [scale_md.read_text(encoding="utf-8").strip(), ""]
+        parts += _chart_links(records, Path(plots_dir), page)
+    parts += _scale_section(page)
     page.parent.mkdir(parents=True, exist_ok=True)
     page.write_text("\n".join(parts), encoding="utf-8")
     return page
+
+
+def _checks(records: Sequence[RunRecord]) -> str:
+    """The sentence on the planner's invariant checks (how many plans failed them)."""
+    violated = [r for r in records if r.problems]
+    if violated:
+        return (
+            f"**{len(violated)} of {len(records)} plans failed the planner's invariant checks** "
+            "(`check_invariants`): see the `checks` column."
+        )
+    return f"All {len(records)} plans passed the planner's invariant checks (`check_invariants`)."
+
+
+def _chart_links(records: Sequence[RunRecord], plots_dir: Path, page: Path) -> list[str]:
+    """The section linking each scenario's bar chart found in ``plots_dir``."""
+    lines = ["## Objective per strategy, per scenario", ""]
+    for name, units, tasks in dict.fromkeys((r.scenario, r.units, r.tasks) for r in records):
+        png = plots_dir / f"{name}-objective.png"
+        if png.exists():
+            lines.append(f"- [{name}]({_rel(png, page)}) ({units} units, {tasks} tasks)")
+    return [*lines, ""]
+
+
+def _scale_section(page: Path) -> list[str]:
+    """The scale sweep's section when its PNG (and summary) sit next to the page, else none."""
+    scale_png = page.parent / "scale.png"
+    scale_md = page.parent / "scale.md"
+    if not scale_png.exists():
+        return []
+    lines = [
+        "## Scale",
+        "",
+        "Generated scenarios (as `delegation bench --generate` makes them) on a grid of "
+        "units x tasks, one scenario per cell shared by all strategies. Left: wall time per "
+        "plan; a strategy that exceeds the budget is stopped there, and larger cells (at "
+        "least as many units and tasks) are skipped for it. Right: objective relative to the "
+        "best strategy on the same scenario; *strictly best* counts the cells where a "
+        "strategy beat every other one. Raw numbers, with what each strategy reported doing "
+        "(column `notes`: e.g. whether CP-SAT ran or the auction's plan was kept): "
+        "[scale.csv](scale.csv).",
+        "",
+        f"![scale sweep]({_rel(scale_png, page)})",
+        "",
+    ]
+    if scale_md.exists():
+        lines += [scale_md.read_text(encoding="utf-8").strip(), ""]
+    return lines

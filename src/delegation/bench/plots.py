@@ -10,13 +10,15 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from delegation.bench.runner import BenchResult, RunRecord
 from delegation.bench.stats import describe
 from delegation.bench.summary import StrategySummary
 
 if TYPE_CHECKING:
+    from matplotlib.artist import Artist
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 OBJECTIVE_LABEL: dict[str, str] = {"makespan": "makespan (s)", "total": "total time (s)"}
@@ -37,15 +39,20 @@ def new_figure(width: float, height: float) -> Figure:
     return fig
 
 
+def save_png(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG at ``path``, its folder made if need be; returns the path."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png")
+    return out
+
+
 def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None = None) -> Path:
     """One scenario's objective per strategy: a panel per objective; the legend explains every
     mark: bar = mean over repeats, black whisker = the mean's 95 % CI (Student t), grey dots =
     the single runs, hatched = tasks left unassigned, thick black tick = CP-SAT's proven bound,
     dashed line = best known value, black dotted tick = a shared search's lower bound (DESIGN
     3.11) with the makespan over it. A strategy that returned another's plan is labelled so."""
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
     from delegation.bench.summary import strategy_label
 
     objectives = list(dict.fromkeys(r.objective for r in records))
@@ -61,42 +68,8 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
         for i, strategy in enumerate(strategies):
             runs = [r for r in records if r.objective == objective and r.strategy == strategy]
             labels.append(strategy_label(strategy, runs) if runs else strategy)
-            if not runs:
-                continue
-            stats = describe([r.objective_value for r in runs])
-            unassigned = max(r.unassigned for r in runs)
-            ax.bar(i, stats.mean, color=cmap(i % 10), edgecolor="black",
-                   hatch="//" if unassigned else None)
-            shown.add("bar")
-            if unassigned:
-                shown.add("hatch")
-            if stats.ci_low is not None and stats.ci_high is not None:
-                ax.errorbar(i, stats.mean, yerr=[[stats.mean - stats.ci_low],
-                                                 [stats.ci_high - stats.mean]],
-                            color="black", capsize=5, lw=1.2)
-                shown.add("ci")
-            if len(runs) > 1:
-                ax.plot([i] * len(runs), [r.objective_value for r in runs], "o", ms=3,
-                        color="0.35", zorder=3)
-                shown.add("runs")
-            label = f"{stats.mean:,.0f}" + (f"\n{unassigned} unassigned" if unassigned else "")
-            ax.annotate(label, (i, stats.mean), ha="center", va="bottom", fontsize=8,
-                        xytext=(8, 3), textcoords="offset points")
-            searches = [r.search_bound for r in runs
-                        if r.search_bound is not None and objective == "makespan"]
-            if searches:
-                ax.plot([i - 0.4, i + 0.4], [max(searches)] * 2, color="black", lw=2,
-                        ls=":")
-                best_vs = min((r.vs_search_bound for r in runs if r.vs_search_bound), default=None)
-                if best_vs is not None:
-                    ax.annotate(f"{best_vs:.2f}x bound", (i, max(searches)), ha="center",
-                                va="top", fontsize=7, color="black", xytext=(0, -3),
-                                textcoords="offset points")
-                shown.add("search")
-            bounds = [r.bound for r in runs if r.bound is not None]
-            if bounds:
-                ax.plot([i - 0.4, i + 0.4], [max(bounds)] * 2, color="black", lw=3)
-                shown.add("bound")
+            if runs:
+                shown |= _strategy_bar(ax, i, runs, objective, cmap(i % 10))
         best = next((r.best_known for r in records
                      if r.objective == objective and r.best_known is not None), None)
         if best is not None:
@@ -109,7 +82,61 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
         ax.grid(True, axis="y", alpha=0.3)
     n = max(sum(1 for r in records if r.objective == objectives[0] and r.strategy == s)
             for s in strategies)
-    marks = {
+    handles = [h for k, h in _bar_chart_marks(n).items() if k in shown]
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), fontsize=8,
+               frameon=False)
+    fig.suptitle(title or records[0].scenario, fontsize=11)
+    fig.tight_layout(rect=(0, 0.12 if len(handles) > 3 else 0.07, 1, 1))
+    return save_png(fig, path)
+
+
+def _strategy_bar(
+    ax: Axes, i: int, runs: Sequence[RunRecord], objective: str, colour: Any
+) -> set[str]:
+    """One strategy's bar at ``i`` with its marks (`bar_chart`); returns the marks drawn, for
+    the legend."""
+    shown = {"bar"}
+    stats = describe([r.objective_value for r in runs])
+    unassigned = max(r.unassigned for r in runs)
+    ax.bar(i, stats.mean, color=colour, edgecolor="black", hatch="//" if unassigned else None)
+    if unassigned:
+        shown.add("hatch")
+    if stats.ci_low is not None and stats.ci_high is not None:
+        ax.errorbar(i, stats.mean, yerr=[[stats.mean - stats.ci_low],
+                                         [stats.ci_high - stats.mean]],
+                    color="black", capsize=5, lw=1.2)
+        shown.add("ci")
+    if len(runs) > 1:
+        ax.plot([i] * len(runs), [r.objective_value for r in runs], "o", ms=3,
+                color="0.35", zorder=3)
+        shown.add("runs")
+    label = f"{stats.mean:,.0f}" + (f"\n{unassigned} unassigned" if unassigned else "")
+    ax.annotate(label, (i, stats.mean), ha="center", va="bottom", fontsize=8,
+                xytext=(8, 3), textcoords="offset points")
+    searches = [r.search_bound for r in runs
+                if r.search_bound is not None and objective == "makespan"]
+    if searches:
+        ax.plot([i - 0.4, i + 0.4], [max(searches)] * 2, color="black", lw=2, ls=":")
+        best_vs = min((r.vs_search_bound for r in runs if r.vs_search_bound), default=None)
+        if best_vs is not None:
+            ax.annotate(f"{best_vs:.2f}x bound", (i, max(searches)), ha="center",
+                        va="top", fontsize=7, color="black", xytext=(0, -3),
+                        textcoords="offset points")
+        shown.add("search")
+    bounds = [r.bound for r in runs if r.bound is not None]
+    if bounds:
+        ax.plot([i - 0.4, i + 0.4], [max(bounds)] * 2, color="black", lw=3)
+        shown.add("bound")
+    return shown
+
+
+def _bar_chart_marks(n: int) -> dict[str, Artist]:
+    """The legend's entry for each mark `bar_chart` may draw, in legend order (``n``: runs
+    per bar)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    return {
         "bar": Patch(facecolor="0.8", edgecolor="black", label=f"mean of {n} run(s)"),
         "ci": Line2D([], [], color="black", marker="_", ms=10, label="95% CI of the mean"),
         "runs": Line2D([], [], color="0.35", marker="o", ls="", ms=3, label="single runs"),
@@ -120,15 +147,6 @@ def bar_chart(records: Sequence[RunRecord], path: str | Path, title: str | None 
         "search": Line2D([], [], color="black", ls=":", lw=2,
                          label="search's lower bound (DESIGN 3.11), makespan / it"),
     }
-    handles = [h for k, h in marks.items() if k in shown]
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), fontsize=8,
-               frameon=False)
-    fig.suptitle(title or records[0].scenario, fontsize=11)
-    fig.tight_layout(rect=(0, 0.12 if len(handles) > 3 else 0.07, 1, 1))
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png")
-    return out
 
 
 def summary_plot(rows: Sequence[StrategySummary], path: str | Path) -> Path:
@@ -172,10 +190,7 @@ def summary_plot(rows: Sequence[StrategySummary], path: str | Path) -> Path:
     fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False)
     fig.suptitle("Strategies across scenarios", fontsize=11)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png")
-    return out
+    return save_png(fig, path)
 
 
 def write_plots(

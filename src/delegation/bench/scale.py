@@ -323,7 +323,7 @@ def scale_plot(
     skipped cells are an x on the budget line."""
     import matplotlib
 
-    from delegation.bench.plots import new_figure
+    from delegation.bench.plots import new_figure, save_png
 
     fig = new_figure(12.0, 5.0)
     ax_time, ax_rel = fig.subplots(1, 2)
@@ -347,10 +347,7 @@ def scale_plot(
     _style_time_axis(ax_time, records, handles, budget)
     _style_relative_axis(ax_rel, records, handles)
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png")
-    return out
+    return save_png(fig, path)
 
 
 _STYLES = ["-", "--", ":", "-."]

@@ -10,6 +10,7 @@ from contextlib import suppress
 from typing import Any
 
 from delegation.cli.connect import add_broker_args, client_settings
+from delegation.cli.options import add_format_args
 from delegation.errors import DelegationError
 
 
@@ -18,9 +19,7 @@ def register(subparsers: Any) -> None:
     agents.add_argument(
         "--wait", type=float, default=3.0, help="seconds to listen for heartbeats (default 3)"
     )
-    agents.add_argument("--format", choices=("table", "json"), default="table")
-    agents.add_argument("--json", dest="format", action="store_const", const="json",
-                        help="same as --format json")
+    add_format_args(agents)
     add_broker_args(agents)
     agents.set_defaults(func=_agents)
 

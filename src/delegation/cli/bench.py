@@ -10,7 +10,7 @@ cluster (``--executor dask``). The library does the work; this module parses and
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -19,7 +19,17 @@ from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.errors import InputError, InputProblem
 
 if TYPE_CHECKING:
+    from delegation.bench.generate import GeneratorOptions
     from delegation.bench.runner import BenchResult, LoadedScenario, ScenarioFailure
+    from delegation.bench.scale import ScaleRecord
+
+
+#: ``--units``/``--tasks`` when not given, for ``--generate`` and (units) for ``--tsplib``;
+#: ``--scale`` sweeps the grid of `delegation.bench.scale` (named in the help, not imported: it
+#: loads numpy, and ``--help`` stays fast).
+GENERATE_UNITS: tuple[int, ...] = (5,)
+GENERATE_TASKS: tuple[int, ...] = (20,)
+TSPLIB_UNITS: tuple[int, ...] = (3,)
 
 
 def _words(text: str) -> list[str]:
@@ -179,18 +189,8 @@ def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
         help="scenarios per size, seeds SEED, SEED+1, ... (default 1)",
     )
     gen.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    gen.add_argument(
-        "--units",
-        type=_ints,
-        default=None,
-        help="units per scenario, comma-separated (default 5; --scale: 5,20,50,200)",
-    )
-    gen.add_argument(
-        "--tasks",
-        type=_ints,
-        default=None,
-        help="tasks per scenario, comma-separated (default 20; --scale: 10,30,100,300,1000)",
-    )
+    _grid_axis(gen, "units", GENERATE_UNITS, scale=(5, 20, 50, 200))
+    _grid_axis(gen, "tasks", GENERATE_TASKS, scale=(10, 30, 100, 300, 1000))
     gen.add_argument(
         "--site", default="granso", help="granso, motala or linkoping (default granso)"
     )
@@ -219,6 +219,22 @@ def _generated_scenario_options(parser: argparse.ArgumentParser) -> None:
         "('auction --no-split')",
     )
 
+
+def _grid_axis(gen: Any, axis: str, default: Sequence[int], scale: Sequence[int]) -> None:
+    """``--units`` or ``--tasks``: one axis of the grid of generated scenarios, ``default``
+    without ``--scale``, ``scale`` (the sweep's own grid, said in the help) with it."""
+    gen.add_argument(
+        f"--{axis}",
+        type=_ints,
+        default=None,
+        help=f"{axis} per scenario, comma-separated (default {_listed(default)}; --scale: "
+        f"{_listed(scale)})",
+    )
+
+
+def _listed(values: Sequence[int]) -> str:
+    """``5,20,50``: a comma-separated axis as the flags take it."""
+    return ",".join(map(str, values))
 
 
 def _scale_options(parser: argparse.ArgumentParser) -> None:
@@ -308,8 +324,8 @@ def _generated(args: argparse.Namespace) -> list[dict[str, Any]]:
     if getattr(args, "family", "mixed") == "team-search":  # (its sizes are the family's own)
         return generate_many(_generator_options(args, 1, 1, args.seed), args.count)
     out = []
-    for units in args.units or [5]:
-        for tasks in args.tasks or [20]:
+    for units in args.units or GENERATE_UNITS:
+        for tasks in args.tasks or GENERATE_TASKS:
             out += generate_many(_generator_options(args, units, tasks, args.seed), args.count)
     return out
 
@@ -324,7 +340,7 @@ def _tsplib(args: argparse.Namespace) -> list[Any]:
     for path in args.tsplib:
         if not path.is_file():
             raise InputError(InputProblem(str(path), "--tsplib", "no such file"))
-        for units in args.units or [3]:
+        for units in args.units or TSPLIB_UNITS:
             scenario = tsplib_scenario(path, units)
             out.append(LoadedScenario(f"{path} (m={units})", scenario,
                                       best_known(path.stem, units)))
@@ -482,20 +498,9 @@ def _run_compare(args: argparse.Namespace, console: Any) -> int:
 
 
 def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
-    from delegation.bench.report import compact_table
-    from delegation.bench.scale import (
-        DEFAULT_BUDGET,
-        DEFAULT_TASKS,
-        DEFAULT_UNITS,
-        ScaleInterrupted,
-        run_scale,
-        scale_plot,
-        summary_rows,
-        write_scale_csv,
-    )
+    from delegation.bench.scale import DEFAULT_BUDGET, DEFAULT_TASKS, DEFAULT_UNITS, summary_rows
 
     budget = args.budget if args.budget is not None else DEFAULT_BUDGET
-    out: Path = args.out or Path("bench-out")
     units, tasks = args.units or DEFAULT_UNITS, args.tasks or DEFAULT_TASKS
     generator = _generator_options(args, 1, 1, args.seed)
     if args.time_limit >= budget:
@@ -503,10 +508,49 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
             f"[yellow]warning[/yellow] --time-limit {args.time_limit:g} s is not below the budget "
             f"{budget:g} s: optimal will exceed it at the first size"
         )
-    interrupted = False
+    records, interrupted = _scale_sweep(args, units, tasks, budget, generator, err)
+    if interrupted and not records:
+        err.print("interrupted: no run had finished; nothing written")
+        return 130
+    rows = summary_rows(records)
+    console.print(_scale_table(rows, budget, args.time_limit))
+    console.print(
+        "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
+        "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
+        "where it beat every other strategy (a returned plan of another never counts); copied: "
+        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
+        style="dim",
+    )
+    setup = (
+        f"Grid: units {', '.join(map(str, units))} x tasks "
+        f"{', '.join(map(str, tasks))}; budget {budget:g} s per plan; "
+        f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
+        f"structure {generator.structure}, radius {generator.radius:g} m)."
+    )
+    for path in _write_scale(records, rows, args.out or Path("bench-out"), setup, budget,
+                             plots=not args.no_plots):
+        err.print(f"wrote {path}")
+    problems = _print_scale_problems(records, err)
+    if interrupted:
+        err.print(f"interrupted: wrote the {len(records)} runs that finished")
+        return 130
+    return 1 if problems else 0
+
+
+def _scale_sweep(
+    args: argparse.Namespace,
+    units: Sequence[int],
+    tasks: Sequence[int],
+    budget: float,
+    generator: GeneratorOptions,
+    err: Any,
+) -> tuple[list[ScaleRecord], bool]:
+    """The sweep's records, and whether Ctrl-C stopped it (then the records that finished)."""
+    from delegation.bench.scale import ScaleInterrupted, run_scale
+
     try:
         with _executor(args) as executor, _progress(err, "scale sweep") as update:
-            records = run_scale(
+            return run_scale(
                 args.strategies,
                 objectives=args.objectives or ["makespan"],
                 units=units,
@@ -517,19 +561,18 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
                 progress=update,
                 isolate=not args.in_process,
                 executor=executor,
-            )
+            ), False
     except ScaleInterrupted as stop:  # Ctrl-C: write what finished, then exit 130
-        records, interrupted = stop.records, True
-        if not records:
-            err.print("interrupted: no run had finished; nothing written")
-            return 130
-    rows = summary_rows(records)
-    table = compact_table(
-        f"Scale sweep: budget {budget:g} s per plan, time limit {args.time_limit:g} s"
-    )
-    headers = _SCALE_HEADERS
+        return stop.records, True
+
+
+def _scale_table(rows: list[dict[str, Any]], budget: float, time_limit: float) -> Any:
+    """The sweep's summary for the terminal, a row per strategy x objective."""
+    from delegation.bench.report import compact_table
+
+    table = compact_table(f"Scale sweep: budget {budget:g} s per plan, time limit {time_limit:g} s")
     cells = [_scale_cells(row) for row in rows]
-    for i, header in enumerate(headers):
+    for i, header in enumerate(_SCALE_HEADERS):
         table.add_column(
             header,
             justify="left" if i < 2 else "right",
@@ -538,28 +581,32 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
         )
     for row_cells in cells:
         table.add_row(*row_cells)
-    console.print(table)
-    console.print(
-        "largest ok: the largest cell (units x tasks) within budget; over at: cells where it "
-        "exceeded the budget; vs best: median objective / the best strategy's; best on: cells "
-        "where it beat every other strategy (a returned plan of another never counts); copied: "
-        "cells where its plan was an earlier strategy's (e.g. optimal keeping the auction's)",
-        style="dim",
-    )
+    return table
+
+
+def _write_scale(
+    records: list[ScaleRecord],
+    rows: list[dict[str, Any]],
+    out: Path,
+    setup: str,
+    budget: float,
+    *,
+    plots: bool,
+) -> list[Path]:
+    """``scale.csv``, ``scale.md`` (``setup``, then the summary) and ``scale.png`` in ``out``."""
+    from delegation.bench.scale import scale_plot, write_scale_csv
+
     written = [write_scale_csv(records, out / "scale.csv")]
     md = out / "scale.md"
-    setup = (
-        f"Grid: units {', '.join(map(str, units))} x tasks "
-        f"{', '.join(map(str, tasks))}; budget {budget:g} s per plan; "
-        f"time limit {args.time_limit:g} s; generated at {generator.site} (seed {generator.seed}, "
-        f"structure {generator.structure}, radius {generator.radius:g} m)."
-    )
     md.write_text(setup + "\n\n" + _scale_markdown(rows) + "\n", encoding="utf-8")
     written.append(md)
-    if not args.no_plots:
+    if plots:
         written.append(scale_plot(records, out / "scale.png", budget=budget))
-    for path in written:
-        err.print(f"wrote {path}")
+    return written
+
+
+def _print_scale_problems(records: list[ScaleRecord], err: Any) -> bool:
+    """Each violated invariant, then each failed run, on ``err``; True when there was any."""
     violations = [r for r in records if r.problems]
     for r in violations:
         err.print(
@@ -569,10 +616,7 @@ def _run_scale(args: argparse.Namespace, console: Any, err: Any) -> int:
     failed = [r for r in records if r.status == "failed"]
     for r in failed:
         err.print(f"[red]failed[/red] {r.units}x{r.tasks} {r.strategy}: {r.note}")
-    if interrupted:
-        err.print(f"interrupted: wrote the {len(records)} runs that finished")
-        return 130
-    return 1 if violations or failed else 0
+    return bool(violations or failed)
 
 
 def _command_line(args: argparse.Namespace) -> str:
@@ -581,15 +625,15 @@ def _command_line(args: argparse.Namespace) -> str:
     for path in args.tsplib:
         words += ["--tsplib", str(path)]
     if args.tsplib and not args.generate:
-        words += ["--units", ",".join(map(str, args.units or [3]))]
+        words += ["--units", _listed(args.units or TSPLIB_UNITS)]
     family = getattr(args, "family", "mixed")
     if args.generate and family != "mixed":
         words += ["--generate", "--family", family, "--seed", str(args.seed),
                   "--count", str(args.count)]
     elif args.generate:
         words += ["--generate", "--seed", str(args.seed), "--site", args.site]
-        words += ["--units", ",".join(map(str, args.units or [5]))]
-        words += ["--tasks", ",".join(map(str, args.tasks or [20]))]
+        words += ["--units", _listed(args.units or GENERATE_UNITS)]
+        words += ["--tasks", _listed(args.tasks or GENERATE_TASKS)]
     if args.strategies:
         words += ["--strategies", ",".join(args.strategies)]
     if args.objectives:

@@ -52,21 +52,11 @@ def read_object(path: str) -> dict[str, Any]:
 
 
 def read_mission(path: str) -> dict[str, Any]:
-    """A mission file: a TST, a scenario (its ``mission``) or a start-tst/delegate command."""
-    data: Any = read_object(path)
-    if "mission" in data and "agents" in data:
-        data = data["mission"]
-    elif "tst" in data and "command" in data:
-        data = data["tst"]
-    if not isinstance(data, dict) or "name" not in data:
-        raise InputError(
-            InputProblem(
-                path,
-                "",
-                "no TST found (expected a tree, a scenario or a start-tst/delegate command)",
-            )
-        )
-    return data
+    """A mission file: a TST, a scenario (its ``mission``) or a start-tst/delegate command; read
+    as the operator page reads a mission (`delegation.web.mission_input.tree_in`)."""
+    from delegation.web.mission_input import tree_in
+
+    return tree_in(read_object(path), path)
 
 
 def read_profiles(path: str) -> dict[str, dict[str, Any]]:

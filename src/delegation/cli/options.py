@@ -164,6 +164,15 @@ def add_duration_arg(parser: argparse.ArgumentParser) -> None:
                         help="stop after this many seconds (default: run)")
 
 
+def add_format_args(parser: argparse.ArgumentParser) -> None:
+    """``--format table|json`` and its short form ``--json``, for the commands that print either
+    a table for people or JSON for programs (plan, agents)."""
+    parser.add_argument("--format", default="table", choices=("table", "json"),
+                        help="output format (default: table)")
+    parser.add_argument("--json", dest="format", action="store_const", const="json",
+                        help="same as --format json")
+
+
 def fraction(value: str) -> float:
     """An argparse ``type`` for a number in 0..1."""
     number = _number(value)

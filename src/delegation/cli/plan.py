@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from delegation.allocation import OBJECTIVES, STRATEGIES
 from delegation.allocation.strategies import resolve_strategy
+from delegation.cli.options import add_format_args
 from delegation.errors import DelegationError
 
 if TYPE_CHECKING:
@@ -89,10 +90,7 @@ def register(subparsers: Any) -> None:
                         "search whose unit is free when that ends sooner)")
     parser.add_argument("--engine-unit", default="op0", metavar="NAME",
                         help="the TST engine that runs control nodes (default: op0)")
-    parser.add_argument("--format", default="table", choices=("table", "json"),
-                        help="output format (default: table)")
-    parser.add_argument("--json", dest="format", action="store_const", const="json",
-                        help="same as --format json")
+    add_format_args(parser)
     from delegation.cli.connect import add_broker_args
 
     add_broker_args(parser)

@@ -22,7 +22,14 @@ from typing import Any
 
 from delegation.engine.executor import SendSignal, SendStartTask
 from delegation.messages import SignalTstTree, StartTst, TstFeedback, TstResponse, WireModel
-from delegation.tst.node import TstNode, classify_execunit, map_tree, to_dict, walk
+from delegation.tst.node import (
+    TstNode,
+    classify_execunit,
+    map_tree,
+    stored_nodes,
+    to_dict,
+    walk,
+)
 
 __all__ = ["DELEGATED_TASK", "Delegated", "fold_delegated", "levels_of"]
 
@@ -172,17 +179,7 @@ class Delegated:
             self._inner.pop(uid, None)
 
 
-def _uuids(tree: Any) -> list[str]:
-    """Every node-uuid in a tree as JSON."""
-    out, stack = [], [tree]
-    while stack:
-        node = stack.pop()
-        if not isinstance(node, dict):
-            continue
-        for key in ("common_params", "common-params"):
-            common = node.get(key)
-            if isinstance(common, dict) and isinstance(common.get("node-uuid"), str):
-                out.append(common["node-uuid"])
-        children = node.get("children")
-        stack.extend(children if isinstance(children, list) else ())
-    return out
+def _uuids(tree: dict[str, Any]) -> list[str]:
+    """Every node-uuid in a tree as JSON (one the engine folded itself: `stored_nodes` reads it
+    without parsing)."""
+    return [c["node-uuid"] for _, c in stored_nodes(tree) if isinstance(c.get("node-uuid"), str)]

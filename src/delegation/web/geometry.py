@@ -13,7 +13,7 @@ the camera: drawn, not routed.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from delegation.errors import DelegationError
@@ -76,18 +76,21 @@ def task_shapes(name: str, params: Mapping[str, Any]) -> list[tuple[str, list[Po
     return []
 
 
-def shared_parts(plan: Mapping[str, Any]) -> dict[str, tuple[str, int, int]]:
-    """Each shared search's part uuid -> (the operator's search uuid, its number from 1, of how
-    many), from the plan's ``shared-searches``."""
-    out: dict[str, tuple[str, int, int]] = {}
+def shared_searches(plan: Mapping[str, Any]) -> Iterator[tuple[str, list[dict[str, Any]]]]:
+    """Each of a plan's ``shared-searches`` with a uuid: (the operator's search uuid, its parts
+    that have a uuid, in the plan's order, which numbers them from 1)."""
     for search in plan.get("shared-searches") or []:
         if not isinstance(search, dict) or not isinstance(search.get("node-uuid"), str):
             continue
-        parts = [p for p in search.get("parts") or [] if isinstance(p, dict)
-                 and isinstance(p.get("node-uuid"), str)]
-        for i, part in enumerate(parts):
-            out[part["node-uuid"]] = (search["node-uuid"], i + 1, len(parts))
-    return out
+        yield search["node-uuid"], [p for p in search.get("parts") or [] if isinstance(p, dict)
+                                    and isinstance(p.get("node-uuid"), str)]
+
+
+def shared_parts(plan: Mapping[str, Any]) -> dict[str, tuple[str, int, int]]:
+    """Each shared search's part uuid -> (the operator's search uuid, its number from 1, of how
+    many), from the plan's ``shared-searches``."""
+    return {part["node-uuid"]: (search, i + 1, len(parts))
+            for search, parts in shared_searches(plan) for i, part in enumerate(parts)}
 
 
 def plan_geometry(

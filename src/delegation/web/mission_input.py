@@ -1,13 +1,14 @@
 """A mission as the page sends it: JSON or YAML text, or an object (pure).
 
-Reads exactly what ``delegation submit`` reads: a TST, a scenario (its ``mission``) or a
-start-tst/delegate command (its ``tst``). The tree is validated here so that bad input is a 400
-naming the node and field before anything reaches the service.
+Reads exactly what ``delegation submit`` reads, through the same `tree_in`: a TST, a scenario
+(its ``mission``) or a start-tst/delegate command (its ``tst``). The tree is validated here so that
+bad input is a 400 naming the node and field before anything reaches the service.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Any
 
 import yaml
@@ -45,15 +46,24 @@ def mission_tree(value: Any) -> dict[str, Any]:
         raise InputError(InputProblem(
             "mission", "", "must be a JSON/YAML object (a TST, a scenario "
             "or a start-tst/delegate command)"))
-    if "mission" in data and "agents" in data:
-        data = data["mission"]
-    elif "tst" in data and "command" in data:
-        data = data["tst"]
+    tree = tree_in(data, "mission")
+    parse_and_validate(tree)
+    return tree
+
+
+def tree_in(document: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The TST a mission document holds: a scenario's ``mission``, a start-tst/delegate
+    command's ``tst``, or the document itself; `InputError` at ``where`` when it holds none.
+    Not validated (the callers do, once)."""
+    data: Any = document
+    if "mission" in document and "agents" in document:
+        data = document["mission"]
+    elif "tst" in document and "command" in document:
+        data = document["tst"]
     if not isinstance(data, dict) or "name" not in data:
         raise InputError(InputProblem(
-            "mission", "", "no TST found (expected a tree, a scenario or a "
-            "start-tst/delegate command)"))
-    parse_and_validate(data)
+            where, "", "no TST found (expected a tree, a scenario or a start-tst/delegate "
+            "command)"))
     return data
 
 

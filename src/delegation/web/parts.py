@@ -21,7 +21,7 @@ from typing import Any
 
 from delegation.errors import DelegationError
 from delegation.tst.node import TstNode, parse_tree, walk
-from delegation.web.geometry import shared_parts
+from delegation.web.geometry import shared_parts, shared_searches
 
 
 def _number(value: Any) -> float | None:
@@ -54,11 +54,7 @@ def search_parts(
         return out
     times = {a["node-uuid"]: a for a in plan.get("assignments") or []
              if isinstance(a, dict) and isinstance(a.get("node-uuid"), str)}
-    for search in plan.get("shared-searches") or []:
-        if not isinstance(search, dict) or not isinstance(search.get("node-uuid"), str):
-            continue
-        parts = [p for p in search.get("parts") or [] if isinstance(p, dict)
-                 and isinstance(p.get("node-uuid"), str)]
+    for search, parts in shared_searches(plan):
         shown = []
         for i, part in enumerate(parts):
             uid = part["node-uuid"]
@@ -73,7 +69,7 @@ def search_parts(
                 "plan-end": _number(planned.get("end")),
                 "status": status, "actual-start": start, "actual-end": end,
             })
-        out[search["node-uuid"]] = shown
+        out[search] = shown
     return out
 
 

@@ -14,6 +14,7 @@ import uvicorn
 from starlette.applications import Starlette
 
 from delegation.errors import DelegationError
+from delegation.runtime.lifecycle import StartStop
 from delegation.web.auth import is_loopback_name
 
 log = logging.getLogger(__name__)
@@ -46,7 +47,7 @@ def is_loopback(host: str) -> bool:
     return is_loopback_name(host.strip("[]"))
 
 
-class WebServer:
+class WebServer(StartStop):
     """One uvicorn server for an app, in a daemon thread."""
 
     def __init__(self, app: Starlette, host: str = "127.0.0.1", port: int = 0) -> None:
@@ -105,9 +106,3 @@ class WebServer:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
-
-    def __enter__(self) -> WebServer:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

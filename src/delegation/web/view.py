@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from delegation.fleet import FleetRegistry
+from delegation.tst.node import COMMON_KEYS, stored_nodes
 from delegation.web.parts import engine_of, part_uuids, reshared, search_parts, span
 
 #: Flown track: points closer than this (m) to the last kept one are not kept.
@@ -232,37 +233,27 @@ class MissionRecord:
         }
 
 
-def node_uuid_of(node: Mapping[str, Any]) -> str | None:
-    for key in ("common_params", "common-params"):
-        common = node.get(key)
-        if isinstance(common, dict) and isinstance(common.get("node-uuid"), str):
-            return str(common["node-uuid"])
+def _common_text(node: Mapping[str, Any], key: str) -> str | None:
+    """A string common parameter of a node as JSON, under either spelling of common params."""
+    for common_key in COMMON_KEYS:
+        common = node.get(common_key)
+        if isinstance(common, dict) and isinstance(common.get(key), str):
+            return str(common[key])
     return None
+
+
+def node_uuid_of(node: Mapping[str, Any]) -> str | None:
+    return _common_text(node, "node-uuid")
 
 
 def _node_execunit(node: Mapping[str, Any]) -> str | None:
-    for key in ("common_params", "common-params"):
-        common = node.get(key)
-        if isinstance(common, dict) and isinstance(common.get("execunit"), str):
-            return str(common["execunit"]).strip("/") or None
-    return None
+    return (_common_text(node, "execunit") or "").strip("/") or None
 
 
-def tree_uuids(tree: Mapping[str, Any]) -> list[str]:
-    """Every node uuid of a tree given as JSON (iterative)."""
-    out: list[str] = []
-    stack: list[Any] = [tree]
-    while stack:
-        node = stack.pop()
-        if not isinstance(node, dict):
-            continue
-        uid = node_uuid_of(node)
-        if uid:
-            out.append(uid)
-        kids = node.get("children")
-        if isinstance(kids, list):
-            stack.extend(kids)
-    return out
+def tree_uuids(tree: dict[str, Any]) -> list[str]:
+    """Every node uuid of a tree given as JSON (`stored_nodes`: the service's trees, valid)."""
+    return [uid for _, common in stored_nodes(tree)
+            if isinstance(uid := common.get("node-uuid"), str) and uid]
 
 
 #: Units remembered as some delegator's before they are heard (a bound on hostile lists).
