@@ -296,6 +296,7 @@ def endurance(seeds: int, share: float = 0.45) -> None:
     the issue's target applies (from 1.1)."""
     feasible, total, due, met = 0, 0, 0, 0
     cpus: list[float] = []
+    margins: list[float] = []
     for k, (name, poly) in enumerate(concave_polygons().items()):
         for seed in range(seeds):
             probe = [u for u in fleet(10 * k + seed, poly) if u.agent_type == "air"]
@@ -313,20 +314,65 @@ def endurance(seeds: int, share: float = 0.45) -> None:
             one = plan_mission(tree, units, strategy="auction", split=False)
             slack = endurance_slack(tree, units)
             total += 1
-            ok = plan.feasible and all(
-                sum(a.travel_time + a.work_time for a in r) <= limit * (1 + 1e-9)
-                for r in plan.routes.values())
+            used = max((sum(a.travel_time + a.work_time for a in r) / limit
+                        for r in plan.routes.values()), default=0.0)
+            ok = plan.feasible and bool(plan.routes) and used <= 1 + 1e-9
             feasible += ok
             due += slack >= 1.1
             met += ok and slack >= 1.1
+            if ok and slack >= 1.1:
+                margins.append(1.0 - used)
             verdict = "feasible" if ok else "INFEASIBLE"
             print(f"{name:<20} endurance {limit:7.0f} s x 4, slack {slack:5.2f}: shared "
                   f"{verdict} ({len(plan.assignments)} parts, makespan {plan.makespan:.0f} s, "
-                  f"CPU {cpus[-1]:.2f} s); one unit {'feasible' if one.feasible else 'infeasible'}")
+                  f"most used {used:6.1%}, CPU {cpus[-1]:.2f} s); one unit "
+                  f"{'feasible' if one.feasible else 'infeasible'}")
     print(f"endurance at {share:.0%} of one unit's need: {feasible} of {total} areas needing "
           f"{1 / share:.1f}+ units' endurance planned feasibly; {met} of the {due} whose fleet "
           f"has 10 % slack (slack >= 1.1); auction CPU time median "
           f"{sorted(cpus)[len(cpus) // 2]:.2f} s, max {max(cpus):.2f} s")
+    if margins:
+        print(f"  margin (1 - the most any unit uses of its endurance) where slack >= 1.1: "
+              f"least {min(margins):.2%}, median {sorted(margins)[len(margins) // 2]:.2%}")
+
+
+def endurance_floor(seeds: int, steps: int = 7) -> None:
+    """The least endurance each area is planned feasibly with (four drones, as ``endurance``),
+    found by bisection, as a share of a reference that no sweep path enters: the area over the
+    fastest drone's sweep rate (``A / (w v)``, no turns, no flight there). A lower floor is
+    endurance the plan no longer needs; it compares versions of the planner whose one-unit
+    need (``endurance``'s reference) differs."""
+    floors: list[float] = []
+    for k, (name, poly) in enumerate(concave_polygons().items()):
+        for seed in range(seeds):
+            air = [u for u in fleet(10 * k + seed, poly) if u.agent_type == "air"]
+            air = (air * 2)[:4] if len(air) < 4 else air[:4]
+            air = [dataclasses.replace(u, name=f"dji{i}") for i, u in enumerate(air)]
+            tree = with_uuids(_search(poly))
+            rate = max(u.speeds["standard"] * sweep_width(u, 2.0) for u in air)
+            reference = Polygon(poly).area / rate
+
+            def fits(share: float, air: list[UnitState] = air, reference: float = reference,
+                     tree: TstNode = tree) -> bool:
+                limit = share * reference
+                units = [dataclasses.replace(u, endurance=limit) for u in air]
+                plan = plan_mission(tree, units, strategy="auction")
+                return plan.feasible and bool(plan.routes) and all(
+                    sum(a.travel_time + a.work_time for a in r) <= limit * (1 + 1e-9)
+                    for r in plan.routes.values())
+
+            lo, hi = 0.2, 0.8
+            if not fits(hi):
+                print(f"{name:<20} seed {seed}: not feasible at {hi:.0%}")
+                continue
+            for _ in range(steps):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+            floors.append(hi)
+            print(f"{name:<20} seed {seed}: feasible from {hi:6.1%} of A / (w v) per drone")
+    print(f"least endurance planned feasibly (share of A / (w v), bisection within "
+          f"{0.6 / 2 ** steps:.2%}): geo-mean {_geo_mean(floors):.3f}, worst {max(floors):.3f} "
+          f"({len(floors)} cases)")
 
 
 def speed(repeats: int = 3) -> None:
@@ -355,8 +401,10 @@ def speed(repeats: int = 3) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--widths", type=float, nargs="+", default=list(WIDTHS))
-    parser.add_argument("--only", choices=("sweeps", "team", "mixed", "endurance", "speed"),
-                        default=None)
+    parser.add_argument("--only", choices=("sweeps", "team", "mixed", "endurance", "speed",
+                                           "floor"),
+                        default=None, help="one family (floor: the least endurance planned "
+                        "feasibly, by bisection; not in the default run)")
     parser.add_argument("--seeds", type=int, default=2, help="fleets per polygon (default 2)")
     parser.add_argument("--endurance", type=float, nargs="+", default=[0.45, 0.40, 0.36],
                         help="each drone's endurance as a share of one unit's need for the area "
@@ -373,6 +421,8 @@ def main() -> None:
             endurance(args.seeds, share)
     if args.only in (None, "speed"):
         speed()
+    if args.only == "floor":
+        endurance_floor(args.seeds)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -513,19 +514,22 @@ def test_route_costs_use_each_units_own_search_ends() -> None:
         alone = insertion_costs(problem, u, [], np.arange(problem.n_tasks))[0]
         assert first[u] == pytest.approx(alone, rel=1e-9, abs=1e-9)
     schedule = auction(problem, "makespan")
+    # Each sweep flown as from the unit's position (the insertion costs' estimate).
+    fixed = dataclasses.replace(problem, sweep_ways={}, cache={})
     rng = np.random.default_rng(0)
     for u, route in enumerate(schedule.orders):
         spent = sum(float(schedule.travel_time[t] + schedule.work_time[t]) for t in route)
         home = 0.0
         if route and problem.has_home[u]:
-            home = float(np.hypot(*(problem.home_xy[u] - problem.end_at(u, route[-1])))
+            assert schedule.end_xy is not None
+            home = float(np.hypot(*(problem.home_xy[u] - schedule.end_xy[route[-1]]))
                          / problem.home_speed[u])
         assert route_time(problem, u, list(route)) == pytest.approx(spent + home, abs=1e-6)
         for t in rng.choice(np.flatnonzero(problem.vehicle), 5).tolist():
             if t in route:
                 continue
             k = int(rng.integers(len(route) + 1))
-            added = route_time(problem, u, [*route[:k], t, *route[k:]]) - route_time(
-                problem, u, list(route))
+            added = route_time(fixed, u, [*route[:k], t, *route[k:]]) - route_time(
+                fixed, u, list(route))
             cost = insertion_costs(problem, u, list(route), np.array([t]))[k, 0]
             assert added == pytest.approx(cost, abs=1e-6)

@@ -17,13 +17,15 @@ from delegation.bench.team_search import FRAME, concave_polygons, fleet, search_
 from delegation.costs import search_polygons_xy, sweep_width
 from delegation.coverage import (
     flown_sweep,
+    flown_ways,
     path_length,
+    pick_way,
     sweep_cells,
     transitions_inside,
     turns_inside,
 )
 from delegation.sim.flown import fly_plan, footprint, outside, swept
-from delegation.tst import leaves, with_uuids
+from delegation.tst import leaves, make_node, with_uuids
 
 RECT = np.array([[0.0, 0.0], [800.0, 0.0], [800.0, 300.0], [0.0, 300.0]])
 
@@ -106,3 +108,52 @@ def test_a_transition_across_a_notch_goes_round_it_inside_the_area() -> None:
     assert routed[-3:-1].tolist() == [[200.0, 100.0], [100.0, 100.0]]
     assert routed[:4].tolist() == path[:4].tolist()  # legs inside are kept
     assert transitions_inside(path[:4], u).tolist() == path[:4].tolist()
+
+
+def test_a_sweep_starts_at_the_end_nearest_the_unit() -> None:
+    # Issue 21: not at a fixed corner. From near each corner of the rectangle the sweep starts
+    # at that corner's lane end; every way has the same lanes, so the same length.
+    ways = flown_ways([RECT], 37.0)
+    assert len(ways) == 4
+    lengths = {round(path_length(w), 6) for w in ways}
+    assert len(lengths) == 1
+    for corner in RECT:
+        here = corner + np.sign(corner - RECT.mean(axis=0)) * 500.0
+        path = flown_sweep([RECT], 37.0, near=here)
+        starts = [np.hypot(*(w[0] - here)) for w in ways]
+        assert np.hypot(*(path[0] - here)) == pytest.approx(min(starts))
+        assert np.hypot(*(path[0] - corner)) < 37.0 * 1.5  # (its lane end, pulled inside)
+
+
+def test_the_way_costs_least_flight_there_plus_sweep() -> None:
+    ends = [(0.0, 0.0, 9.0, 9.0, 1000.0), (100.0, 0.0, 9.0, 9.0, 1000.0),
+            (100.0, 0.0, 9.0, 9.0, 900.0)]
+    assert pick_way(ends, (100.0, 0.0)) == 2  # nearer and shorter
+    assert pick_way(ends, (-200.0, 0.0)) == 0  # 200 m nearer than the 100 m shorter one
+    assert pick_way(ends, None) == 2  # from nowhere: the shortest
+    tie = [(0.0, 0.0, 0.0, 0.0, 1000.0), (0.0, 0.0, 0.0, 0.0, 999.5)]
+    assert pick_way(tie, (5.0, 5.0)) == 0  # (within WAY_TIE_M: the first listed)
+
+
+def test_a_unit_sweeping_two_areas_flies_each_from_where_it_is_as_planned() -> None:
+    # One drone, two searches in a seq: the second sweep starts at the way nearest to where
+    # the first one ended (not where the drone was at the start), in the plan and in flight.
+    drone = unit_at("dji0", "air", -2000.0, -1500.0)
+    west, east = RECT + np.array([-400.0, 0.0]), RECT + np.array([500.0, -1400.0])
+    tree = with_uuids(make_node("seq", children=[search_node(west), search_node(east)]))
+    plan = plan_mission(tree, [drone], strategy="auction")
+    assert plan.feasible and len(plan.assignments) == 2
+    flown = fly_plan(plan, [drone], FRAME)
+    for f, a in zip(flown, plan.routes["dji0"], strict=True):
+        assert f.state == "finished"
+        assert f.flown_s == pytest.approx(f.planned_s, rel=1e-3)
+        assert f.flown_travel_s == pytest.approx(a.travel_time, rel=1e-3, abs=0.5)
+    # the second sweep starts at the way nearest to the first one's end
+    first_end = flown[0].track_xy[-1]
+    ways = flown_ways([east], sweep_width(drone, 2.0))
+    nearest = min(ways, key=lambda w: float(np.hypot(*(w[0] - first_end))))
+    assert np.hypot(*(flown[1].track_xy[0] - nearest[0])) < 1.0
+    # (which is not the way it would fly from where it started: its top end, not its bottom)
+    start = FRAME.point_xy(drone.position)
+    assert np.hypot(*(nearest[0] - min(ways, key=lambda w: float(np.hypot(*(w[0] - start))))[0])
+                    ) > 200.0

@@ -7,7 +7,8 @@ The mixed case is ``benchmarks/team_search.py --only mixed``'s worst before the 
 scaled to 2 km2, six drones 0.5-2.5 km away): the parts were sized for the other tasks as the
 unshared plan allocated them; planned with the parts, the auction gave a move-path to the unit
 with the second largest part, which started it 2,000 s after the others (1.46 x the bound).
-Pure logic: no clock, no network.
+(Since each sweep starts at its end nearest the unit, that case is 1.09 x without the fix, and
+coast3-0.2km2's shows the fault.) Pure logic: no clock, no network.
 """
 
 from __future__ import annotations
@@ -86,19 +87,23 @@ def search_spread(plan) -> tuple[float, float]:  # type: ignore[no-untyped-def]
 
 
 def test_sized_from_the_unshared_plan_alone_one_part_starts_late(monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    # (What the next test repairs: the parts are never sized again.)
+    # (What the next test repairs: the parts are never sized again.) Since each sweep starts at
+    # its end nearest the unit, coast1-2km2/1 no longer shows it (1.09 x the bound either way);
+    # coast3-0.2km2/0 does (1.15 x, its parts' ends spread over half the search).
     monkeypatch.setattr(planner_module, "RESEAT_GAIN", float("inf"))
-    tree, units = mixed_case("coast1-2km2", 1)
+    tree, units = mixed_case("coast3-0.2km2", 0)
     plan = plan_mission(tree, units, strategy="auction")
     ratio, spread = search_spread(plan)
-    assert ratio > 1.4 and spread > 0.4
+    assert ratio > 1.12 and spread > 0.4
 
 
-def test_the_parts_are_sized_for_what_the_plan_flying_them_has_each_unit_do_first() -> None:
-    tree, units = mixed_case("coast1-2km2", 1)
+@pytest.mark.parametrize(("name", "seed"), [("coast1-2km2", 1), ("coast3-0.2km2", 0)])
+def test_the_parts_are_sized_for_what_the_plan_flying_them_has_each_unit_do_first(
+        name: str, seed: int) -> None:
+    tree, units = mixed_case(name, seed)
     plan = plan_mission(tree, units, strategy="auction")
     assert plan.feasible and check_invariants(plan, tree, units) == []
-    assert len(plan.shared) == 1 and len(plan.shared[0].parts) >= 5
+    assert len(plan.shared) == 1 and len(plan.shared[0].parts) >= 3
     ratio, spread = search_spread(plan)
-    assert ratio <= 1.4  # (issue 21's target for a search among other tasks)
+    assert ratio <= 1.1  # (issue 21's target for a search among other tasks: 1.4)
     assert spread <= 0.2  # the parts end together (give or take their real sweeps)

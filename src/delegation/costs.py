@@ -53,8 +53,10 @@ from delegation.coverage import (
     circle_polygon,
     coverage_length,
     coverage_path,
-    flown_sweep,
+    flown_ways,
     path_length,
+    pick_way,
+    way_ends,
 )
 from delegation.errors import InputError
 from delegation.fleet import SPEED_KEYS, UnitState
@@ -258,19 +260,22 @@ def search_polygons_xy(node: TstNode, frame: LocalFrame) -> list[np.ndarray]:
     return _polygons_xy(g, frame)
 
 
-def _sweep_xy(polygons: list[np.ndarray], width: float) -> np.ndarray:
-    """The sweep as flown, turns inside the area (``coverage.flown_sweep``, issue 21): the plan
-    counts the path the simulated units fly."""
-    return flown_sweep(polygons, width)
+def _sweep_ways(polygons: list[np.ndarray], width: float) -> tuple[np.ndarray, ...]:
+    """The ways to fly the sweep, turns inside the area (``coverage.flown_ways``, issue 21): the
+    plan counts the path the simulated units fly, from where each is when it starts."""
+    return flown_ways(polygons, width)
 
 
-def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None) -> list[GeoPoint]:
+def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None,
+              here: GeoPoint | None = None) -> list[GeoPoint]:
     """The points the unit moves through to do the task's work (for simulators and maps).
 
     ``move-to``/``observe-position``: the point; ``move-path``: the waypoints; searches: the
     boustrophedon sweep with the unit's own sweep width, at the altitude of the area's first point
-    (the centre for ``search-around-position``); ``go-home``: the home (if known); in-place tasks:
-    an empty list.
+    (the centre for ``search-around-position``), flown the way that costs least from ``here``
+    (where the unit is when the task starts; default its ``position``), as the planner's schedule
+    chooses it (``coverage.pick_way``); ``go-home``: the home (if known); in-place tasks: an empty
+    list.
     """
     g = task_geometry(node)
     if g.kind in ("point", "path"):
@@ -281,7 +286,11 @@ def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None) -
         return []
     pts = _geo_points(g)
     frame = frame or LocalFrame.around(pts)
-    path = _sweep_xy(_polygons_xy(g, frame), sweep_width(unit, g.target_size))
+    ways = _sweep_ways(_polygons_xy(g, frame), sweep_width(unit, g.target_size))
+    if not ways:
+        return []
+    at = frame.point_xy(here if here is not None else unit.position)
+    path = ways[pick_way(way_ends(ways), (float(at[0]), float(at[1])))]
     altitude = pts[0].altitude
     lat, lon = frame.to_geo(path[:, 0], path[:, 1])
     return [
@@ -303,9 +312,11 @@ class CostTables:
     ``start_for``/``end_for`` for one unit, or the ``dist_*`` methods, which handle both.
     For search tasks ``start_xy``/``end_xy`` are the ends of the sweep at the narrowest sweep width
     among the units that offer the task (the end lane depends on how many lanes a unit needs, and
-    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width): the
-    reference points; each unit's own are ``unit_start_xy``/``unit_end_xy``, which
-    ``start_for``/``end_for``, ``dist_unit_to_start``, ``dist_end_to_home`` and the planner use.
+    both ends on the lanes' direction, which ``coverage.sweep_direction`` chooses per width), flown
+    as the first such unit flies it from where it is: the reference points; each unit's own are
+    ``unit_start_xy``/``unit_end_xy`` (the way it flies the sweep from its position), which
+    ``start_for``/``end_for``, ``dist_unit_to_start``, ``dist_end_to_home`` and the planner use;
+    from elsewhere (after another task) a unit may fly another way (``sweep_ways``, ``way_for``).
     Open-ended tasks have ``work_time`` 0.
     """
 
@@ -341,6 +352,13 @@ class CostTables:
     #: ``start_xy``/``end_xy``. None: those for every unit.
     unit_start_xy: np.ndarray | None = None
     unit_end_xy: np.ndarray | None = None
+    #: Search task index -> (U, K, 6) the K ways each unit may fly its sweep (``coverage.
+    #: flown_ways`` at its width), rows of (start east, north, end east, north, length m, work
+    #: s), NaN rows for a unit that cannot sweep it (or a width with fewer ways). Which one a
+    #: unit flies depends on where it is when it starts (``coverage.pick_way``): the schedule
+    #: chooses from where the unit's previous task left it (``way_for``); ``unit_start_xy``,
+    #: ``unit_end_xy`` and ``work_distance`` hold the way from the unit's position.
+    sweep_ways: dict[int, np.ndarray] = field(default_factory=dict)
     #: Task index -> the one unit index it was costed for (``cost_tables(only=...)``): the
     #: other units have no sweep of it (work inf) and cannot take it.
     only: Mapping[int, int] = field(default_factory=dict)
@@ -392,6 +410,21 @@ class CostTables:
     def end_for(self, u: int, t: int) -> np.ndarray | None:
         """Where unit ``u`` is after task ``t`` (None: where it was before)."""
         return self._point_for(u, t, self.end_xy)
+
+    def way_for(self, u: int, t: int, here: np.ndarray | None
+                ) -> tuple[np.ndarray | None, np.ndarray | None, float, float]:
+        """(start, end, work s, work m) of task ``t`` for unit ``u`` coming from ``here`` (east,
+        north m; None: from its position): a search flown the way that costs least from there
+        (``sweep_ways``, ``coverage.pick_way``), as the schedule flies it; other tasks as
+        ``start_for``/``end_for`` and the work tables say."""
+        ways = self.sweep_ways.get(t)
+        rows = None if ways is None else ways[u][np.isfinite(ways[u, :, 4])]
+        if rows is None or not len(rows) or not self.travels[t]:
+            return (self.start_for(u, t), self.end_for(u, t), float(self.work_time[u, t]),
+                    float(self.work_distance[u, t]))
+        at = self.unit_xy[u] if here is None else here
+        row = rows[pick_way(rows.tolist(), (float(at[0]), float(at[1])))]
+        return row[0:2].copy(), row[2:4].copy(), float(row[5]), float(row[4])
 
     def _point_for(self, u: int, t: int, table: np.ndarray) -> np.ndarray | None:
         """Row ``t`` of ``table`` (the unit's own where it has one), the unit's home for
@@ -482,14 +515,17 @@ def cost_tables(
     listed = _listed_table(units_t, tasks_t)
     width = _width_table(units_t, geoms)
     costed = _costed(len(units_t), len(tasks_t), only or {})
-    start_xy, end_xy, work_distance, polygons, unit_ends = _task_ends_and_work(
+    start_xy, end_xy, work_distance, polygons, unit_ends, ways = _task_ends_and_work(
         geoms, task_xy, width if costed is None else np.where(costed, width, np.nan),
-        listed if costed is None else listed & costed)
+        listed if costed is None else listed & costed, unit_xy)
     open_ended = np.array([g.open_ended for g in geoms], dtype=bool).reshape(len(geoms))
     fixed_time = np.array([g.fixed_time for g in geoms], dtype=float).reshape(len(geoms))
     with np.errstate(divide="ignore", invalid="ignore"):
         work_time = np.where(work_distance > 0.0, work_distance / speed, 0.0) + fixed_time[None, :]
     work_time = np.where(open_ended[None, :], 0.0, work_time)
+    for t, rows in ways.items():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rows[..., 5] = rows[..., 4] / speed[:, t, None] + fixed_time[t]
     kinds = [g.kind for g in geoms]
     tables = CostTables(
         units=units_t, tasks=tasks_t, frame=frame, unit_xy=unit_xy, home_xy=home_xy,
@@ -511,6 +547,7 @@ def cost_tables(
         unit_start_xy=unit_ends[0] if unit_ends is not None else None,
         unit_end_xy=unit_ends[1] if unit_ends is not None else None,
         only=dict(only or {}),
+        sweep_ways=ways,
     )
     _fill_capability(tables, costed)
     return tables
@@ -593,13 +630,15 @@ def _width_table(units: Sequence[UnitState], geoms: Sequence[TaskGeometry]) -> n
 
 def _task_ends_and_work(
     geoms: Sequence[TaskGeometry], task_xy: Sequence[np.ndarray], width: np.ndarray,
-    listed: np.ndarray,
+    listed: np.ndarray, unit_xy: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[tuple[np.ndarray, ...], ...],
-           tuple[np.ndarray, np.ndarray] | None]:
+           tuple[np.ndarray, np.ndarray] | None, dict[int, np.ndarray]]:
     """(T, 2) where each task starts and ends (NaN: depends on the unit, or in place), (U, T)
     the distance its work covers (inf: a search the unit cannot sweep), each search's
-    polygons (``CostTables.polygons``) and (U, T, 2) each unit's start and end (None without
-    searches: ``CostTables.unit_start_xy``)."""
+    polygons (``CostTables.polygons``), (U, T, 2) each unit's start and end (None without
+    searches: ``CostTables.unit_start_xy``) and each search's ways (``CostTables.sweep_ways``,
+    work s still to fill): a unit's start, end and work are those of the way it flies from
+    where it is (``unit_xy``)."""
     n_t = len(geoms)
     start_xy = np.full((n_t, 2), np.nan)
     end_xy = np.full((n_t, 2), np.nan)
@@ -609,6 +648,7 @@ def _task_ends_and_work(
     searches = np.array([g.kind == "areas" for g in geoms], dtype=bool).reshape(n_t)
     unit_ends = (np.full((width.shape[0], n_t, 2), np.nan), np.full((width.shape[0], n_t, 2),
                                                                     np.nan))
+    ways: dict[int, np.ndarray] = {}
     for t, g in enumerate(geoms):
         if g.kind == "point":
             start_xy[t] = end_xy[t] = task_xy[t][0]
@@ -618,40 +658,55 @@ def _task_ends_and_work(
             path_len[t] = path_length(xy)
         elif g.kind == "areas":
             polygons[t] = tuple(_polygons_from(g, task_xy[t]))
-            start_xy[t], end_xy[t] = _sweep_work(g, polygons[t], width[:, t], listed[:, t],
-                                                 work_distance[:, t],
-                                                 (unit_ends[0][:, t], unit_ends[1][:, t]))
+            start_xy[t], end_xy[t], ways[t] = _sweep_work(
+                g, polygons[t], width[:, t], listed[:, t], work_distance[:, t],
+                (unit_ends[0][:, t], unit_ends[1][:, t]), unit_xy)
     work_distance += path_len[None, :]
     work_distance[np.isnan(width) & searches[None, :]] = np.inf
     if not searches.any():
-        return start_xy, end_xy, work_distance, tuple(polygons), None
+        return start_xy, end_xy, work_distance, tuple(polygons), None, ways
     for ends, ref in zip(unit_ends, (start_xy, end_xy), strict=True):
         ends[:, ~searches] = ref[None, ~searches]
-    return start_xy, end_xy, work_distance, tuple(polygons), unit_ends
+    return start_xy, end_xy, work_distance, tuple(polygons), unit_ends, ways
 
 
 def _sweep_work(
     g: TaskGeometry, polygons: Sequence[np.ndarray], col: np.ndarray, listed: np.ndarray,
-    out: np.ndarray, unit_ends: tuple[np.ndarray, np.ndarray],
-) -> tuple[np.ndarray, np.ndarray]:
+    out: np.ndarray, unit_ends: tuple[np.ndarray, np.ndarray], unit_xy: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One search task: each unit's sweep length into ``out`` and where it starts and ends into
-    ``unit_ends`` ((U, 2) each; one coverage path per distinct width ``col``; a unit that cannot
-    sweep gets the reference ends); the start and end of the sweep at the reference width
-    (``CostTables``)."""
+    ``unit_ends`` ((U, 2) each; the ways to fly it once per distinct width ``col``, each unit's
+    the way it flies from where it is, ``unit_xy``; a unit that cannot sweep gets the reference
+    ends); the reference start and end (``CostTables``: the way the first unit sweeping at the
+    reference width flies from where it is) and (U, K, 6) every unit's ways
+    (``CostTables.sweep_ways``, work s NaN)."""
     polygons = list(polygons)
     ref = _reference_width(col, listed)
     ends: tuple[np.ndarray, np.ndarray] | None = None
+    at_ref = np.flatnonzero((col == ref) & listed) if math.isfinite(ref) else np.zeros(0, int)
+    if not len(at_ref) and math.isfinite(ref):
+        at_ref = np.flatnonzero(col == ref)
+    per_width: dict[float, list[tuple[float, float, float, float, float]]] = {}
     for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
-        path = _sweep_xy(polygons, w)
-        out[col == w] = path_length(path)
-        unit_ends[0][col == w], unit_ends[1][col == w] = path[0], path[-1]
+        ways = _sweep_ways(polygons, w)
+        rows = per_width[w] = way_ends(ways)
+        for u in np.flatnonzero(col == w).tolist():
+            sx, sy, ex, ey, length = rows[pick_way(rows, (float(unit_xy[u, 0]),
+                                                          float(unit_xy[u, 1])))]
+            out[u] = length
+            unit_ends[0][u], unit_ends[1][u] = (sx, sy), (ex, ey)
         if w == ref:
-            ends = path[0], path[-1]
+            ends = unit_ends[0][at_ref[0]].copy(), unit_ends[1][at_ref[0]].copy()
     if ends is None:  # no unit at all: a nominal sweep for the geometry
-        path = _sweep_xy(polygons, detection_width(g.target_size))
-        ends = path[0], path[-1]
+        rows = way_ends(_sweep_ways(polygons, detection_width(g.target_size)))
+        first = rows[pick_way(rows, None)] if rows else (math.nan,) * 5
+        ends = np.array(first[0:2]), np.array(first[2:4])
     unit_ends[0][~np.isfinite(col)], unit_ends[1][~np.isfinite(col)] = ends
-    return ends
+    k = max((len(rows) for rows in per_width.values()), default=0)
+    table = np.full((len(col), k, 6), np.nan)
+    for w, rows in per_width.items():
+        table[col == w, : len(rows), :5] = np.array(rows)
+    return ends[0], ends[1], table
 
 
 def _fill_capability(tables: CostTables, costed: np.ndarray | None = None) -> None:

@@ -24,6 +24,11 @@ ends the corners between lanes are left to the camera's along-track footprint. C
 band ``w/2`` either side of the path, a triangle is 99.9 % covered with 19 lanes, 99 % with 5,
 96 % with 2 (tests check >= 99 % from about 10 lanes on).
 
+A unit flies the sweep from the end that suits where it is (``flown_ways``, ``pick_way``: of the
+first cell's four variants, each flown forwards or backwards, the one whose flight to its start
+plus its length is least), not from a fixed corner; the planner's schedule chooses from where the
+unit's previous task left it, the simulated unit from where it is, with the same rule.
+
 The lanes themselves (the sweep's frame, the strips, clipping, and the lanes a concave area's
 missed strips need) are `delegation.lanes`; the shortest way inside the area for a transition
 that would cross a notch is `delegation.ways_inside`.
@@ -246,19 +251,99 @@ def _swept(data: bytes, n: int, width: float, ax: float, ay: float, fill: bool =
 
 # --------------------------------------------------------------------------- turns inside
 
-def flown_sweep(polygons: Sequence[np.ndarray], width: float) -> np.ndarray:
+#: Ways of flying a sweep that cost within this many metres of each other from where the unit
+#: is (its flight to the way's start plus the way's length) are equally good, and the first
+#: listed is flown: the planner and the unit compute in frames a few kilometres apart, whose
+#: lengths differ by millimetres, and must choose the same way (``pick_way``).
+WAY_TIE_M = 1.0
+
+
+def flown_sweep(polygons: Sequence[np.ndarray], width: float,
+                near: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """The path a unit flies to search ``polygons`` (one: ``coverage_path``'s lanes; several:
     ``multi_coverage_path``'s order) with its turns inside the area (``turns_inside``): what the
-    cost model counts and the simulated units fly (``costs.task_path``)."""
-    parts: list[np.ndarray] = []
-    for poly in polygons:
-        clean = _clean_polygon(poly)
-        cells = turns_inside(list(_swept_cells(clean, width, None)), width)
-        path = _fly_cells(cells, 0, start=parts[-1][-1] if parts else None)
+    cost model counts and the simulated units fly (``costs.task_path``).
+
+    ``near``: where the unit is when the task starts (east, north m): of the ways to fly the
+    sweep (``flown_ways``) the one that costs least from there (``pick_way``); None: the
+    shortest."""
+    ways = flown_ways(polygons, width)
+    if not ways:
+        return np.zeros((0, 2))
+    here = None if near is None else (float(near[0]), float(near[1]))
+    return ways[pick_way(way_ends(ways), here)].copy()
+
+
+def way_ends(ways: Sequence[np.ndarray]) -> list[tuple[float, float, float, float, float]]:
+    """Per way: (start east, start north, end east, end north, length m), what ``pick_way``
+    and the cost tables read."""
+    out = []
+    for way in ways:
+        (sx, sy), (ex, ey) = way[0].tolist(), way[-1].tolist()
+        out.append((sx, sy, ex, ey, path_length(way)))
+    return out
+
+
+def pick_way(ends: Sequence[Sequence[float]], here: tuple[float, float] | None) -> int:
+    """The way (index into ``ends``, rows of ``way_ends``) a unit at ``here`` flies: the least
+    flight to its start plus its length, the first listed within ``WAY_TIE_M`` of that; from
+    nowhere (None) the shortest. The planner's schedule (from where the unit's previous task
+    left it) and the simulated unit (from where it is) both choose with this. Plain Python: the
+    schedule asks for every search it simulates."""
+    if here is None:
+        costs = [row[4] for row in ends]
+    else:
+        x, y = here
+        costs = [math.hypot(row[0] - x, row[1] - y) + row[4] for row in ends]
+    best = min(costs)
+    return next(k for k, c in enumerate(costs) if c <= best + WAY_TIE_M)
+
+
+def flown_ways(polygons: Sequence[np.ndarray], width: float) -> tuple[np.ndarray, ...]:
+    """Every way a unit may fly the sweep of ``polygons`` (issue 21: from the end nearest to it,
+    not from a fixed corner), read-only: the four ``serpentine`` variants of the first cell (its
+    first or its last lane first, either way along it), the other cells then each from the
+    nearest end, each path flown forwards and then backwards (a variant that is the reverse of
+    an earlier one is listed once).
+    Remembered per polygons and width: the cost tables, the sharing of a search and the
+    simulated unit ask for the same sweeps."""
+    cleaned = [_clean_polygon(poly) for poly in polygons]
+    key = tuple((np.ascontiguousarray(c, dtype=float).tobytes(), len(c)) for c in cleaned)
+    return _flown_ways(key, _check_width(width))
+
+
+@functools.lru_cache(maxsize=1024)
+def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.ndarray, ...]:
+    polys = [np.frombuffer(data, dtype=float).reshape(n, 2) for data, n in key]
+    if not polys:
+        return ()
+    cells = [turns_inside(list(_swept_cells(p, width, None)), width) for p in polys]
+    flown: list[np.ndarray] = []  # (the variants' paths, before their transitions go inside)
+    ways: list[np.ndarray] = []
+    for variant in range(4):
+        parts: list[np.ndarray] = []
+        for poly_cells in cells:
+            parts.append(_fly_cells(poly_cells, variant) if not parts
+                         else _fly_cells(poly_cells, 0, start=parts[-1][-1]))
+        path = np.concatenate(parts, axis=0)
+        if any(_same_way(path, seen) or _same_way(path[::-1], seen) for seen in flown):
+            continue  # (one cell: its last lane first is the reverse of its first lane first)
+        flown.append(path)
         # Over a convex area every leg between two points inside stays inside: the way inside
         # is the path itself (``transitions_inside`` would find every leg covered).
-        parts.append(path if _convex_area_of(clean) else transitions_inside(path, clean))
-    return np.concatenate(parts, axis=0) if parts else np.zeros((0, 2))
+        inside = [part if _convex_area_of(poly) else transitions_inside(part, poly)
+                  for poly, part in zip(polys, parts, strict=True)]
+        whole = np.concatenate(inside, axis=0)
+        ways += [np.ascontiguousarray(whole), np.ascontiguousarray(whole[::-1])]
+    for way in ways:
+        way.setflags(write=False)
+    return tuple(ways)
+
+
+def _same_way(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same points in the same order (a cell's variants often are: the reverse of one is
+    another, to the bit)."""
+    return a.shape == b.shape and bool(np.array_equal(a, b))
 
 
 def _convex_area_of(poly: np.ndarray) -> float | None:

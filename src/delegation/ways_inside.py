@@ -6,6 +6,7 @@ holes' vertices) searched with Dijkstra; pure geometry (shapely, numpy), no cloc
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -19,18 +20,13 @@ def transitions_inside(path: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
     unit stays over its own part instead of flying over a neighbour's."""
     if len(path) < 3:
         return path
-    shape = shapely.make_valid(Polygon(polygon_xy))
-    scale = max(1.0, float(np.ptp(polygon_xy, axis=0).max()))
-    room = shape.buffer(1e-6 * scale)
-    shapely.prepare(room)
+    poly = np.ascontiguousarray(polygon_xy, dtype=float)
+    room = _room(poly.tobytes(), len(poly))
     legs = shapely.linestrings(np.stack([path[:-1], path[1:]], axis=1))
     out_of = ~shapely.covers(room, legs)
     if not out_of.any():
         return path
-    corners = _corners(shape)
-    i, j = np.triu_indices(len(corners), k=1)
-    seen = _sight(room, corners[i], corners[j])
-    among = (i[seen], j[seen])
+    corners, among = _graph(poly.tobytes(), len(poly))
     out = [path[:1]]
     for k in range(len(path) - 1):
         if out_of[k]:
@@ -38,6 +34,28 @@ def transitions_inside(path: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
         else:
             out.append(path[k + 1 : k + 2])
     return np.concatenate(out, axis=0)
+
+
+@functools.lru_cache(maxsize=256)
+def _room(data: bytes, n: int) -> shapely.Geometry:
+    """The region (a hair larger, prepared) in which a leg is inside, remembered per polygon:
+    each way to fly a sweep (``coverage.flown_ways``) asks about the same area."""
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    scale = max(1.0, float(np.ptp(poly, axis=0).max()))
+    room = shapely.make_valid(Polygon(poly)).buffer(1e-6 * scale)
+    shapely.prepare(room)
+    return room
+
+
+@functools.lru_cache(maxsize=256)
+def _graph(data: bytes, n: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """(the corners where a way inside may bend, the pairs of them that see each other),
+    remembered per polygon."""
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    corners = _corners(shapely.make_valid(Polygon(poly)))
+    i, j = np.triu_indices(len(corners), k=1)
+    seen = _sight(_room(data, n), corners[i], corners[j])
+    return corners, (i[seen], j[seen])
 
 
 def _corners(shape: shapely.Geometry) -> np.ndarray:

@@ -302,7 +302,7 @@ def _times_and_totals(x: _Subject) -> list[str]:
         for a in items:
             t = index[a.node_uuid]
             out.extend(_leg_matches(a, tables, u, t, here))
-            end = tables.end_for(u, t)
+            end = tables.way_for(u, t, here)[1]
             here = here if end is None else end
             spent += a.travel_time + a.work_time
         if unit_list[u].home is not None:
@@ -328,18 +328,19 @@ def _times_and_totals(x: _Subject) -> list[str]:
 def _leg_matches(
     a: Assignment, tables: CostTables, u: int, t: int, here: np.ndarray
 ) -> list[str]:
-    """Task ``t`` of unit ``u``, which comes from ``here``: its travel, work and distance."""
+    """Task ``t`` of unit ``u``, which comes from ``here``: its travel, work and distance (a
+    search's as flown the way that costs least from there, ``CostTables.way_for``)."""
     out = []
-    start = tables.start_for(u, t)
+    start, _, work, work_m = tables.way_for(u, t, here)
     d = 0.0 if start is None else float(np.hypot(*(start - here)))
     speed = float(tables.speed[u, t])
     if not _close(a.travel_time, d / speed):
         out.append(f"{a.node_uuid}: travel time {a.travel_time:.3f} s does not match "
                    f"{d:.1f} m at {speed} m/s")
-    if not _close(a.work_time, float(tables.work_time[u, t])):
+    if not _close(a.work_time, work):
         out.append(f"{a.node_uuid}: work time {a.work_time:.3f} s is not the task's "
-                   f"{float(tables.work_time[u, t]):.3f} s")
-    if not _close(a.distance, d + float(tables.work_distance[u, t])):
+                   f"{work:.3f} s")
+    if not _close(a.distance, d + work_m):
         out.append(f"{a.node_uuid}: distance {a.distance:.1f} m does not match")
     return out
 
@@ -367,9 +368,9 @@ def _durations(x: _Subject) -> dict[str, float]:
         here = tables.unit_xy[u]
         for a in items:
             t = index[a.node_uuid]
-            start, end = tables.start_for(u, t), tables.end_for(u, t)
+            start, end, work, _ = tables.way_for(u, t, here)
             d = 0.0 if start is None else float(np.hypot(*(start - here)))
-            duration[a.node_uuid] = d / float(tables.speed[u, t]) + float(tables.work_time[u, t])
+            duration[a.node_uuid] = d / float(tables.speed[u, t]) + work
             here = here if end is None else end
     return duration
 

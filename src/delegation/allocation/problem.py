@@ -181,6 +181,9 @@ class Problem:
     #: ``start_xy``/``end_xy`` (those stay the reference points of heuristics).
     unit_start_xy: np.ndarray | None = None
     unit_end_xy: np.ndarray | None = None
+    #: Search task -> (U, K, 6) the ways each unit may fly its sweep (``CostTables.
+    #: sweep_ways``): the schedule flies the one that costs least from where the unit is.
+    sweep_ways: dict[int, np.ndarray] = field(default_factory=dict)
     _before: np.ndarray | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)  # derived data, per problem
 
@@ -469,6 +472,7 @@ def problem_from_arrays(
         to_home=_to_home(tables, n_tasks),
         unit_start_xy=unit_start,
         unit_end_xy=unit_end,
+        sweep_ways=dict(getattr(tables, "sweep_ways", None) or {}),
     )
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from delegation.allocation.problem import Problem, Structure
 from delegation.allocation.serialise import Serialisation, serialisation
 from delegation.allocation.strategies import Objective
+from delegation.coverage import pick_way
 
 #: Relative slack when comparing times against endurance (float noise, not a real margin).
 EPS = 1e-9
@@ -75,6 +76,9 @@ class Schedule:
     node_fin: np.ndarray | None = None  # (tree nodes,) when each node finished
     #: The wrappers that change times (concs whose children holding tasks are subtrees).
     serialised: Serialisation | None = None
+    #: (T, 2) where each vehicle task leaves its unit (east, north m; a search: the end of the
+    #: way it was flown, which depends on where the unit came from); NaN where not reached.
+    end_xy: np.ndarray | None = None
 
     @property
     def valid(self) -> bool:
@@ -163,6 +167,9 @@ class _Static:
     speed: list[list[float]]  # per unit, per task: m/s, work time (s), work distance (m)
     work_time: list[list[float]]
     work_distance: list[list[float]]
+    #: per unit: search task -> the ways it may fly it, rows (start x, y, end x, y, m, s)
+    #: (``Problem.sweep_ways``; ``coverage.pick_way`` chooses from where the unit is)
+    ways: list[dict[int, list[list[float]]]]
 
 
 def _static_for(problem: Problem) -> _Static:
@@ -182,8 +189,20 @@ def _static_for(problem: Problem) -> _Static:
                    else [0.0] * problem.n_units),
             speed=problem.speed.tolist(), work_time=problem.work_time.tolist(),
             work_distance=problem.work_distance.tolist(),
+            ways=_ways_per_unit(problem),
         )
     return static
+
+
+def _ways_per_unit(problem: Problem) -> list[dict[int, list[list[float]]]]:
+    """``_Static.ways``: per unit, each search's ways it can fly (rows without NaN)."""
+    out: list[dict[int, list[list[float]]]] = [{} for _ in range(problem.n_units)]
+    for t, table in problem.sweep_ways.items():
+        for u, rows in enumerate(table.tolist()):
+            mine = [row for row in rows if row[4] == row[4]]  # (NaN: none)
+            if mine:
+                out[u][t] = mine
+    return out
 
 
 def _per_unit(problem: Problem, table: np.ndarray) -> list[list[float]]:
@@ -257,6 +276,8 @@ def evaluate(
         node_act=events[0::2],
         node_fin=events[1::2],
         serialised=graph.wrapped,
+        end_xy=np.where(np.isnan(per_task[1])[:, None], np.nan,
+                        np.column_stack([run.pos_x, run.pos_y]).reshape(problem.n_tasks, 2)),
     )
 
 
@@ -355,6 +376,7 @@ def _simulate(
     ex, ey, travels, to_home = static.ex, static.ey, static.travels, static.to_home
     has_home, home_x, home_y = static.has_home, static.home_x, static.home_y
     speed_rows, work_rows, workd_rows = static.speed, static.work_time, static.work_distance
+    ways_of = static.ways
     template = template_for(problem)
     ready, task_of_event = static.ready, template.task_of_event
     nan = math.nan
@@ -395,16 +417,25 @@ def _simulate(
                         d = hypot(hx - px, hy - py)
                         tt = d / speed_rows[u][t]
                         pos_x[t], pos_y[t] = hx, hy
+                        w, wd = work_rows[u][t], workd_rows[u][t]
                     elif travels[t] and not to_home[t]:
-                        d = hypot(sx[u][t] - px, sy[u][t] - py)
+                        ways = ways_of[u].get(t)
+                        if ways is not None:  # a sweep: the way that costs least from here
+                            way = ways[pick_way(ways, (px, py))]
+                            d = hypot(way[0] - px, way[1] - py)
+                            pos_x[t], pos_y[t] = way[2], way[3]
+                            w, wd = way[5], way[4]
+                        else:
+                            d = hypot(sx[u][t] - px, sy[u][t] - py)
+                            pos_x[t], pos_y[t] = ex[u][t], ey[u][t]
+                            w, wd = work_rows[u][t], workd_rows[u][t]
                         tt = d / speed_rows[u][t]
-                        pos_x[t], pos_y[t] = ex[u][t], ey[u][t]
                     else:
                         d, tt = 0.0, 0.0
                         pos_x[t], pos_y[t] = px, py
-                    w = work_rows[u][t]
+                        w, wd = work_rows[u][t], workd_rows[u][t]
                     start_l[t], travel_l[t], work_l[t] = v, tt, w
-                    dist_l[t] = d + workd_rows[u][t]
+                    dist_l[t] = d + wd
                     v = v + tt + w
                     end_l[t] = v
                 value[i] = v

@@ -85,11 +85,12 @@ ENDURANCE_MARGIN = 0.97
 @dataclass(frozen=True, slots=True)
 class Fit:
     """What a unit's earlier part measured: its sweep overhead (path / (A / w)), where its
-    sweep started (east, north m) and how far from its end the unit's home is (m; None: not
+    sweep may start (east, north m: each way's to fly it, ``coverage.flown_ways``; the unit
+    flies there from the nearest) and how far from its end the unit's home is (m; None: not
     measured, the area's nearest point is used)."""
 
     overhead: float
-    start: tuple[float, float] | None = None
+    starts: tuple[tuple[float, float], ...] = ()
     home: float | None = None
 
 
@@ -189,7 +190,8 @@ def before_search(problem: Problem, tables: CostTables, schedule: Schedule | Non
         if not prior:
             continue
         last = max(prior, key=lambda k: float(ends[k]))
-        end = tables.end_for(u, last)
+        end = (tables.end_for(u, last) if schedule.end_xy is None
+               or np.isnan(schedule.end_xy[last]).any() else schedule.end_xy[last])
         units[u] = Busy(float(ends[last]), sum(float(travel[k] + work[k]) for k in prior),
                         None if end is None else (float(end[0]), float(end[1])))
     return Before(act, units)
@@ -255,8 +257,8 @@ def _sharers_of(rows: list[_Ready], tables: CostTables, t: int, region: shapely.
         u, here = row.unit, row.here
         width, speed = width_col[u], speed_col[u]
         fit = fits.get(u, Fit(PLAN_OVERHEAD))
-        if fit.start is not None:
-            near = math.hypot(fit.start[0] - here[0], fit.start[1] - here[1])
+        if fit.starts:
+            near = min(math.hypot(x - here[0], y - here[1]) for x, y in fit.starts)
         if fit.home is not None:
             back_m = fit.home
         travel = near / speed
@@ -460,9 +462,10 @@ def _cut_search(problem: Problem, tables: CostTables, before: Before, t: int,
 def _judged(geoms: dict[int, shapely.Geometry], rows: list[_Ready], tables: CostTables, t: int
             ) -> tuple[float, dict[int, Fit]]:
     """(the largest over the parts ``geoms`` of what its unit needs for it, flight there from
-    where it is, its real sweep (``coverage.flown_sweep``, what the cost tables count) and the
-    way home, over the endurance it has left; what each part measured)."""
-    from delegation.coverage import flown_sweep, path_length
+    where it is, its real sweep flown the way that costs least from there (``coverage.
+    flown_ways``, ``pick_way``: what the cost tables count) and the way home, over the endurance
+    it has left; what each part measured)."""
+    from delegation.coverage import flown_ways, pick_way, way_ends
 
     by_unit = {r.unit: r for r in rows}
     worst = 0.0
@@ -471,19 +474,18 @@ def _judged(geoms: dict[int, shapely.Geometry], rows: list[_Ready], tables: Cost
         row, width = by_unit[u], float(tables.width[u, t])
         speed, area = float(tables.speed[u, t]), float(geom.area)
         try:
-            path = flown_sweep(pieces_xy(geom), width)
+            ways = way_ends(flown_ways(pieces_xy(geom), width))
         except InputError:  # (a cut left a degenerate sliver: such parts are not sent)
             return math.inf, fits
-        if len(path) == 0 or area <= 0.0:
+        if not ways or area <= 0.0:
             continue
-        start, end, sweep = path[0], path[-1], path_length(path)
+        sx, sy, ex, ey, sweep = ways[pick_way(ways, row.here)]
         home = tables.home_xy[u]
-        back = 0.0 if np.isnan(home).any() else math.hypot(*(end - home))
-        need = (math.hypot(start[0] - row.here[0], start[1] - row.here[1]) + sweep + back) / speed
+        back = 0.0 if np.isnan(home).any() else math.hypot(ex - home[0], ey - home[1])
+        need = (math.hypot(sx - row.here[0], sy - row.here[1]) + sweep + back) / speed
         left = float(tables.endurance[u]) - row.used
         worst = max(worst, need / left if left > 0.0 else math.inf)
-        fits[u] = Fit(max(1.0, sweep / (area / width)), (float(start[0]), float(start[1])),
-                      back)
+        fits[u] = Fit(max(1.0, sweep / (area / width)), ((sx, sy),), back)
     return worst, fits
 
 
@@ -675,10 +677,11 @@ def lateness(shared: SharedTree, seen: dict[str, Before], planned: Problem, sche
 
 def measured(shared: SharedTree, tables: CostTables) -> Fits:
     """Per shared search, per unit index: its part's real sweep length over ``A / w`` (at the
-    unit's width) and where its own sweep starts (as the cost tables place a unit's start of a
-    search), for sizing the shares again. ``tables``
-    are those of the tree before sharing (the parts' widths are their search's)."""
-    from delegation.coverage import coverage_path, multi_coverage_path, path_length
+    unit's width, flown the way that costs least from where the unit is) and where each way to
+    fly it starts (``coverage.flown_ways``: the unit flies there from the nearest, wherever its
+    earlier tasks leave it), for sizing the shares again. ``tables`` are those of the tree
+    before sharing (the parts' widths are their search's)."""
+    from delegation.coverage import flown_ways, pick_way, way_ends
 
     index = {node.node_uuid: t for t, node in enumerate(tables.tasks)}
     names = {unit.name: u for u, unit in enumerate(tables.units)}
@@ -695,12 +698,13 @@ def measured(shared: SharedTree, tables: CostTables) -> Fits:
             if u is None or not width > 0.0 or part.area_m2 <= 0.0:
                 continue
 
-            pieces = part.polygons_xy
-            path = (coverage_path(pieces[0], width) if len(pieces) == 1
-                    else multi_coverage_path(list(pieces), width))
-            start = path[0]
-            per[u] = Fit(max(1.0, path_length(path) / (part.area_m2 / width)),
-                         (float(start[0]), float(start[1])))
+            ways = way_ends(flown_ways(list(part.polygons_xy), width))
+            if not ways:
+                continue
+            here = (float(tables.unit_xy[u, 0]), float(tables.unit_xy[u, 1]))
+            sweep = ways[pick_way(ways, here)][4]
+            per[u] = Fit(max(1.0, sweep / (part.area_m2 / width)),
+                         tuple((row[0], row[1]) for row in ways))
         out[search.node_uuid] = per
     return out
 
@@ -737,5 +741,5 @@ def strained(fits: Fits, strain: dict[str, dict[int, float]]) -> Fits:
         mine = out.setdefault(uuid, {})
         for u, factor in per.items():
             fit = mine.get(u, Fit(PLAN_OVERHEAD))
-            mine[u] = Fit(fit.overhead * factor, fit.start)
+            mine[u] = Fit(fit.overhead * factor, fit.starts)
     return out

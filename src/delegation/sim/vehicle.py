@@ -6,7 +6,8 @@ factor) and turns its events into WARA-PS messages.
 
 Work follows the cost model (`delegation.costs`), so simulated missions take as long as the planner
 says: a task flies the points of `costs.task_path` (a move-to's waypoint, a move-path's waypoints,
-the boustrophedon sweep of a search with the unit's own sweep width) at the unit's speed for the
+the boustrophedon sweep of a search with the unit's own sweep width, flown from the end that costs
+least from where the unit is when the task starts) at the unit's speed for the
 task's ``speed`` class, in straight lines in a local ENU frame, then stays for the task's fixed time
 (``duration`` of observe-position, take-off, land) or, for open-ended tasks, until ``$enough``.
 """
@@ -213,7 +214,10 @@ class SimVehicle:
         node = TstNode(name=name, params=dict(params))
         geometry = task_geometry(node)
         speed = unit_speed(self.unit, params.get("speed"))
-        points = [self.home] if name == "go-home" else task_path(node, self.unit, self.frame)
+        # A sweep starts at the end that costs least from where the unit is now, as the
+        # planner's schedule chose it from where the unit's previous task left it.
+        points = ([self.home] if name == "go-home"
+                  else task_path(node, self.unit, self.frame, here=self.position))
         # Altitude is cosmetic (the cost model ignores it): searches fly at least at the sweep
         # altitude, take-off climbs and land descends where the unit is (or at ``p``).
         floor = self.unit.effective_sweep_altitude if geometry.kind == "areas" else -math.inf

@@ -26,9 +26,10 @@ import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
-from delegation.allocation.schedule import Schedule, better_key, evaluate
+from delegation.allocation.schedule import Schedule, _static_for, better_key, evaluate
 from delegation.allocation.series_parallel import schedule_decomposition, sp_times
 from delegation.allocation.strategies import Objective
+from delegation.coverage import pick_way
 
 #: Longest run of consecutive tasks moved as one (a ``seq`` of a few tasks moves whole).
 SEGMENT = 3
@@ -69,7 +70,8 @@ def _movable(problem: Problem, schedule: Schedule) -> np.ndarray:
 
 
 def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
-    """Unit ``u``'s travel + work time for ``route`` and the way home (0 when empty)."""
+    """Unit ``u``'s travel + work time for ``route`` and the way home (0 when empty); each
+    search flown the way that costs least from where the unit is (as ``schedule.evaluate``)."""
     if not route:
         return 0.0
     idx = np.asarray(route, dtype=int)
@@ -78,8 +80,15 @@ def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
     start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
     speeds, works = problem.speed[u, idx].tolist(), problem.work_time[u, idx].tolist()
     hx, hy = problem.unit_xy[u].tolist()
+    ways = _static_for(problem).ways[u]
     total = 0.0
     for k in range(len(route)):
+        way = ways.get(route[k]) if travels_l[k] else None
+        if way is not None:  # a sweep: flown as the schedule flies it from here
+            sx, sy, ex, ey, _, work = way[pick_way(way, (hx, hy))]
+            total += math.hypot(sx - hx, sy - hy) / speeds[k] + work
+            hx, hy = ex, ey
+            continue
         if travels_l[k]:
             sx, sy = start_l[k]
             total += math.hypot(sx - hx, sy - hy) / speeds[k]
