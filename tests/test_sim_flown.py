@@ -24,6 +24,7 @@ from delegation.coverage import (
     transitions_inside,
     turns_inside,
 )
+from delegation.render.mapplot import planned_route
 from delegation.sim.flown import fly_plan, footprint, outside, swept
 from delegation.tst import leaves, make_node, with_uuids
 
@@ -157,3 +158,19 @@ def test_a_unit_sweeping_two_areas_flies_each_from_where_it_is_as_planned() -> N
     start = FRAME.point_xy(drone.position)
     assert np.hypot(*(nearest[0] - min(ways, key=lambda w: float(np.hypot(*(w[0] - start))))[0])
                     ) > 200.0
+
+
+def test_the_map_draws_each_sweep_from_where_the_unit_flies_it() -> None:
+    # The map's planned route (render.mapplot.planned_route) draws the second of two searches
+    # from the end the unit flies it from (where the first search left it, not where it
+    # started): the route drawn is as long as the plan's distances, connector included.
+    drone = unit_at("dji0", "air", -2000.0, -1500.0)
+    west, east = RECT + np.array([-400.0, 0.0]), RECT + np.array([500.0, -1400.0])
+    tree = with_uuids(make_node("seq", children=[search_node(west), search_node(east)]))
+    data = plan_mission(tree, [drone], strategy="auction").to_json()
+    nodes = {n.node_uuid: n for n in leaves(tree)}
+    route = planned_route(data["assignments"], drone, nodes)
+    if drone.home is not None:
+        route = route[:-1]
+    drawn = path_length(np.array([FRAME.point_xy(p) for p in route]))
+    assert drawn == pytest.approx(sum(a["distance"] for a in data["assignments"]), abs=1.0)

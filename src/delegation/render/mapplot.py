@@ -64,12 +64,31 @@ def _shape(node: TstNode) -> _Shape:
     return _Shape(node.name, task_geometry(node), target)
 
 
-def _route_points(node: TstNode, unit: UnitState) -> list[GeoPoint]:
-    """Where the unit goes for a task: the cost model's own path (sweeps for searches), in the
+def _route_points(node: TstNode, unit: UnitState, here: GeoPoint) -> list[GeoPoint]:
+    """Where the unit goes for a task: the cost model's own path (sweeps for searches, flown the
+    way that suits ``here``, where its previous task left it, as the unit flies it), in the
     frame the simulator uses (around the unit's start) so that near-symmetric areas are swept
     along the same axis on the map as in flight; nothing for tasks done in place (look-at-*)."""
     frame = LocalFrame(unit.position.latitude, unit.position.longitude)
-    return task_path(node, unit, frame)
+    return task_path(node, unit, frame, here=here)
+
+
+def planned_route(assigned: Sequence[Mapping[str, Any]], unit: UnitState,
+                  nodes: Mapping[str, TstNode]) -> list[GeoPoint]:
+    """The unit's planned route: its position, each assigned task's path in the plan's order
+    (each search flown the way that suits where the task before left the unit, as the planner's
+    schedule and the simulated unit fly it), then home."""
+    route = [unit.position]
+    here = unit.position
+    for a in sorted(assigned, key=lambda a: (a.get("start", 0.0), a.get("end", 0.0))):
+        node = nodes.get(str(a.get("node-uuid")))
+        if node is not None:
+            points = _route_points(node, unit, here)
+            route += points
+            here = points[-1] if points else here
+    if unit.home is not None:
+        route.append(unit.home)
+    return route
 
 
 #: Map coordinates (east, north in metres) of a position.
@@ -177,13 +196,7 @@ def _draw_routes(
         unit = by_name.get(unit_name)
         if unit is None:
             continue
-        route = [xy(unit.position)]
-        for a in sorted(assigned, key=lambda a: (a.get("start", 0.0), a.get("end", 0.0))):
-            node = nodes.get(str(a.get("node-uuid")))
-            if node is not None:
-                route += [xy(p) for p in _route_points(node, unit)]
-        if unit.home is not None:
-            route.append(xy(unit.home))
+        route = [xy(p) for p in planned_route(assigned, unit, nodes)]
         line = np.array(route)
         ax.plot(line[:, 0], line[:, 1], ls="--", lw=1.2, color=colour[unit_name], alpha=0.9,
                 zorder=3)
