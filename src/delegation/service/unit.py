@@ -33,7 +33,7 @@ from typing import Any
 
 from delegation.runtime.commands import CommandEntry, CommandLog, CommandState
 from delegation.runtime.core import Effects, Outgoing
-from delegation.runtime.mqtt import Message, MqttClient
+from delegation.runtime.mqtt import Message
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.unit import CoreUnit
 from delegation.service.config import ServiceConfig
@@ -78,8 +78,6 @@ class DelegationService(CoreUnit[ServiceCore]):
         self.config = config or ServiceConfig()
         super().__init__(settings, ServiceCore(self.config), worker=planner, clock=time.monotonic,
                          wall=time.time, tick_interval=TICK_INTERVAL)
-        if isinstance(self.client, MqttClient):  # heartbeats, sensors, feedback: many small
-            self.client.buffered_reads = True  # messages, one recv for many instead of 3 each
         self.store = store
         self.retention = retention
         #: Set when the store's lock was lost: this instance must stop acting.
