@@ -14,6 +14,10 @@ missions ended, or ``--settle`` seconds; also net of what the idle service spend
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
 kinds, whether every command was answered exactly once on its client's topic (exit 1
 otherwise), and how many plans the service made (more than one per mission: plans made again).
+The machine's share is printed too: the CPU of this process (the engine, the units, the clients)
+and of mosquitto per mission, and the answers/s that all the machine's cores could give at that
+cost (the three together are what a burst needs of the machine, whatever the service does).
+The service plans in a child process (``serve``'s default; ``--planner thread`` on a thread).
 ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
 the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
 ``--profile-gil`` only the thread holding the GIL:
