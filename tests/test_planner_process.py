@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 import cli_forks
+from delegation.cli import build_parser
+from delegation.cli.serve import _planner
 from delegation.runtime.broker import PrivateMosquitto
 from delegation.service import ServiceConfig, ServiceCore, run_job
 from delegation.service.jobs import Job, JobFailed, PlanDone
@@ -57,6 +59,13 @@ def test_the_child_plans_what_the_thread_plans(planner: PlannerProcess) -> None:
     assert ({k: v for k, v in there.plan.to_json().items() if k not in timed}
             == {k: v for k, v in here.plan.to_json().items() if k not in timed})
     assert planner.pid != os.getpid() and planner.pid is not None and _alive(planner.pid)
+
+
+def test_serve_plans_in_a_process_unless_told_thread() -> None:
+    default = build_parser().parse_args(["serve"])
+    assert default.planner == "process"
+    assert _planner(build_parser().parse_args(["serve", "--planner", "thread"]).planner) \
+        is run_job
 
 
 @pytest.mark.slow  # planner processes killed and started again
