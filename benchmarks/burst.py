@@ -14,6 +14,10 @@ missions ended, or ``--settle`` seconds; also net of what the idle service spend
 the fleet's periodic messages, measured for ``--idle`` seconds before the burst), the answers'
 kinds, whether every command was answered exactly once on its client's topic (exit 1
 otherwise), and how many plans the service made (more than one per mission: plans made again).
+The machine's share is printed too: the CPU of this process (the engine, the units, the clients)
+and of mosquitto per mission, and the answers/s that all the machine's cores could give at that
+cost (the three together are what a burst needs of the machine, whatever the service does).
+The service plans in a child process (``serve``'s default; ``--planner thread`` on a thread).
 ``--profile OUT`` runs ``py-spy record`` on the service from the burst to the end of
 the run or (``--profile-until answers``) to the last answer (``--format raw --threads``, with
 ``--profile-gil`` only the thread holding the GIL:
@@ -71,6 +75,13 @@ def cpu_seconds(pid: int) -> float:
     for task in Path(f"/proc/{pid}/task").glob("*/children"):
         children.extend(int(c) for c in task.read_text().split())
     return own + sum(cpu_seconds(child) for child in children)
+
+
+def own_cpu() -> float:
+    """User + system CPU seconds of this process so far (every thread: the engine, the units,
+    the clients and the watch)."""
+    times = os.times()
+    return times.user + times.system
 
 
 def thread_cpu(pid: int) -> dict[int, float]:
@@ -254,6 +265,12 @@ def report(args: argparse.Namespace, watch: Watch, sent: dict[str, float], cpu: 
           f"run ({cpu['end']:.2f} s), {cpu['end_net'] * 1000 / n:.1f} ms/mission to the end "
           f"without the idle service's {cpu['idle'] * 1000:.0f} ms/s (the fleet's periodic "
           f"messages)")
+    total = cpu["answers"] + cpu["bench"] + cpu["broker"]
+    print(f"machine CPU up to the last answer: service {cpu['answers'] * 1000 / n:.1f}, this "
+          f"process (engine, {args.units} units, clients) {cpu['bench'] * 1000 / n:.1f}, "
+          f"mosquitto {cpu['broker'] * 1000 / n:.1f} ms/mission; {total * 1000 / n:.1f} "
+          f"ms/mission in all: {os.cpu_count()} cores busy all the time give at most "
+          f"{(os.cpu_count() or 1) * n / total:.0f} answers/s")
     once = counts.get(1, 0)
     print(f"answered exactly once: {once}/{n}; never {counts.get(0, 0)}, more than once "
           f"{sum(v for k, v in counts.items() if k > 1)}; on another client's topic {misrouted}; "
@@ -273,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--idle", type=float, default=3.0,
                     help="seconds of the idle service measured before the burst")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--planner", choices=("process", "thread"), default="thread",
-                    help="serve --planner: plans on a thread (default) or in a child process")
+    ap.add_argument("--planner", choices=("process", "thread"), default="process",
+                    help="serve --planner: plans in a child process (default) or on a thread")
     ap.add_argument("--profile", metavar="OUT", help="py-spy raw profile of the service")
     ap.add_argument("--profile-until", choices=("answers", "end"), default="end",
                     help="profile the burst up to the last answer, or to the end of the run")
@@ -313,8 +330,11 @@ def main(argv: list[str] | None = None) -> int:
                 spy = profiler(proc.pid, args.profile, args.profile_gil)
             threads0 = thread_cpu(proc.pid)
             cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
+            others0 = own_cpu(), cpu_seconds(broker.pid or 0)
             sent = publish_burst(settings, base, watch, bodies)
-            cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle}
+            cpu = {"answers": cpu_seconds(proc.pid) - cpu0, "idle": idle,
+                   "bench": own_cpu() - others0[0],
+                   "broker": cpu_seconds(broker.pid or 0) - others0[1]}
             threads = per_thread(names, threads0, thread_cpu(proc.pid), len(sent)) \
                 if names else ""
             if spy is not None and args.profile_until == "answers":

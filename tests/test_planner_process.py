@@ -1,6 +1,6 @@
-"""The planner in a child process (`serve --planner process`): the same plans as on
-the thread, a child that dies answers its job and is replaced, and no child outlives the service,
-even one killed with ``kill -9``."""
+"""The planner in a child process (`serve`'s default, ``--planner process``): the same plans as
+on the thread, a child that dies answers its job and is replaced, and no child outlives the
+service, even one killed with ``kill -9``; `serve` forks it (it does not spawn it)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 import cli_forks
+from delegation.cli import build_parser
+from delegation.cli.serve import _planner
 from delegation.runtime.broker import PrivateMosquitto
 from delegation.service import ServiceConfig, ServiceCore, run_job
 from delegation.service.jobs import Job, JobFailed, PlanDone
@@ -59,6 +61,13 @@ def test_the_child_plans_what_the_thread_plans(planner: PlannerProcess) -> None:
     assert planner.pid != os.getpid() and planner.pid is not None and _alive(planner.pid)
 
 
+def test_serve_plans_in_a_process_unless_told_thread() -> None:
+    default = build_parser().parse_args(["serve"])
+    assert default.planner == "process"
+    assert _planner(build_parser().parse_args(["serve", "--planner", "thread"]).planner) \
+        is run_job
+
+
 @pytest.mark.slow  # planner processes killed and started again
 def test_a_child_that_dies_answers_failed_and_is_replaced(planner: PlannerProcess) -> None:
     dead = planner.pid
@@ -94,7 +103,7 @@ def test_no_planner_outlives_a_service_killed_with_kill_9(mosquitto: PrivateMosq
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     serve = cli_forks.spawn_piped(  # a process of its own, forked with the CLI imported
         ["serve", "--broker", settings.host, "--port", str(settings.port), "--prefix", "pp",
-         "--name", "pp0", "--state", str(tmp_path / "state.sqlite"), "--planner", "process"],
+         "--name", "pp0", "--state", str(tmp_path / "state.sqlite")],  # plans in a process
         env, tmp_path, stderr=Path(os.devnull))
     try:
         assert serve.stdout is not None
@@ -103,6 +112,8 @@ def test_no_planner_outlives_a_service_killed_with_kill_9(mosquitto: PrivateMosq
                 break
         children = _children(serve.pid)
         assert children, "serve started no planner process"
+        for child in children:  # forked (the planner imported already), not spawned
+            assert b"spawn_main" not in Path(f"/proc/{child}/cmdline").read_bytes()
         exits = [os.pidfd_open(c) for c in children]  # readable once that process has exited
         try:
             serve.kill()

@@ -103,10 +103,11 @@ def _service_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--min-battery", type=fraction, default=0.2, metavar="FRACTION",
                    help="units with a battery below this (0..1) are not planned for")
-    p.add_argument("--planner", default="thread", choices=("process", "thread"),
-                   help="plan on a thread of the service's process (thread, the default), or "
-                   "in a child process beside it, on another core (process): a crashed or "
-                   "hung plan is then ended without the service")
+    p.add_argument("--planner", default="process", choices=("process", "thread"),
+                   help="plan in a child process beside the service, on another core (process, "
+                   "the default: a plan never competes with answering for Python's lock, and a "
+                   "crashed or hung plan is ended without the service), or on a thread of the "
+                   "service's own process (thread)")
     p.add_argument("--planner-queue", type=_queue_size, default=1000, metavar="N", help="plans "
                    "waiting or being made past which a command that plans is refused (busy)")
     p.add_argument("--listen-round", type=float, default=1.2, metavar="SECONDS",
@@ -172,15 +173,26 @@ def _serve(args: argparse.Namespace) -> int:
         from delegation.cli.ui import page_options
 
         page_options(args)  # usage errors before the store is opened
-    store = open_store(args.state or str(default_state_path(config.name)))
-    page = ExitStack()
+    resources = ExitStack()
+    # First, while this process runs one thread and has opened nothing: a planner process is
+    # then forked, not spawned (`PlannerProcess`), and inherits no lock, socket or database.
+    planner = _planner(args.planner)
+    close = getattr(planner, "close", None)
+    if close is not None:
+        resources.callback(close)
+    try:
+        store = open_store(args.state or str(default_state_path(config.name)))
+    except BaseException:
+        resources.close()
+        raise
     if args.http:
         from delegation.cli.ui import start_page
 
         try:
-            server = start_page(page, args, settings, prefix=config.prefix, service=config.name)
+            server = start_page(resources, args, settings, prefix=config.prefix,
+                                service=config.name)
         except BaseException:
-            page.close()
+            resources.close()
             store.close()
             raise
         print(f"operator page on {server.url}", flush=True)
@@ -195,9 +207,9 @@ def _serve(args: argparse.Namespace) -> int:
         code = run_active(settings, config, store, threading.Event(), retention=args.retention,
                           store_bound=args.store_bound,
                           announce=lambda text: print(text, flush=True),
-                          planner=_planner(args.planner))
+                          planner=planner)
     finally:
-        page.close()
+        resources.close()
         store.close()
         print(f"{config.name} stopped", flush=True)
     return code

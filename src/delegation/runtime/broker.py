@@ -445,6 +445,11 @@ class PrivateMosquitto(StartStop):
         self._drain: _Drain | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
+    @property
+    def pid(self) -> int | None:
+        """The mosquitto process's id while it runs (benchmarks read its CPU time)."""
+        return self._proc.pid if self._proc is not None else None
+
     def start(
         self, timeout: float = 10.0, attempts: int = 3, port: int | None = None
     ) -> PrivateMosquitto:

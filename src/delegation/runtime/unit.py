@@ -29,7 +29,7 @@ from pydantic import BaseModel
 
 from delegation.runtime.core import Core, Effects, JobCore, JobDone, Outgoing
 from delegation.runtime.inbox import DEFAULT_LIMIT, Arrival, Inbox
-from delegation.runtime.mqtt import Message, MqttConnectError, MqttError
+from delegation.runtime.mqtt import Message, MqttClient, MqttConnectError, MqttError
 from delegation.runtime.settings import BrokerSettings
 from delegation.runtime.transport import make_client
 from delegation.topics import QOS_COMMAND, QOS_PERIODIC
@@ -92,6 +92,8 @@ class MqttUnit:
             settings, client_id or f"{name}-{uuid.uuid4().hex[:8]}", sink=self._inbox.put,
             on_connection=self._connection,
         )
+        if isinstance(self.client, MqttClient):  # heartbeats, sensors, feedback: many small
+            self.client.buffered_reads = True  # messages, one recv for many instead of 3 each
         self._thread: threading.Thread | None = None
         self._started = threading.Event()
         self._stopped = threading.Event()
