@@ -74,11 +74,17 @@ def test_the_helper_search_answers_a_valid_schedule_no_worse_than_its_start(
     tree, units = _mixed(10, 30)
     problem = build_problem(with_defaults(with_uuids(tree)), units)
     start = auction_schedule(problem, Objective.MAKESPAN)
-    # 4 s: the helper must get past its own start (imports) and search even on a loaded machine
-    helper = HelperLns.start(problem, Objective.MAKESPAN, start, 4.0, seed=3)
-    assert helper is not None
-    answer = helper.result(30)
-    assert isinstance(answer, LnsAnswer), answer
+    # 4 s: the helper must get past its own start (imports) and search. Its deadline is
+    # wall-clock: on a machine loaded past that (load average 22, 8 test workers and other
+    # suites) it can start after it and answer its start, no search done; then once more with
+    # 8 s. A helper that never searches fails both.
+    for seconds in (4.0, 8.0):
+        helper = HelperLns.start(problem, Objective.MAKESPAN, start, seconds, seed=3)
+        assert helper is not None
+        answer = helper.result(30)
+        assert isinstance(answer, LnsAnswer), answer
+        if answer.iterations > 0:
+            break
     found = evaluate(problem, answer.assign, answer.orders)
     assert found.valid and answer.iterations > 0
     before = tree_key(problem, Objective.MAKESPAN, start)
