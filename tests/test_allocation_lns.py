@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -31,13 +32,22 @@ def test_optimal_searches_mixed_trees_within_its_time_limit_and_beats_the_auctio
                                                     structure="mixed"))
     tree, units = scenario.tree(), scenario.units()
     auction = plan_mission(tree, units, strategy="auction")
-    plan = plan_mission(tree, units, strategy="optimal", time_limit=2.0)
+    # The limit is wall-clock: on a loaded machine (8 test workers, other suites: load average
+    # 15-22) the search got a fraction of a core and once ended at 2005 s against the auction's
+    # 1998 s. A search that was given most of its limit in CPU must beat the auction; a starved
+    # one is given once more with 6 s.
+    for limit in (2.0, 6.0):
+        cpu = time.thread_time()
+        plan = plan_mission(tree, units, strategy="optimal", time_limit=limit)
+        cpu = time.thread_time() - cpu
+        if plan.makespan < auction.makespan or cpu >= 0.6 * limit:
+            break
     # The search stops at 90 % of the limit; the slack is for a loaded machine (this bounds a
     # runaway search, it does not time the planner: benchmarks do that).
-    assert plan.solve_time <= 2.0 * 1.5
+    assert plan.solve_time <= limit * 1.5
     assert check_invariants(plan, tree, units) == []
     assert any(note.startswith("large neighbourhood search:") for note in plan.notes)
-    assert plan.makespan < auction.makespan  # measured: 1828 s -> ~1300 s in 2 s
+    assert plan.makespan < auction.makespan, f"{cpu:.2f} s of CPU"  # measured: 1828 -> ~1300 s
     assert plan.fallback is None and plan.strategy_label == "optimal"
 
 
