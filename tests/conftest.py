@@ -43,9 +43,10 @@ hypothesis_settings.load_profile(
 )
 
 
-#: xdist workers per CPU for ``-n auto`` (pyproject's addopts). The suite waits more than it
-#: computes (brokers, simulated flights, child processes): on the 2-core machine 4 workers used the
-#: cores ~52 % of the time (223 s of CPU in 215 s), 8 ran it in 155-161 s, idle.
+#: xdist workers per CPU for ``pytest -n auto`` (pyproject's addopts keep ``-n 4``). The suite
+#: waits more than it computes (brokers, simulated flights, child processes): on the 2-core
+#: machine 4 workers used the cores ~52 % of the time (223 s of CPU in 215 s), 8 ran it in
+#: 155-161 s, idle; ``-m "not slow"`` is CPU-bound and slower with 8 (each worker collects).
 WORKERS_PER_CPU = 4
 
 
