@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -31,13 +32,22 @@ def test_optimal_searches_mixed_trees_within_its_time_limit_and_beats_the_auctio
                                                     structure="mixed"))
     tree, units = scenario.tree(), scenario.units()
     auction = plan_mission(tree, units, strategy="auction")
-    plan = plan_mission(tree, units, strategy="optimal", time_limit=2.0)
+    # The limit is wall-clock: on a loaded machine (8 test workers, other suites: load average
+    # 15-22) the search got a fraction of a core and once ended at 2005 s against the auction's
+    # 1998 s. A search that was given most of its limit in CPU must beat the auction; a starved
+    # one is given once more with 6 s.
+    for limit in (2.0, 6.0):
+        cpu = time.thread_time()
+        plan = plan_mission(tree, units, strategy="optimal", time_limit=limit)
+        cpu = time.thread_time() - cpu
+        if plan.makespan < auction.makespan or cpu >= 0.6 * limit:
+            break
     # The search stops at 90 % of the limit; the slack is for a loaded machine (this bounds a
     # runaway search, it does not time the planner: benchmarks do that).
-    assert plan.solve_time <= 2.0 * 1.5
+    assert plan.solve_time <= limit * 1.5
     assert check_invariants(plan, tree, units) == []
     assert any(note.startswith("large neighbourhood search:") for note in plan.notes)
-    assert plan.makespan < auction.makespan  # measured: 1828 s -> ~1300 s in 2 s
+    assert plan.makespan < auction.makespan, f"{cpu:.2f} s of CPU"  # measured: 1828 -> ~1300 s
     assert plan.fallback is None and plan.strategy_label == "optimal"
 
 
@@ -74,11 +84,18 @@ def test_the_helper_search_answers_a_valid_schedule_no_worse_than_its_start(
     tree, units = _mixed(10, 30)
     problem = build_problem(with_defaults(with_uuids(tree)), units)
     start = auction_schedule(problem, Objective.MAKESPAN)
-    # 4 s: the helper must get past its own start (imports) and search even on a loaded machine
-    helper = HelperLns.start(problem, Objective.MAKESPAN, start, 4.0, seed=3)
-    assert helper is not None
-    answer = helper.result(30)
-    assert isinstance(answer, LnsAnswer), answer
+    # 4 s: the helper must get past its own start (imports) and search. Its deadline is
+    # wall-clock: on a machine loaded past that (load average 22, 8 test workers and other
+    # suites) it can start after it and answer its start, no search done; then again with 8 s
+    # and 16 s (8 s was not enough once at load average 20). A helper that never searches fails
+    # every try.
+    for seconds in (4.0, 8.0, 16.0):
+        helper = HelperLns.start(problem, Objective.MAKESPAN, start, seconds, seed=3)
+        assert helper is not None
+        answer = helper.result(30)
+        assert isinstance(answer, LnsAnswer), answer
+        if answer.iterations > 0:
+            break
     found = evaluate(problem, answer.assign, answer.orders)
     assert found.valid and answer.iterations > 0
     before = tree_key(problem, Objective.MAKESPAN, start)

@@ -22,7 +22,7 @@ from delegation.allocation.optimal.minmax import (
     minmax_search,
     stall_rounds,
 )
-from delegation.allocation.optimal.parallel import HELPER_SCRIPT, use_second_core
+from delegation.allocation.optimal.parallel import HELPER_SCRIPT, Pending, use_second_core
 from delegation.allocation.problem import Problem, build_problem
 from delegation.allocation.strategies import Objective
 from delegation.runtime.second_core import launch
@@ -166,9 +166,12 @@ def test_minmax_search_respects_battery() -> None:
 def test_minmax_search_stops_at_its_deadline() -> None:
     model = _random_model(5, 40, 4, restricted=False)
     start = _start(model, 40, 5)
-    began = time.perf_counter()
+    began, cpu = time.perf_counter(), time.thread_time()
     minmax_search(model, start, began + 0.3)
-    assert time.perf_counter() - began < 0.3 + 0.5  # loose: one move past the deadline at most
+    # Counted in this thread's CPU seconds: the deadline is wall-clock, so a search that stops
+    # in time spends at most that, while a wall-clock count also measured the rest of a loaded
+    # machine (1.7 s at load average 22). Loose: one move past the deadline at most.
+    assert time.thread_time() - cpu < 0.3 + 0.5
 
 
 def _instance(tmp_path: Path, n: int, units: int, seed: int) -> Problem:
@@ -198,9 +201,31 @@ def test_minmax_never_worse_than_the_routing_solver_alone(tmp_path: Path) -> Non
     assert found.key() <= model.route_set(start).key()
 
 
+#: Seconds a helper may answer after its due time here: on a loaded machine (8 test workers on 2
+#: cores, other processes' suites) its interpreter can start after its own deadline. These tests
+#: check that the portfolio runs the second core's search and uses its answer; its timing is the
+#: machine's (the planner's own time is checked in CPU seconds, and benchmarks time the rest).
+HELPER_GRACE = 30.0
+
+
+class _Patient:
+    """A started helper whose answer is waited for ``HELPER_GRACE`` s past its due time."""
+
+    def __init__(self, pending: Pending) -> None:
+        self._pending = pending
+
+    def result(self, timeout: float) -> bytes | str:
+        return self._pending.result(timeout + HELPER_GRACE)
+
+
+def patient_launch(script: Path, payload: bytes) -> Pending:
+    """`launch`, but patient with a helper that a loaded machine started late."""
+    return _Patient(launch(script, payload))
+
+
 @pytest.fixture
 def second_core() -> Iterator[None]:
-    use_second_core(launch)
+    use_second_core(patient_launch)
     yield
     use_second_core(None)
 
