@@ -156,3 +156,29 @@ def test_auction_with_small_tables_in_python_plans_as_with_numpy(
     slow = auction(_instance(seed, shape), objective)
     _same(fast, slow)
     np.testing.assert_array_equal(fast.start, slow.start)
+
+
+@pytest.mark.parametrize("homes", [False, True])
+@pytest.mark.parametrize("shape", SHAPES)
+def test_route_points_from_the_problems_lists_equal_points_for(shape: str, homes: bool) -> None:
+    problem = _instance(4, shape, homes)
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        u = int(rng.integers(problem.n_units))
+        route = rng.permutation(problem.n_tasks)[: int(rng.integers(0, 6))].tolist()
+        start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+        prev = [problem.unit_xy[u]]
+        for k in range(len(route)):
+            prev.append(end[k] if travels[k] else prev[k])
+        here, speed = np.zeros(2), math.inf
+        if problem.has_home[u]:
+            here, speed = problem.home_xy[u], float(problem.home_speed[u])
+        nxt, speeds = [here] * (len(route) + 1), [speed] * (len(route) + 1)
+        for k in range(len(route) - 1, -1, -1):
+            if travels[k]:
+                here, speed = start[k], float(problem.speed[u, route[k]])
+            nxt[k], speeds[k] = here, speed
+        got = routes.route_points(problem, u, route)
+        np.testing.assert_array_equal(got[0], np.array(prev).reshape(-1, 2))
+        np.testing.assert_array_equal(got[1], np.array(nxt).reshape(-1, 2))
+        np.testing.assert_array_equal(got[2], np.array(speeds))

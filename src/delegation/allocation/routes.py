@@ -33,36 +33,34 @@ def route_points(
     inf where nothing follows (open route), so the travel to "next" costs nothing there.
     """
     n = len(route)
-    prev, nxt, speeds = _route_lists(problem, u, route)
-    prev_xy = np.array(prev, dtype=float).reshape(n + 1, 2)
-    next_xy = np.array(nxt, dtype=float).reshape(n + 1, 2)
-    next_speed = np.array(speeds, dtype=float).reshape(n + 1)
-    return prev_xy, next_xy, next_speed
-
-
-def _route_lists(
-    problem: Problem, u: int, route: Sequence[int]
-) -> tuple[list[list[float]], list[list[float]], list[float]]:
-    """``route_points`` as lists."""
-    n = len(route)
-    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+    static = static_for(problem)
+    if True in static.to_home:  # (go-home: its points are the unit's home, ``points_for``)
+        start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+        start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
+    else:  # the problem's lists, as the simulation reads them: no numpy call per route
+        sx, sy, ex, ey = static.sx[u], static.sy[u], static.ex[u], static.ey[u]
+        start_l = [[sx[t], sy[t]] for t in route]
+        end_l = [[ex[t], ey[t]] for t in route]
+        travels_l = [static.travels[t] for t in route]
     # Plain Python over the route (a few to a few dozen tasks), one conversion at the end:
     # numpy's per-row assignments cost more than the arithmetic.
-    start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
-    prev: list[list[float]] = [problem.unit_xy[u].tolist()]
+    prev: list[list[float]] = [[static.ux[u], static.uy[u]]]
     for k in range(n):
         prev.append(end_l[k] if travels_l[k] else prev[k])
     here, speed = ([0.0, 0.0], math.inf)
-    if problem.has_home[u]:
-        here, speed = problem.home_xy[u].tolist(), float(problem.home_speed[u])
+    if static.has_home[u]:
+        here, speed = [static.home_x[u], static.home_y[u]], static.home_speed[u]
     nxt: list[list[float]] = [here] * (n + 1)
     speeds = [speed] * (n + 1)
-    unit_speed = problem.speed[u].tolist()
+    unit_speed = static.speed[u]
     for k in range(n - 1, -1, -1):
         if travels_l[k]:
             here, speed = start_l[k], unit_speed[route[k]]
         nxt[k], speeds[k] = here, speed
-    return prev, nxt, speeds
+    prev_xy = np.array(prev, dtype=float).reshape(n + 1, 2)
+    next_xy = np.array(nxt, dtype=float).reshape(n + 1, 2)
+    next_speed = np.array(speeds, dtype=float).reshape(n + 1)
+    return prev_xy, next_xy, next_speed
 
 
 def xy_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
