@@ -4,8 +4,9 @@ Each shortcut is checked against the computation it replaces, on generated trees
 the bid bound prunes only bids that cannot win (the same plan as simulating the whole shortlist),
 the stacked tables rebid as the unit-by-unit ones do, the first tables of all units at once equal
 ``recompute`` unit by unit (in the general auction and the flat one), suffix minima equal
-``np.argmin`` over the allowed positions, the LCA table equals the ancestry comparison, and the
-closed-ring test equals ``np.allclose``.
+``np.argmin`` over the allowed positions, the LCA table equals the ancestry comparison, the
+closed-ring test equals ``np.allclose``, and the small insertion tables priced in plain Python
+equal numpy's to the bit.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pytest
 
 import delegation.allocation.auction.flat as flat
 import delegation.allocation.auction.stacked as stacked
+import delegation.allocation.routes as routes
 from allocation_helpers import SHAPES, problem_for, random_instance
 from delegation.allocation import problem as problem_module
 from delegation.allocation.auction import auction
@@ -120,3 +122,63 @@ def test_closed_ring_test_equals_allclose() -> None:
     for a in itertools.product(values, repeat=2):
         for b in itertools.product(values, repeat=2):
             assert _close(list(a), list(b)) == bool(np.allclose(a, b)), (a, b)
+
+
+@pytest.mark.parametrize("homes", [False, True])
+@pytest.mark.parametrize("shape", SHAPES)
+def test_small_insertion_tables_in_python_equal_numpy_to_the_bit(
+    shape: str, homes: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    problem = _instance(3, shape, homes)
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(40):
+        u = int(rng.integers(problem.n_units))
+        tasks = rng.permutation(problem.n_tasks)
+        k = int(rng.integers(0, 6))
+        cases.append((u, tasks[:k].tolist(), np.sort(tasks[k:])))
+    small = [(routes.insertion_costs(problem, u, r, c),
+              routes.whole_insertion_costs(problem, u, r, c)) for u, r, c in cases]
+    monkeypatch.setattr(routes, "SMALL_TABLE", 0)
+    for (u, r, c), (costs, whole) in zip(cases, small, strict=True):
+        assert costs.shape == (len(r) + 1, c.size)
+        np.testing.assert_array_equal(costs, routes.insertion_costs(problem, u, r, c))
+        np.testing.assert_array_equal(whole, np.where(
+            routes.keeps_subtrees_whole(problem, r, c), costs, np.inf))
+
+
+@pytest.mark.parametrize(("seed", "shape", "objective"), CASES)
+def test_auction_with_small_tables_in_python_plans_as_with_numpy(
+    seed: int, shape: str, objective: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fast = auction(_instance(seed, shape), objective)
+    monkeypatch.setattr(routes, "SMALL_TABLE", 0)
+    slow = auction(_instance(seed, shape), objective)
+    _same(fast, slow)
+    np.testing.assert_array_equal(fast.start, slow.start)
+
+
+@pytest.mark.parametrize("homes", [False, True])
+@pytest.mark.parametrize("shape", SHAPES)
+def test_route_points_from_the_problems_lists_equal_points_for(shape: str, homes: bool) -> None:
+    problem = _instance(4, shape, homes)
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        u = int(rng.integers(problem.n_units))
+        route = rng.permutation(problem.n_tasks)[: int(rng.integers(0, 6))].tolist()
+        start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+        prev = [problem.unit_xy[u]]
+        for k in range(len(route)):
+            prev.append(end[k] if travels[k] else prev[k])
+        here, speed = np.zeros(2), math.inf
+        if problem.has_home[u]:
+            here, speed = problem.home_xy[u], float(problem.home_speed[u])
+        nxt, speeds = [here] * (len(route) + 1), [speed] * (len(route) + 1)
+        for k in range(len(route) - 1, -1, -1):
+            if travels[k]:
+                here, speed = start[k], float(problem.speed[u, route[k]])
+            nxt[k], speeds[k] = here, speed
+        got = routes.route_points(problem, u, route)
+        np.testing.assert_array_equal(got[0], np.array(prev).reshape(-1, 2))
+        np.testing.assert_array_equal(got[1], np.array(nxt).reshape(-1, 2))
+        np.testing.assert_array_equal(got[2], np.array(speeds))

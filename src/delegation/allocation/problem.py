@@ -274,6 +274,17 @@ class Problem:
         same = anc[np.asarray(a, dtype=int)] == anc[np.asarray(b, dtype=int)]
         return np.asarray(np.cumprod(same, axis=-1).sum(axis=-1))
 
+    def lca_rows(self) -> list[list[int]] | None:
+        """The ``lca_depth`` table as lists (None above ``LCA_TABLE_TASKS`` tasks): for the
+        auction's plain-Python passes over small tables (``routes``), made once."""
+        rows = self.cache.get("lca-rows")
+        if rows is None:
+            table = self._lca_table()
+            if table is None:
+                return None
+            rows = self.cache["lca-rows"] = table.tolist()
+        return rows  # type: ignore[no-any-return]
+
     def _lca_table(self) -> np.ndarray | None:
         """(T, T) ``lca_depth`` of every pair (None above ``LCA_TABLE_TASKS`` tasks): the rows'
         agreeing prefix, counted one depth level at a time (T x T booleans, not T x T x D)."""

@@ -8,12 +8,20 @@ travel it replaces. Tasks done in place (``travels`` False) leave the unit where
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from delegation.allocation.problem import Problem
+from delegation.allocation.schedule import static_for
+
+#: Most positions x candidates an insertion table is priced for in plain Python: below it
+#: numpy's ~20 calls cost more than the arithmetic (measured on the general auction's tables:
+#: Python ~13 us + 0.5 us an entry, numpy ~55 us at any size up to 100 entries; the 10 x
+#: 20 mixed trees' tables are mostly below it); above it numpy (1,000-task trees).
+SMALL_TABLE = 64
 
 
 def route_points(
@@ -25,19 +33,26 @@ def route_points(
     inf where nothing follows (open route), so the travel to "next" costs nothing there.
     """
     n = len(route)
-    start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+    static = static_for(problem)
+    if True in static.to_home:  # (go-home: its points are the unit's home, ``points_for``)
+        start, end, travels = problem.points_for(u, np.asarray(route, dtype=int))
+        start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
+    else:  # the problem's lists, as the simulation reads them: no numpy call per route
+        sx, sy, ex, ey = static.sx[u], static.sy[u], static.ex[u], static.ey[u]
+        start_l = [[sx[t], sy[t]] for t in route]
+        end_l = [[ex[t], ey[t]] for t in route]
+        travels_l = [static.travels[t] for t in route]
     # Plain Python over the route (a few to a few dozen tasks), one conversion at the end:
     # numpy's per-row assignments cost more than the arithmetic.
-    start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
-    prev: list[list[float]] = [problem.unit_xy[u].tolist()]
+    prev: list[list[float]] = [[static.ux[u], static.uy[u]]]
     for k in range(n):
         prev.append(end_l[k] if travels_l[k] else prev[k])
     here, speed = ([0.0, 0.0], math.inf)
-    if problem.has_home[u]:
-        here, speed = problem.home_xy[u].tolist(), float(problem.home_speed[u])
+    if static.has_home[u]:
+        here, speed = [static.home_x[u], static.home_y[u]], static.home_speed[u]
     nxt: list[list[float]] = [here] * (n + 1)
     speeds = [speed] * (n + 1)
-    unit_speed = problem.speed[u].tolist()
+    unit_speed = static.speed[u]
     for k in range(n - 1, -1, -1):
         if travels_l[k]:
             here, speed = start_l[k], unit_speed[route[k]]
@@ -63,8 +78,12 @@ def insertion_costs(
     problem: Problem, u: int, route: Sequence[int], cand: np.ndarray
 ) -> np.ndarray:
     """(L+1, C) added travel + work time of inserting each candidate task at each position."""
-    prev_xy, next_xy, next_speed = route_points(problem, u, route)
     cand = np.asarray(cand, dtype=int)
+    if (len(route) + 1) * cand.size <= SMALL_TABLE:
+        rows = _insertion_rows(problem, u, route, cand)
+        if rows is not None:
+            return np.array(rows, dtype=float).reshape(len(route) + 1, cand.size)
+    prev_xy, next_xy, next_speed = route_points(problem, u, route)
     speed = problem.speed[u, cand]
     work = problem.work_time[u, cand]
     start, end, travels = problem.points_for(u, cand)
@@ -76,6 +95,80 @@ def insertion_costs(
     cost = into + out - old[:, None]
     cost = np.where(travels[None, :], cost, 0.0) + work[None, :]
     return np.asarray(cost)
+
+
+def whole_insertion_costs(
+    problem: Problem, u: int, route: Sequence[int], cand: np.ndarray
+) -> np.ndarray:
+    """(L+1, C) ``insertion_costs`` where ``keeps_subtrees_whole`` allows the position, else
+    inf: the general auction's table of a unit (one pass in plain Python when small)."""
+    cand = np.asarray(cand, dtype=int)
+    if (len(route) + 1) * cand.size <= SMALL_TABLE:
+        whole = _whole_rows(problem, route, cand.tolist())
+        rows = _insertion_rows(problem, u, route, cand) if whole is not None else None
+        if rows is not None and whole is not None:
+            inf = math.inf
+            return np.array(
+                [[c if w else inf for c, w in zip(row, ok, strict=True)]
+                 for row, ok in zip(rows, whole, strict=True)], dtype=float,
+            ).reshape(len(route) + 1, cand.size)
+    return np.where(keeps_subtrees_whole(problem, route, cand),
+                    insertion_costs(problem, u, route, cand), np.inf)
+
+
+def _insertion_rows(
+    problem: Problem, u: int, route: Sequence[int], cand: np.ndarray
+) -> list[list[float]] | None:
+    """``insertion_costs`` in plain Python from the problem's lists (``schedule.static_for``):
+    the same operations on the same floats, element by element (IEEE arithmetic and ``sqrt``
+    round the same; the leg replaced is numpy's ``hypot`` as before). None where that would
+    differ or cost more: ``go-home`` tasks (their points are the unit's home) or a speed of 0
+    (numpy's inf, Python's ZeroDivisionError)."""
+    static = static_for(problem)
+    if True in static.to_home:
+        return None
+    speed_u, work_u, travels = static.speed[u], static.work_time[u], static.travels
+    sx, sy, ex, ey = static.sx[u], static.sy[u], static.ex[u], static.ey[u]
+    # Where the unit is before each position, where it goes next and how fast (route_points).
+    px, py = [static.ux[u]], [static.uy[u]]
+    for t in route:
+        moves = travels[t]
+        px.append(ex[t] if moves else px[-1])
+        py.append(ey[t] if moves else py[-1])
+    here_x, here_y, speed = 0.0, 0.0, math.inf
+    if static.has_home[u]:
+        here_x, here_y, speed = static.home_x[u], static.home_y[u], static.home_speed[u]
+    n = len(route)
+    nx, ny, ns = [here_x] * (n + 1), [here_y] * (n + 1), [speed] * (n + 1)
+    for k in range(n - 1, -1, -1):
+        t = route[k]
+        if travels[t]:
+            here_x, here_y, speed = sx[t], sy[t], speed_u[t]
+        nx[k], ny[k], ns[k] = here_x, here_y, speed
+    cols = cand.tolist()
+    if 0.0 in ns or any(speed_u[t] == 0.0 for t in cols):
+        return None
+    olds = np.hypot([b - a for a, b in zip(px, nx, strict=True)],
+                    [b - a for a, b in zip(py, ny, strict=True)]).tolist()
+    rows: list[list[float]] = []
+    for x, y, x2, y2, s, hyp in zip(px, py, nx, ny, ns, olds, strict=True):
+        has_next = math.isfinite(s)
+        old = hyp / s if has_next else 0.0
+        row: list[float] = []
+        for t in cols:
+            if not travels[t]:
+                row.append(0.0 + work_u[t])
+                continue
+            dx, dy = x - sx[t], y - sy[t]
+            into = math.sqrt(dx * dx + dy * dy) / speed_u[t]
+            if has_next:
+                dx, dy = x2 - ex[t], y2 - ey[t]
+                out = math.sqrt(dx * dx + dy * dy) / s
+            else:
+                out = 0.0
+            row.append(into + out - old + work_u[t])
+        rows.append(row)
+    return rows
 
 
 def first_insertion_costs(problem: Problem) -> np.ndarray | None:
@@ -136,3 +229,25 @@ def keeps_subtrees_whole(problem: Problem, route: Sequence[int], cand: np.ndarra
         pair[1:n] = problem.lca_depth(r[:-1], r[1:])
     ok = (near == deepest[:, None]) & (pair[None, :] <= near)
     return np.asarray(ok.T)
+
+
+def _whole_rows(problem: Problem, route: Sequence[int], cand: list[int]) -> list[list[bool]] | None:
+    """``keeps_subtrees_whole`` in plain Python, (L+1) rows of C (None without the LCA table:
+    large trees)."""
+    lca = problem.lca_rows()
+    if lca is None:
+        return None
+    n = len(route)
+    if n == 0:
+        return [[True] * len(cand)]
+    pair = [-1] + [lca[a][b] for a, b in itertools.pairwise(route)] + [-1]
+    depths = [[lca[t][r] for r in route] for t in cand]
+    deepest = [max(d) for d in depths]
+    rows: list[list[bool]] = []
+    for p in range(n + 1):
+        row: list[bool] = []
+        for d, top in zip(depths, deepest, strict=True):
+            near = d[0] if p == 0 else d[p - 1] if p == n else max(d[p], d[p - 1])
+            row.append(near == top and pair[p] <= near)
+        rows.append(row)
+    return rows

@@ -145,7 +145,7 @@ def template_for(problem: Problem) -> _Template:
 
 
 @dataclass(frozen=True)
-class _Static:
+class Static:
     """The problem's per-task and per-unit numbers as plain lists (the simulation loop is
     Python: list indexing is several times cheaper than numpy scalars), made once per problem."""
 
@@ -172,11 +172,11 @@ class _Static:
     ways: list[dict[int, list[list[float]]]]
 
 
-def _static_for(problem: Problem) -> _Static:
-    static: _Static | None = problem.cache.get("static")
+def static_for(problem: Problem) -> Static:
+    static: Static | None = problem.cache.get("static")
     if static is None:
         starts, ends = problem.unit_points()
-        static = problem.cache["static"] = _Static(
+        static = problem.cache["static"] = Static(
             vehicle=[t.vehicle for t in problem.tasks],
             sx=_per_unit(problem, starts[..., 0]), sy=_per_unit(problem, starts[..., 1]),
             ex=_per_unit(problem, ends[..., 0]), ey=_per_unit(problem, ends[..., 1]),
@@ -237,7 +237,7 @@ def evaluate(
     """
     assign_arr = np.asarray(assign, dtype=int).reshape(problem.n_tasks)
     assigned_to = assign_arr.tolist()
-    static = _static_for(problem)
+    static = static_for(problem)
     prev, clean, issues = _clean_orders(problem, assigned_to, orders, static)
     wrap = problem.wrap_subtrees if wrapped is None else wrapped
     graph = _activation_graph(problem, prev, clean, wrap)
@@ -282,7 +282,7 @@ def evaluate(
 
 
 def _clean_orders(
-    problem: Problem, assign: list[int], orders: Sequence[Sequence[int]], static: _Static
+    problem: Problem, assign: list[int], orders: Sequence[Sequence[int]], static: Static
 ) -> tuple[list[int], list[list[int]], list[ScheduleIssue]]:
     """Each task's predecessor on its unit (-1: first), the orders without the tasks they list
     wrongly, and the wrongly listed or missing tasks."""
@@ -366,7 +366,7 @@ class _Run:
 
 
 def _simulate(
-    problem: Problem, assigned_to: list[int], prev: list[int], graph: _Graph, static: _Static
+    problem: Problem, assigned_to: list[int], prev: list[int], graph: _Graph, static: Static
 ) -> _Run:
     """Run the events in topological order, earliest times everywhere: a task's event fin(n)
     is reached when the tree activated it and its unit is free; travel starts then, from where
@@ -479,7 +479,7 @@ class _Totals:
 
 def _unit_totals(
     problem: Problem, assigned_to: list[int], orders: Sequence[Sequence[int]], run: _Run,
-    static: _Static,
+    static: Static,
 ) -> _Totals:
     """Per unit: travel + work of its vehicle tasks, the way home, when it is done, whether its
     battery holds (plain Python: cheaper than numpy at the sizes the auction simulates hundreds

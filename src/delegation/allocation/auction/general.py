@@ -27,8 +27,7 @@ from delegation.allocation.problem import Problem
 from delegation.allocation.routes import (
     first_insertion_costs,
     home_legs,
-    insertion_costs,
-    keeps_subtrees_whole,
+    whole_insertion_costs,
 )
 from delegation.allocation.schedule import IssueKind, Schedule, evaluate
 from delegation.allocation.serialise import Serialisation, conc_paths
@@ -155,10 +154,7 @@ class _GeneralAuction:
         table = np.full((len(self.routes[u]) + 1, self.n_tasks), np.inf)
         cand = np.nonzero(self.allowed[u])[0]
         if cand.size:
-            whole = keeps_subtrees_whole(self.problem, self.routes[u], cand)
-            table[:, cand] = np.where(
-                whole, insertion_costs(self.problem, u, self.routes[u], cand), np.inf
-            )
+            table[:, cand] = whole_insertion_costs(self.problem, u, self.routes[u], cand)
         self.costs[u] = table
         low, arg = _suffix_minima(table)
         self._set_tables(u, low, arg)
