@@ -26,7 +26,7 @@ import numpy as np
 
 from delegation.allocation.problem import Problem
 from delegation.allocation.routes import route_points
-from delegation.allocation.schedule import Schedule, _static_for, better_key, evaluate
+from delegation.allocation.schedule import Schedule, better_key, evaluate, static_for
 from delegation.allocation.series_parallel import schedule_decomposition, sp_times
 from delegation.allocation.strategies import Objective
 from delegation.coverage import pick_way
@@ -80,7 +80,7 @@ def route_time(problem: Problem, u: int, route: Sequence[int]) -> float:
     start_l, end_l, travels_l = start.tolist(), end.tolist(), travels.tolist()
     speeds, works = problem.speed[u, idx].tolist(), problem.work_time[u, idx].tolist()
     hx, hy = problem.unit_xy[u].tolist()
-    ways = _static_for(problem).ways[u]
+    ways = static_for(problem).ways[u]
     total = 0.0
     for k in range(len(route)):
         way = ways.get(route[k]) if travels_l[k] else None
