@@ -110,7 +110,7 @@ def _swept_cells(poly: np.ndarray, width: float, along: np.ndarray | None
     w = _check_width(width)
     direction = _direction(poly, w, along)
     return _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
-                  float(direction[0]), float(direction[1]))[0]
+                  float(direction[0]), float(direction[1]), True)[0]
 
 
 def _cells(segments: np.ndarray, lane: np.ndarray) -> list[np.ndarray]:
@@ -163,9 +163,9 @@ def serpentine(lanes: np.ndarray, variant: int = 0) -> np.ndarray:
     instead of the first, bit 1 flies the first lane backwards.
     """
     order = lanes[::-1] if variant & 1 else lanes
-    n = len(order)
-    backwards = (np.arange(n) % 2 == 1) ^ bool(variant & 2)
-    flown = np.where(backwards[:, None, None], order[:, ::-1, :], order)
+    flown = order.copy()
+    back = 0 if variant & 2 else 1  # the first lane flown backwards
+    flown[back::2] = order[back::2, ::-1]
     return _drop_repeats(flown.reshape(-1, 2))
 
 
@@ -226,7 +226,7 @@ def coverage_path(
     w = _check_width(width)
     direction = _direction(poly, w, along)
     _, path, _ = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
-                        float(direction[0]), float(direction[1]))
+                        float(direction[0]), float(direction[1]), True)
     return path.copy()
 
 
@@ -236,7 +236,9 @@ def _swept(data: bytes, n: int, width: float, ax: float, ay: float, fill: bool =
     """(cells, variant 0's path, lane segments) of the sweep along (ax, ay), read-only:
     remembered, as choosing the direction sweeps the winner already, and the cost tables then
     fly its cells (``flown_sweep``) or ask for its path. ``fill``: with lanes through the strips
-    the even lanes leave unseen (``_gap_lanes``; False only to screen directions quickly)."""
+    the even lanes leave unseen (``_gap_lanes``; False only to screen directions quickly).
+    Every caller passes all six arguments by position: ``lru_cache`` keys a defaulted or named
+    argument differently, and the winner of ``_best_direction`` would be swept twice."""
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     along = np.array([ax, ay])
     segments, lane = _segments(poly, width, along)
@@ -318,6 +320,7 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
     if not polys:
         return ()
     cells = [turns_inside(list(_swept_cells(p, width, None)), width) for p in polys]
+    convex = [_convex_area_of(p) is not None for p in polys]
     flown: list[np.ndarray] = []  # (the variants' paths, before their transitions go inside)
     ways: list[np.ndarray] = []
     for variant in range(4):
@@ -331,8 +334,8 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
         flown.append(path)
         # Over a convex area every leg between two points inside stays inside: the way inside
         # is the path itself (``transitions_inside`` would find every leg covered).
-        inside = [part if _convex_area_of(poly) else transitions_inside(part, poly)
-                  for poly, part in zip(polys, parts, strict=True)]
+        inside = [part if is_convex else transitions_inside(part, poly)
+                  for poly, part, is_convex in zip(polys, parts, convex, strict=True)]
         whole = np.concatenate(inside, axis=0)
         ways += [np.ascontiguousarray(whole), np.ascontiguousarray(whole[::-1])]
     for way in ways:
@@ -343,7 +346,7 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
 def _same_way(a: np.ndarray, b: np.ndarray) -> bool:
     """The same points in the same order (a cell's variants often are: the reverse of one is
     another, to the bit)."""
-    return a.shape == b.shape and bool(np.array_equal(a, b))
+    return a.shape == b.shape and bool((a == b).all())  # (np.array_equal: same, slower)
 
 
 def _convex_area_of(poly: np.ndarray) -> float | None:
@@ -485,7 +488,9 @@ def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.n
 def _flown_length(poly: np.ndarray, width: float, along: np.ndarray, fill: bool = False
                   ) -> tuple[float, int]:
     """(path length, lane segments) of the sweep along ``along``: the criterion for choosing
-    (``fill``: with the lanes for unseen strips, ``_swept``)."""
+    (``fill``: with the lanes for unseen strips, ``_swept``; a convex area has none, and is
+    remembered as filled: the winner's cells are then asked for filled, ``_swept_cells``)."""
+    fill = fill or _convex_area_of(poly) is not None
     _, path, segments = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
                                float(width), float(along[0]), float(along[1]), fill)
     return path_length(path), segments
@@ -515,7 +520,7 @@ def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
         # (not ``np.union1d``: numpy 2's ``unique`` imports ``numpy.ma`` on first use, 30-50 ms
         # of the first plan in a process)
         candidates = candidates[np.flatnonzero(keep)]
-    area = _convex_area(poly)
+    area = _convex_area_cached(data, n)
     scores: dict[int, tuple[float, int]] = {}  # candidate -> (path length, lane segments)
     shortest = math.inf
     for i, v in enumerate(candidates):

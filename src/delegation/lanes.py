@@ -128,8 +128,9 @@ def _sweep_frame_of(data: bytes, n: int, key: tuple[float, float] | None) -> _Sw
     rel = poly - origin
     qx = rel @ along
     qy = rel @ across
-    ring = np.column_stack([qx, qy])
-    edges = np.column_stack([ring, np.roll(ring, -1, axis=0)])
+    edges = np.empty((n, 4))  # (np.column_stack and np.roll: the same, slower)
+    edges[:, 0], edges[:, 1] = qx, qy
+    edges[:-1, 2:], edges[-1, 2:] = edges[1:, :2], edges[0, :2]
     for array in (along, across, origin, edges):
         array.setflags(write=False)
     return _SweepFrame(along, across, origin, float(qx.min()), float(qx.max()),
