@@ -151,11 +151,13 @@ def _clip_lanes(edges: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarr
     flat = y0 == y1
     lo, hi = np.minimum(y0, y1), np.maximum(y0, y1)
     slope = np.where(flat, 0.0, (x1 - x0) / np.where(flat, 1.0, y1 - y0))
+    crossing = ~flat
+    on_lane = np.flatnonzero(flat)  # (edges along a lane: few or none)
     starts, ends, lanes = [], [], []
     step = max(1, _CLIP_CHUNK // max(1, len(edges)))
     for a in range(0, len(ys), step):
         y = ys[a:a + step, None]
-        hit = (y >= lo) & (y < hi) & ~flat
+        hit = (y >= lo) & (y < hi) & crossing
         lane, edge = np.nonzero(hit)
         xs = x0[edge] + (ys[a + lane] - y0[edge]) * slope[edge]
         order = np.lexsort((xs, lane))
@@ -163,8 +165,10 @@ def _clip_lanes(edges: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarr
         starts.append(xs[0::2])
         ends.append(xs[1::2])
         lanes.append(lane[0::2] + a)
-        on = (y == y0) & flat  # edges along a lane
-        lane, edge = np.nonzero(on)
+        if len(on_lane) == 0:
+            continue
+        lane, k = np.nonzero(y == y0[on_lane])  # edges along a lane
+        edge = on_lane[k]
         starts.append(np.minimum(x0[edge], x1[edge]))
         ends.append(np.maximum(x0[edge], x1[edge]))
         lanes.append(lane + a)
