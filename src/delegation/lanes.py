@@ -118,12 +118,20 @@ def _canonical(along: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=1024)
 def _sweep_frame_of(data: bytes, n: int, key: tuple[float, float] | None) -> _SweepFrame:
-    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     if key is None:
-        along, across = sweep_axes(poly)
+        along = sweep_axes(np.frombuffer(data, dtype=float).reshape(n, 2))[0]
     else:
         along = _canonical(np.array(key, dtype=float))
-        across = np.array([-along[1], along[0]])
+    return _frame_along(data, n, float(along[0]), float(along[1]))
+
+
+@functools.lru_cache(maxsize=1024)
+def _frame_along(data: bytes, n: int, ax: float, ay: float) -> _SweepFrame:
+    """The sweep frame along the unit vector (ax, ay), already canonical: the direction search
+    asks for the rectangle's long axis by default and again by name, the same frame."""
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    along = np.array([ax, ay])
+    across = np.array([-along[1], along[0]])
     origin = poly.mean(axis=0)
     rel = poly - origin
     qx = rel @ along
