@@ -78,3 +78,16 @@ def test_a_remembered_path_is_not_changed_by_its_caller() -> None:
     first[:] = 0.0
     again = coverage.coverage_path(poly, 25.0)
     assert coverage.path_length(again) > 0.0
+
+
+def test_the_chosen_direction_is_swept_once() -> None:
+    # Choosing sweeps the winner; the cells and ways asked for next are that sweep, remembered
+    # (a convex area's sweep is the same with or without gap lanes, and is remembered as one).
+    poly = np.array([[0.0, 0.0], [301.0, 0.0], [301.0, 97.0], [0.0, 97.0]])
+    coverage._swept.cache_clear()
+    sweep_direction(poly, 9.5)
+    swept = coverage._swept.cache_info().misses
+    coverage.sweep_cells(poly, 9.5)
+    coverage.coverage_path(poly, 9.5)
+    coverage.flown_ways([poly], 9.5)
+    assert coverage._swept.cache_info().misses == swept

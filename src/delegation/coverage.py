@@ -110,7 +110,7 @@ def _swept_cells(poly: np.ndarray, width: float, along: np.ndarray | None
     w = _check_width(width)
     direction = _direction(poly, w, along)
     return _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
-                  float(direction[0]), float(direction[1]))[0]
+                  float(direction[0]), float(direction[1]), True)[0]
 
 
 def _cells(segments: np.ndarray, lane: np.ndarray) -> list[np.ndarray]:
@@ -163,9 +163,9 @@ def serpentine(lanes: np.ndarray, variant: int = 0) -> np.ndarray:
     instead of the first, bit 1 flies the first lane backwards.
     """
     order = lanes[::-1] if variant & 1 else lanes
-    n = len(order)
-    backwards = (np.arange(n) % 2 == 1) ^ bool(variant & 2)
-    flown = np.where(backwards[:, None, None], order[:, ::-1, :], order)
+    flown = order.copy()
+    back = 0 if variant & 2 else 1  # the first lane flown backwards
+    flown[back::2] = order[back::2, ::-1]
     return _drop_repeats(flown.reshape(-1, 2))
 
 
@@ -226,7 +226,7 @@ def coverage_path(
     w = _check_width(width)
     direction = _direction(poly, w, along)
     _, path, _ = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly), w,
-                        float(direction[0]), float(direction[1]))
+                        float(direction[0]), float(direction[1]), True)
     return path.copy()
 
 
@@ -236,7 +236,9 @@ def _swept(data: bytes, n: int, width: float, ax: float, ay: float, fill: bool =
     """(cells, variant 0's path, lane segments) of the sweep along (ax, ay), read-only:
     remembered, as choosing the direction sweeps the winner already, and the cost tables then
     fly its cells (``flown_sweep``) or ask for its path. ``fill``: with lanes through the strips
-    the even lanes leave unseen (``_gap_lanes``; False only to screen directions quickly)."""
+    the even lanes leave unseen (``_gap_lanes``; False only to screen directions quickly).
+    Every caller passes all six arguments by position: ``lru_cache`` keys a defaulted or named
+    argument differently, and the winner of ``_best_direction`` would be swept twice."""
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     along = np.array([ax, ay])
     segments, lane = _segments(poly, width, along)
@@ -318,6 +320,7 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
     if not polys:
         return ()
     cells = [turns_inside(list(_swept_cells(p, width, None)), width) for p in polys]
+    convex = [_convex_area_of(p) is not None for p in polys]
     flown: list[np.ndarray] = []  # (the variants' paths, before their transitions go inside)
     ways: list[np.ndarray] = []
     for variant in range(4):
@@ -325,15 +328,15 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
         for poly_cells in cells:
             parts.append(_fly_cells(poly_cells, variant) if not parts
                          else _fly_cells(poly_cells, 0, start=parts[-1][-1]))
-        path = np.concatenate(parts, axis=0)
+        path = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)  # (each fresh)
         if any(_same_way(path, seen) or _same_way(path[::-1], seen) for seen in flown):
             continue  # (one cell: its last lane first is the reverse of its first lane first)
         flown.append(path)
         # Over a convex area every leg between two points inside stays inside: the way inside
         # is the path itself (``transitions_inside`` would find every leg covered).
-        inside = [part if _convex_area_of(poly) else transitions_inside(part, poly)
-                  for poly, part in zip(polys, parts, strict=True)]
-        whole = np.concatenate(inside, axis=0)
+        inside = [part if is_convex else transitions_inside(part, poly)
+                  for poly, part, is_convex in zip(polys, parts, convex, strict=True)]
+        whole = inside[0] if len(inside) == 1 else np.concatenate(inside, axis=0)
         ways += [np.ascontiguousarray(whole), np.ascontiguousarray(whole[::-1])]
     for way in ways:
         way.setflags(write=False)
@@ -343,7 +346,7 @@ def _flown_ways(key: tuple[tuple[bytes, int], ...], width: float) -> tuple[np.nd
 def _same_way(a: np.ndarray, b: np.ndarray) -> bool:
     """The same points in the same order (a cell's variants often are: the reverse of one is
     another, to the bit)."""
-    return a.shape == b.shape and bool(np.array_equal(a, b))
+    return a.shape == b.shape and bool((a == b).all())  # (np.array_equal: same, slower)
 
 
 def _convex_area_of(poly: np.ndarray) -> float | None:
@@ -383,20 +386,21 @@ def footprint(track_xy: np.ndarray, width: float) -> shapely.Geometry:
 
 
 def _pull_back(cell: np.ndarray, w: float) -> np.ndarray:
+    if len(cell) < 2:  # (no neighbour tells how the border runs: fly it as clipped)
+        return cell
     vec = cell[:, 1] - cell[:, 0]
     length = np.hypot(vec[:, 0], vec[:, 1])
-    longest = float(length.max()) if len(length) else 0.0
+    longest = float(length.max())
     if longest <= 0.0:
         return cell
     along = vec[int(np.argmax(length))] / longest  # (every segment of a cell points along)
     x0, x1 = cell[:, 0] @ along, cell[:, 1] @ along
-    if len(cell) < 2:  # (no neighbour tells how the border runs: fly it as clipped)
-        return cell
     # Where the border is at the strip's edges: half-way to the neighbouring lanes' ends (the
     # cell's outer lanes: as far again, outwards).
     end_reach, start_reach = _strip_reach(x1, np.maximum), _strip_reach(x0, np.minimum)
-    pull_end = np.clip(w / 2.0 - (end_reach - x1), 0.0, w / 2.0)
-    pull_start = np.clip(w / 2.0 - (x0 - start_reach), 0.0, w / 2.0)
+    # (np.minimum of np.maximum: np.clip's, without its ~5 us of dispatch)
+    pull_end = np.minimum(np.maximum(w / 2.0 - (end_reach - x1), 0.0), w / 2.0)
+    pull_start = np.minimum(np.maximum(w / 2.0 - (x0 - start_reach), 0.0), w / 2.0)
     total = pull_end + pull_start
     scale = np.where(total > length, length / np.where(total > 0.0, total, 1.0), 1.0)
     out = cell.copy()
@@ -444,6 +448,17 @@ def candidate_directions(polygon_xy: np.ndarray | Sequence[Sequence[float]]) -> 
     return _candidates(poly, *sweep_axes(poly))
 
 
+@functools.lru_cache(maxsize=1024)
+def _candidates_of(data: bytes, n: int) -> np.ndarray:
+    """``_candidates`` of a cleaned polygon, read-only, remembered: an area is swept at each
+    distinct width of the fleet."""
+    poly = np.frombuffer(data, dtype=float).reshape(n, 2)
+    frame = _sweep_frame(poly)
+    out = _candidates(poly, frame.along, frame.across)
+    out.setflags(write=False)
+    return out
+
+
 def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.ndarray:
     """``candidate_directions`` of a cleaned polygon whose rectangle's axes are known (plain
     Python: a polygon has a few to a few dozen edges, where numpy's per-call cost dominated)."""
@@ -485,7 +500,9 @@ def _candidates(poly: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.n
 def _flown_length(poly: np.ndarray, width: float, along: np.ndarray, fill: bool = False
                   ) -> tuple[float, int]:
     """(path length, lane segments) of the sweep along ``along``: the criterion for choosing
-    (``fill``: with the lanes for unseen strips, ``_swept``)."""
+    (``fill``: with the lanes for unseen strips, ``_swept``; a convex area has none, and is
+    remembered as filled: the winner's cells are then asked for filled, ``_swept_cells``)."""
+    fill = fill or _convex_area_of(poly) is not None
     _, path, segments = _swept(np.ascontiguousarray(poly, dtype=float).tobytes(), len(poly),
                                float(width), float(along[0]), float(along[1]), fill)
     return path_length(path), segments
@@ -503,7 +520,7 @@ def sweep_direction(polygon_xy: np.ndarray | Sequence[Sequence[float]], width: f
 def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     frame = _sweep_frame(poly)
-    every = _candidates(poly, frame.along, frame.across)
+    every = _candidates_of(data, n)
     candidates = every
     short_side = frame.y_hi - frame.y_lo
     if short_side / width > _SCREEN_LANES and len(candidates) > _SCREEN_KEEP:
@@ -515,11 +532,12 @@ def _best_direction(data: bytes, n: int, width: float) -> np.ndarray:
         # (not ``np.union1d``: numpy 2's ``unique`` imports ``numpy.ma`` on first use, 30-50 ms
         # of the first plan in a process)
         candidates = candidates[np.flatnonzero(keep)]
-    area = _convex_area(poly)
+    area = _convex_area_cached(data, n)
     scores: dict[int, tuple[float, int]] = {}  # candidate -> (path length, lane segments)
     shortest = math.inf
     for i, v in enumerate(candidates):
-        if area is not None and _convex_floor(poly, area, width, v) > shortest * (1 + _SAME_LENGTH):
+        if (area is not None and shortest < math.inf
+                and _convex_floor(poly, area, width, v) > shortest * (1 + _SAME_LENGTH)):
             continue  # (it cannot be among the shortest: not swept)
         scores[i] = _flown_length(poly, width, v)
         shortest = min(shortest, scores[i][0])
@@ -600,7 +618,8 @@ def path_length(path_xy: np.ndarray) -> float:
     path = np.asarray(path_xy, dtype=float)
     if len(path) < 2:
         return 0.0
-    return float(np.hypot(*np.diff(path, axis=0).T).sum())
+    step = path[1:] - path[:-1]  # (np.diff and np.hypot(*step.T): the same, slower)
+    return float(np.hypot(step[:, 0], step[:, 1]).sum())
 
 
 def coverage_length(
