@@ -7,6 +7,7 @@ against both in one ``pytest`` run. ``DELEGATION_TEST_BROKERS=amqtt`` (comma-sep
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import threading
@@ -173,6 +174,7 @@ class Collector:
     def __init__(self, settings: BrokerSettings, patterns: list[str]) -> None:
         self.patterns = [Wildcard(p) for p in patterns]
         self.messages: list[Message] = []
+        self.arrived: list[float] = []  # when each message arrived here (``time.monotonic``)
         self._cond = threading.Condition()
         self.client = MqttClient(settings, f"collector-{uuid.uuid4().hex[:8]}", sink=self._record)
         for p in patterns:
@@ -181,6 +183,7 @@ class Collector:
     def _record(self, message: Message) -> None:
         with self._cond:
             self.messages.append(message)
+            self.arrived.append(time.monotonic())
             self._cond.notify_all()
 
     def start(self) -> Collector:
@@ -200,7 +203,9 @@ class Collector:
             raise AssertionError("collector subscriptions not active within 10 s")
         self.client.unsubscribe(probe)
         with self._cond:
-            self.messages = [m for m in self.messages if m.topic != probe]
+            kept = [(m, t) for m, t in zip(self.messages, self.arrived, strict=True)
+                    if m.topic != probe]
+            self.messages, self.arrived = [m for m, _ in kept], [t for _, t in kept]
         return self
 
     def stop(self) -> None:
@@ -254,6 +259,18 @@ class Collector:
 
         found = self.wait_for(pred, timeout, what or f"message on {topic_filter}")
         return dict(json.loads(found.payload))
+
+    def longest_gap(self, topic_filter: str, until: float | None = None) -> float:
+        """The longest time (s) between two messages on ``topic_filter`` as they arrived here, and
+        from the last to ``until`` (``time.monotonic``) if given: how long a sender really went
+        silent on the wire, as a client behind no backlog saw it."""
+        wc = Wildcard(topic_filter)
+        with self._cond:
+            times = [t for m, t in zip(self.messages, self.arrived, strict=True)
+                     if wc.matches(m.topic)]
+        if until is not None:
+            times.append(until)
+        return max((b - a for a, b in itertools.pairwise(times)), default=0.0)
 
     def json_on(self, topic_filter: str) -> list[dict[str, Any]]:
         """Every JSON object recorded so far on topics matching ``topic_filter``."""

@@ -227,18 +227,33 @@ def patient_launch(script: Path, payload: bytes) -> Pending:
 def second_core() -> Iterator[None]:
     use_second_core(patient_launch)
     yield
-    use_second_core(None)
+    # Nothing else (a CLI thread's ``both_cores`` putting back what it found) swapped it meanwhile.
+    assert use_second_core(None) is patient_launch
+
+
+@pytest.fixture
+def portfolio(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The helper is started whatever the time left: ``optimise`` hands the routing solver the
+    time limit less the auction's wall-clock time, and starts the helper only when that is at least
+    ``PORTFOLIO_MIN_SECONDS`` (2 s). Under load (8 workers, load 13-20) the auction's few ms of CPU
+    took up to 0.7 s of wall time and left 1.83 s of 2.5: no helper, and no note of one. These
+    tests check that the portfolio runs and is used; where the threshold falls is a tuning
+    constant, and the test below 2 s (0.6 s) keeps it."""
+    monkeypatch.setattr(routing_mod, "PORTFOLIO_MIN_SECONDS", 0.0)
 
 
 @pytest.mark.parametrize("limit", [0.6, 2.5])
 def test_optimal_makespan_within_its_time_limit(
-    tmp_path: Path, limit: float, second_core: None
+    tmp_path: Path, limit: float, second_core: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Routing, then ``minmax``; from 2 s on also the helper process on the second core. Never
     worse than the auction, and done within the limit (loosely: + 10 % + start-up), counted in
     this process's CPU seconds: the solver's deadlines are wall-clock, so its CPU never exceeds
     them when it stops in time, while a wall-clock count also measured the rest of a loaded
     machine (0.6 s overran once with 8 test workers on 2 cores)."""
+    portfolio = limit >= routing_mod.PORTFOLIO_MIN_SECONDS
+    if portfolio:  # above the threshold whatever the auction's wall time (see `portfolio`)
+        monkeypatch.setattr(routing_mod, "PORTFOLIO_MIN_SECONDS", 0.0)
     problem = _instance(tmp_path, 30, 3, seed=2)
     base = auction(problem, Objective.MAKESPAN)
     began = time.process_time()
@@ -250,13 +265,15 @@ def test_optimal_makespan_within_its_time_limit(
     assert result.schedule.makespan <= base.makespan + 1e-6
     notes = " ".join(result.notes)
     assert "min-max local search" in notes
-    if limit >= routing_mod.PORTFOLIO_MIN_SECONDS:
+    if portfolio:
         assert "min-max search on the second core from sweeps (" in notes
     else:
         assert "second core" not in notes
 
 
-def test_optimal_min_sum_with_every_unit_on_both_cores(tmp_path: Path, second_core: None) -> None:
+def test_optimal_min_sum_with_every_unit_on_both_cores(
+    tmp_path: Path, second_core: None, portfolio: None
+) -> None:
     """Min-sum (every unit making a tour, as the published values require): the routing solver,
     then ``minmax`` in min-sum mode, and a second search from sweeps on the second core."""
     problem = _instance(tmp_path, 30, 4, seed=4)
