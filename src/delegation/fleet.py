@@ -286,6 +286,9 @@ class FleetRegistry:
         self.periods = float(periods)
         self._units: dict[str, _Record] = {}
         self._events: list[FleetEvent] = []
+        #: Per unit: `_state`'s last answer and what it was built from (a snapshot is asked for
+        #: every plan; most units did not change since: the same state is handed out again).
+        self._states: dict[str, tuple[tuple[Any, ...], UnitState]] = {}
 
     # ------------------------------------------------------------------ feeding
 
@@ -387,6 +390,7 @@ class FleetRegistry:
     def forget(self, name: str) -> None:
         """Drop a unit (e.g. one that has been dead for long)."""
         self._units.pop(name.strip("/"), None)
+        self._states.pop(name.strip("/"), None)
 
     def drain_events(self) -> list[FleetEvent]:
         """The events noticed since the last call (appearances, reboots, losses), oldest first."""
@@ -478,6 +482,18 @@ class FleetRegistry:
         return merged
 
     def _state(self, rec: _Record, now: float) -> UnitState:
+        """``rec`` as the planner sees it ``now``; built again only when what it reads changed
+        (the profiles are not changed after construction; a new position is a new object)."""
+        key = (rec.position, rec.agent_type, rec.tasks_available, self._alive(rec, now),
+               bool(rec.tasks_executing), rec.battery, rec.base_topic)
+        known = self._states.get(rec.name)
+        if known is not None and known[0] == key:
+            return known[1]
+        state = self._build_state(rec, now)
+        self._states[rec.name] = (key, state)
+        return state
+
+    def _build_state(self, rec: _Record, now: float) -> UnitState:
         assert rec.position is not None
         profile = self._profile(rec)
         agent_type = rec.agent_type or str(profile.get("type", "air"))
