@@ -41,6 +41,7 @@ by unit name or agent type (a name entry wins), each value with any of ``speeds`
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections import deque
@@ -53,7 +54,7 @@ from delegation.geo import GeoPoint
 from delegation.topics import split_unit_topic, type_from_base
 
 if TYPE_CHECKING:
-    from delegation.messages import HeartBeat
+    from delegation.messages import DelegationInfo, DirectExecutionInfo, HeartBeat, SensorReading
 
 log = logging.getLogger(__name__)
 
@@ -260,6 +261,16 @@ class _Record:
     impostors: set[str] = field(default_factory=set)
 
 
+@functools.cache
+def _read_models() -> tuple[type[HeartBeat], type[DirectExecutionInfo], type[DelegationInfo],
+                            type[SensorReading]]:
+    """The models `FleetRegistry.observe` reads, imported on first use so that ``UnitState``
+    users do not load every message model (kept: an import per message cost ~2 us)."""
+    from delegation.messages import DelegationInfo, DirectExecutionInfo, HeartBeat, SensorReading
+
+    return HeartBeat, DirectExecutionInfo, DelegationInfo, SensorReading
+
+
 class FleetRegistry:
     """Live units built from heartbeat, direct_execution_info and sensor messages.
 
@@ -299,14 +310,7 @@ class FleetRegistry:
         ``SensorReading`` or the bare value from ``parse_sensor``); other messages only refresh
         ``last_seen``. Topics outside a unit are ignored.
         """
-        # Imported here so that ``UnitState`` users do not load every message model.
-        from delegation.messages import (
-            DelegationInfo,
-            DirectExecutionInfo,
-            HeartBeat,
-            SensorReading,
-        )
-
+        HeartBeat, DirectExecutionInfo, DelegationInfo, SensorReading = _read_models()
         parts = split_unit_topic(topic)
         if parts is None:
             log.debug("fleet: ignoring %s (not under a unit)", topic)
