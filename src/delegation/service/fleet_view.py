@@ -33,6 +33,8 @@ TERMINAL = TERMINAL_NODE_STATUSES
 
 #: Topics whose last decoded message is kept (`FleetView.observe`): ~10 per unit.
 MAX_DECODED = 4096
+#: The largest payload kept so (a flood of large messages on many topics keeps at most ~8 MB).
+MAX_DECODED_BYTES = 2048
 
 
 class FleetView:
@@ -88,9 +90,10 @@ class FleetView:
             except MessageError as exc:
                 log.debug("ignoring %s: %s", topic, exc)
                 return
-            if len(self._decoded) >= MAX_DECODED and topic not in self._decoded:
-                self._decoded.clear()  # topics of units long gone: start again
-            self._decoded[topic] = (bytes(payload), message)
+            if len(payload) <= MAX_DECODED_BYTES:  # periodic messages are small
+                if len(self._decoded) >= MAX_DECODED and topic not in self._decoded:
+                    self._decoded.clear()  # topics of units long gone: start again
+                self._decoded[topic] = (bytes(payload), message)
         try:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
