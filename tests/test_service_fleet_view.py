@@ -237,3 +237,16 @@ def test_a_repeated_payload_is_heard_again_and_a_new_one_read() -> None:
     assert view.units(13.0)[0].position.latitude == 57.80
     view.observe(_topic("u1", "sensor/battery"), b"0.5", 13.0)
     assert view.units(13.0)[0].battery == 0.5
+
+
+def test_units_follow_what_is_learnt_of_their_speeds_at_every_reading() -> None:
+    view = _view()
+    _feed(view, "u1", 57.70, now=0.0)
+    prior = view.units(0.0)[0].speeds["standard"]
+    view.learner.task_started("u1", "n1", "standard", 0.0)
+    for value in (4.0, 4.0):
+        view.learner.observe_speed("u1", value, 0.0)
+    assert view.units(0.0)[0].speeds["standard"] == 4.0 != prior
+    assert view.units(0.0)[0] is view.units(0.0)[0]  # nothing changed: the same state
+    view.learner.observe_speed("u1", 5.0, 0.0)
+    assert view.units(0.0)[0].speeds["standard"] == view.learner.learnt("u1")["standard"] > 4.0

@@ -75,6 +75,9 @@ class FleetView:
         #: same bytes on most of its topics twice a second: they are not decoded again (the
         #: registry still hears each one: a message refreshes "last seen").
         self._decoded: dict[str, tuple[bytes, Any]] = {}
+        #: Per unit: the state it was last given its learnt speeds from, what was learnt then,
+        #: and the result (`_learnt`).
+        self._with_learnt: dict[str, tuple[UnitState, dict[str, float], UnitState]] = {}
 
     # ---- what the units say
 
@@ -145,7 +148,20 @@ class FleetView:
         """The units to plan for (the registry leaves out engines and delegators), with the
         speeds learnt from their flights: this service's own fleet (`own`)."""
         own = self.own(now)
-        return self.learner.apply([u for u in self.fleet.snapshot(now) if own(u.name)])
+        return tuple(self._learnt(u) for u in self.fleet.snapshot(now) if own(u.name))
+
+    def _learnt(self, unit: UnitState) -> UnitState:
+        """``unit`` with its learnt speeds (`SpeedLearner.apply`), the same object again while
+        neither the unit nor what was learnt of it changed (asked for every unit per plan)."""
+        learnt = self.learner.learnt(unit.name)
+        if not learnt:
+            return unit
+        known = self._with_learnt.get(unit.name)
+        if known is not None and known[0] is unit and known[1] == learnt:
+            return known[2]
+        (applied,) = self.learner.apply((unit,))
+        self._with_learnt[unit.name] = (unit, learnt, applied)
+        return applied
 
     def own(self, now: float) -> Callable[[str], bool]:
         """Whether a unit is this service's: named in ``fleet`` when that is set, else any unit
