@@ -218,3 +218,35 @@ def test_commitments_read_per_change_match_a_walk_of_the_whole_book() -> None:
         change()
         assert view.committed() == walked(view) and view.committed("m1") == walked(view, "m1")
     assert view.committed() == {"u1": "m1", "u2": "m3", "u0": "m5"}
+
+
+def test_a_repeated_payload_is_heard_again_and_a_new_one_read() -> None:
+    """The same bytes again (a unit at rest) are not decoded again but still keep the unit
+    alive; new bytes on the topic are read (the position moves, a change of state shows)."""
+    view = _view()
+    _feed(view, "u1", 57.70, now=0.0)
+    first = view.units(0.0)
+    assert view.units(0.0) == first and view.units(0.0)[0] is first[0]  # nothing changed
+    pos = json.dumps({"latitude": 57.70, "longitude": 16.68, "altitude": 10.0}).encode()
+    for now in (4.0, 8.0, 12.0):  # past the 5 s timeout without these: still alive
+        view.observe(_topic("u1", "sensor/position"), pos, now)
+    assert view.fleet.last_seen("u1") == 12.0
+    (unit,) = view.units(12.0)
+    assert unit.position.latitude == 57.70
+    view.observe(_topic("u1", "sensor/position"), pos.replace(b"57.7", b"57.8"), 13.0)
+    assert view.units(13.0)[0].position.latitude == 57.80
+    view.observe(_topic("u1", "sensor/battery"), b"0.5", 13.0)
+    assert view.units(13.0)[0].battery == 0.5
+
+
+def test_units_follow_what_is_learnt_of_their_speeds_at_every_reading() -> None:
+    view = _view()
+    _feed(view, "u1", 57.70, now=0.0)
+    prior = view.units(0.0)[0].speeds["standard"]
+    view.learner.task_started("u1", "n1", "standard", 0.0)
+    for value in (4.0, 4.0):
+        view.learner.observe_speed("u1", value, 0.0)
+    assert view.units(0.0)[0].speeds["standard"] == 4.0 != prior
+    assert view.units(0.0)[0] is view.units(0.0)[0]  # nothing changed: the same state
+    view.learner.observe_speed("u1", 5.0, 0.0)
+    assert view.units(0.0)[0].speeds["standard"] == view.learner.learnt("u1")["standard"] > 4.0

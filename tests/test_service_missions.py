@@ -90,3 +90,22 @@ def test_conflicts_name_reused_uuids_of_live_missions_only() -> None:
 def test_unknown_mission_is_an_input_error_naming_it() -> None:
     with pytest.raises(InputError, match="unknown mission 'nope'"):
         MissionBook().get("nope")
+
+
+def test_changed_since_names_the_missions_changed_after_a_revision_last_changed_last() -> None:
+    book = MissionBook()
+    roots = []
+    for i in range(3):
+        node = make_node("move-to", node_uuid=f"m{i}", execunit="/u1")
+        m = Mission(root_uuid=f"m{i}", source="tst", created=0.0, tst=node.to_dict(),
+                    plan={"assignments": []}, nodes=node_infos(node))
+        book.add(m)
+        roots.append(m.root_uuid)
+    start = book.revision
+    assert book.changed_since(start) == []
+    book.touch(roots[0])
+    book.touch(roots[2])
+    book.touch(roots[0])
+    assert book.changed_since(start) == [roots[2], roots[0]]
+    assert book.changed_since(0) == [roots[1], roots[2], roots[0]]
+    assert book.changed_since(book.revision) == []

@@ -41,6 +41,7 @@ by unit name or agent type (a name entry wins), each value with any of ``speeds`
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections import deque
@@ -53,7 +54,7 @@ from delegation.geo import GeoPoint
 from delegation.topics import split_unit_topic, type_from_base
 
 if TYPE_CHECKING:
-    from delegation.messages import HeartBeat
+    from delegation.messages import DelegationInfo, DirectExecutionInfo, HeartBeat, SensorReading
 
 log = logging.getLogger(__name__)
 
@@ -260,6 +261,16 @@ class _Record:
     impostors: set[str] = field(default_factory=set)
 
 
+@functools.cache
+def _read_models() -> tuple[type[HeartBeat], type[DirectExecutionInfo], type[DelegationInfo],
+                            type[SensorReading]]:
+    """The models `FleetRegistry.observe` reads, imported on first use so that ``UnitState``
+    users do not load every message model (kept: an import per message cost ~2 us)."""
+    from delegation.messages import DelegationInfo, DirectExecutionInfo, HeartBeat, SensorReading
+
+    return HeartBeat, DirectExecutionInfo, DelegationInfo, SensorReading
+
+
 class FleetRegistry:
     """Live units built from heartbeat, direct_execution_info and sensor messages.
 
@@ -286,6 +297,9 @@ class FleetRegistry:
         self.periods = float(periods)
         self._units: dict[str, _Record] = {}
         self._events: list[FleetEvent] = []
+        #: Per unit: `_state`'s last answer and what it was built from (a snapshot is asked for
+        #: every plan; most units did not change since: the same state is handed out again).
+        self._states: dict[str, tuple[tuple[Any, ...], UnitState]] = {}
 
     # ------------------------------------------------------------------ feeding
 
@@ -296,14 +310,7 @@ class FleetRegistry:
         ``SensorReading`` or the bare value from ``parse_sensor``); other messages only refresh
         ``last_seen``. Topics outside a unit are ignored.
         """
-        # Imported here so that ``UnitState`` users do not load every message model.
-        from delegation.messages import (
-            DelegationInfo,
-            DirectExecutionInfo,
-            HeartBeat,
-            SensorReading,
-        )
-
+        HeartBeat, DirectExecutionInfo, DelegationInfo, SensorReading = _read_models()
         parts = split_unit_topic(topic)
         if parts is None:
             log.debug("fleet: ignoring %s (not under a unit)", topic)
@@ -387,6 +394,7 @@ class FleetRegistry:
     def forget(self, name: str) -> None:
         """Drop a unit (e.g. one that has been dead for long)."""
         self._units.pop(name.strip("/"), None)
+        self._states.pop(name.strip("/"), None)
 
     def drain_events(self) -> list[FleetEvent]:
         """The events noticed since the last call (appearances, reboots, losses), oldest first."""
@@ -478,6 +486,18 @@ class FleetRegistry:
         return merged
 
     def _state(self, rec: _Record, now: float) -> UnitState:
+        """``rec`` as the planner sees it ``now``; built again only when what it reads changed
+        (the profiles are not changed after construction; a new position is a new object)."""
+        key = (rec.position, rec.agent_type, rec.tasks_available, self._alive(rec, now),
+               bool(rec.tasks_executing), rec.battery, rec.base_topic)
+        known = self._states.get(rec.name)
+        if known is not None and known[0] == key:
+            return known[1]
+        state = self._build_state(rec, now)
+        self._states[rec.name] = (key, state)
+        return state
+
+    def _build_state(self, rec: _Record, now: float) -> UnitState:
         assert rec.position is not None
         profile = self._profile(rec)
         agent_type = rec.agent_type or str(profile.get("type", "air"))

@@ -76,15 +76,12 @@ class WireModel(BaseModel):
     #: ``pong`` and ``tasks-executing`` when nothing runs).
     _omit_empty: ClassVar[frozenset[str]] = frozenset()
 
-    @field_validator("*", mode="after")
+    # Bound to the identifier fields only (``"*"`` ran it for every field of every message).
+    @field_validator(*sorted(IDENTIFIER_FIELDS), mode="after", check_fields=False)
     @classmethod
     def _bounded_identifier(cls, value: Any, info: ValidationInfo) -> Any:
         """Identifiers are short; checked before a decoded message is kept anywhere."""
-        if (
-            isinstance(value, str)
-            and info.field_name in IDENTIFIER_FIELDS
-            and len(value) > MAX_IDENTIFIER
-        ):
+        if isinstance(value, str) and len(value) > MAX_IDENTIFIER:
             raise ValueError(f"is {len(value)} characters long; at most {MAX_IDENTIFIER}")
         return value
 

@@ -31,6 +31,11 @@ log = logging.getLogger(__name__)
 #: Node statuses after which a task no longer holds its unit.
 TERMINAL = TERMINAL_NODE_STATUSES
 
+#: Topics whose last decoded message is kept (`FleetView.observe`): ~10 per unit.
+MAX_DECODED = 4096
+#: The largest payload kept so (a flood of large messages on many topics keeps at most ~8 MB).
+MAX_DECODED_BYTES = 2048
+
 
 class FleetView:
     """Units to plan for and what is known of them (the registry, learnt speeds, commitments)."""
@@ -66,17 +71,32 @@ class FleetView:
         #: was read at.
         self._ends: dict[tuple[str, str], tuple[tuple[str, str, int, int],
                                                 tuple[float, GeoPoint | None] | None]] = {}
+        #: Per topic: the last payload decoded and its message. A unit at rest publishes the
+        #: same bytes on most of its topics twice a second: they are not decoded again (the
+        #: registry still hears each one: a message refreshes "last seen").
+        self._decoded: dict[str, tuple[bytes, Any]] = {}
+        #: Per unit: the state it was last given its learnt speeds from, what was learnt then,
+        #: and the result (`_learnt`).
+        self._with_learnt: dict[str, tuple[UnitState, dict[str, float], UnitState]] = {}
 
     # ---- what the units say
 
     def observe(self, topic: str, payload: bytes, now: float) -> None:
         """Units, and the engine: the registry knows every heartbeat's base topic and age, and
         plans only for units on the direct execution level."""
-        try:
-            message = decode(topic, payload)
-        except MessageError as exc:
-            log.debug("ignoring %s: %s", topic, exc)
-            return
+        known = self._decoded.get(topic)
+        if known is not None and known[0] == payload:
+            message = known[1]
+        else:
+            try:
+                message = decode(topic, payload)
+            except MessageError as exc:
+                log.debug("ignoring %s: %s", topic, exc)
+                return
+            if len(payload) <= MAX_DECODED_BYTES:  # periodic messages are small
+                if len(self._decoded) >= MAX_DECODED and topic not in self._decoded:
+                    self._decoded.clear()  # topics of units long gone: start again
+                self._decoded[topic] = (bytes(payload), message)
         try:
             self.fleet.observe(topic, message, now)
         except InputError as exc:
@@ -128,7 +148,20 @@ class FleetView:
         """The units to plan for (the registry leaves out engines and delegators), with the
         speeds learnt from their flights: this service's own fleet (`own`)."""
         own = self.own(now)
-        return self.learner.apply([u for u in self.fleet.snapshot(now) if own(u.name)])
+        return tuple(self._learnt(u) for u in self.fleet.snapshot(now) if own(u.name))
+
+    def _learnt(self, unit: UnitState) -> UnitState:
+        """``unit`` with its learnt speeds (`SpeedLearner.apply`), the same object again while
+        neither the unit nor what was learnt of it changed (asked for every unit per plan)."""
+        learnt = self.learner.learnt(unit.name)
+        if not learnt:
+            return unit
+        known = self._with_learnt.get(unit.name)
+        if known is not None and known[0] is unit and known[1] == learnt:
+            return known[2]
+        (applied,) = self.learner.apply((unit,))
+        self._with_learnt[unit.name] = (unit, learnt, applied)
+        return applied
 
     def own(self, now: float) -> Callable[[str], bool]:
         """Whether a unit is this service's: named in ``fleet`` when that is set, else any unit

@@ -373,7 +373,8 @@ class MissionBook:
         #: whole book (`FleetView.committed`) is computed again only when it moved.
         self.revision = 0
         #: Root uuid -> the `revision` of its last change (what is derived per mission is kept
-        #: until it moves).
+        #: until it moves), in the order of those revisions (the last changed last): what
+        #: changed since a revision is read from the end, not by a walk of the whole book.
         self.changed_at: dict[str, int] = {}
         #: Root uuid -> its place in the book (added later, greater), and the missions changed
         #: or forgotten since `FleetView` last read them (`touched`; it empties the set).
@@ -385,10 +386,21 @@ class MissionBook:
         """Note what of a mission changed (every mutating method does, only when something did;
         code that changes a `Mission` in place must call it too)."""
         self.revision += 1
+        self.changed_at.pop(root_uuid, None)  # to the end: `changed_since` reads from there
         self.changed_at[root_uuid] = self.revision
         self.touched.add(root_uuid)
         if self.archive is not None and root_uuid in self._missions:
             self.dirty[root_uuid] = self.dirty.get(root_uuid, Change(0)) | change
+
+    def changed_since(self, revision: int) -> list[str]:
+        """The missions in memory changed after ``revision``, the last changed last."""
+        changed = []
+        for root, at in reversed(self.changed_at.items()):
+            if at <= revision:
+                break
+            changed.append(root)
+        changed.reverse()
+        return changed
 
     def drain_dirty(self) -> list[tuple[Mission, Change]]:
         """The missions changed since the last call (in memory) with what changed, and forget

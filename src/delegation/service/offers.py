@@ -81,8 +81,11 @@ class OfferDesk:
 
     def is_answer(self, topic: str) -> bool:
         """True for a topic `subscriptions` covers."""
+        rest = f"delegation/response/{self.config.name}"
+        if not topic.endswith(rest):  # asked of every message: most are not (read cheaply)
+            return False
         parsed = parse_unit_topic(topic)
-        return parsed is not None and parsed.rest == f"delegation/response/{self.config.name}"
+        return parsed is not None and parsed.rest == rest
 
     def _askable(self, now: float) -> list[Delegator]:
         """The live delegators this service would ask for offers now (none when it does not

@@ -250,7 +250,7 @@ class UnitCatchUp(MissionPart):
         elif last == book.revision:
             return
         self._synced = (book, book.revision)
-        for root in [r for r, at in book.changed_at.items() if at > last]:
+        for root in book.changed_since(last):
             mission = book.in_memory(root)
             if mission is None or mission.ended:
                 self._drop(root)
