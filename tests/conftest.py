@@ -44,17 +44,20 @@ hypothesis_settings.load_profile(
 )
 
 
-#: xdist workers per CPU for ``pytest -n auto`` (pyproject's addopts keep ``-n 4``). The suite
-#: waits more than it computes (brokers, simulated flights, child processes): on the 2-core
-#: machine 4 workers used the cores ~52 % of the time (223 s of CPU in 215 s), 8 ran it in
-#: 155-161 s, idle; ``-m "not slow"`` is CPU-bound and slower with 8 (each worker collects).
+#: xdist workers per CPU (pyproject's addopts say ``-n auto``). The suite waits more than it
+#: computes (brokers, simulated flights, child processes): on the 2-core machine, idle, 4
+#: workers ran it in 198 s (184 s of CPU), 8 in 135-137 s (3 runs of 3 passed), and
+#: ``-m "not slow"`` in 54 and 49 s.
 WORKERS_PER_CPU = 4
+#: At most this many, whatever the CPUs: each worker starts its own brokers and processes, and
+#: more than were measured is not a speed anyone has seen pass.
+MAX_WORKERS = 8
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: ``WORKERS_PER_CPU`` workers per CPU this process may run on (not 1 per core,
-    xdist's default, which leaves the cores idle while the tests wait)."""
-    return WORKERS_PER_CPU * len(os.sched_getaffinity(0))
+    """``-n auto``: ``WORKERS_PER_CPU`` workers per CPU this process may run on, at most
+    ``MAX_WORKERS`` (not xdist's 1 per core, which leaves the cores idle while tests wait)."""
+    return min(MAX_WORKERS, WORKERS_PER_CPU * len(os.sched_getaffinity(0)))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
