@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -55,13 +56,22 @@ def test_the_bound_prunes_only_bids_that_cannot_win(
     _same(fast, auction(_instance(seed, shape), objective))
 
 
+def _same_with(monkeypatch: pytest.MonkeyPatch, setting: tuple[object, str, int], seed: int,
+               shape: str, objective: str) -> tuple[Any, Any]:
+    """The auction's plan, then its plan again with ``setting`` (module, name, value) in force:
+    the two must be the same."""
+    fast = auction(_instance(seed, shape), objective)
+    monkeypatch.setattr(*setting)
+    slow = auction(_instance(seed, shape), objective)
+    _same(fast, slow)
+    return fast, slow
+
+
 @pytest.mark.parametrize(("seed", "shape", "objective"), CASES)
 def test_stacked_tables_rebid_as_unit_by_unit(
     seed: int, shape: str, objective: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    fast = auction(_instance(seed, shape), objective)
-    monkeypatch.setattr(stacked, "STACK_LIMIT", 0)
-    _same(fast, auction(_instance(seed, shape), objective))
+    _same_with(monkeypatch, (stacked, "STACK_LIMIT", 0), seed, shape, objective)
 
 
 @pytest.mark.parametrize("homes", [False, True])
@@ -151,10 +161,7 @@ def test_small_insertion_tables_in_python_equal_numpy_to_the_bit(
 def test_auction_with_small_tables_in_python_plans_as_with_numpy(
     seed: int, shape: str, objective: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    fast = auction(_instance(seed, shape), objective)
-    monkeypatch.setattr(routes, "SMALL_TABLE", 0)
-    slow = auction(_instance(seed, shape), objective)
-    _same(fast, slow)
+    fast, slow = _same_with(monkeypatch, (routes, "SMALL_TABLE", 0), seed, shape, objective)
     np.testing.assert_array_equal(fast.start, slow.start)
 
 
