@@ -32,6 +32,20 @@ def route_points(
     Returns ``prev_xy`` (L+1,2), ``next_xy`` (L+1,2) and ``next_speed`` (L+1,); ``next_speed`` is
     inf where nothing follows (open route), so the travel to "next" costs nothing there.
     """
+    prev, nxt, speeds = _route_lists(problem, u, route)
+    n = len(route)
+    prev_xy = np.array(prev, dtype=float).reshape(n + 1, 2)
+    next_xy = np.array(nxt, dtype=float).reshape(n + 1, 2)
+    next_speed = np.array(speeds, dtype=float).reshape(n + 1)
+    return prev_xy, next_xy, next_speed
+
+
+def _route_lists(
+    problem: Problem, u: int, route: Sequence[int]
+) -> tuple[list[list[float]], list[list[float]], list[float]]:
+    """`route_points` as lists: plain Python over the route (a few to a few dozen tasks), one
+    conversion at the end where arrays are wanted (numpy's per-row assignments cost more than
+    the arithmetic)."""
     n = len(route)
     static = static_for(problem)
     if True in static.to_home:  # (go-home: its points are the unit's home, ``points_for``)
@@ -42,8 +56,6 @@ def route_points(
         start_l = [[sx[t], sy[t]] for t in route]
         end_l = [[ex[t], ey[t]] for t in route]
         travels_l = [static.travels[t] for t in route]
-    # Plain Python over the route (a few to a few dozen tasks), one conversion at the end:
-    # numpy's per-row assignments cost more than the arithmetic.
     prev: list[list[float]] = [[static.ux[u], static.uy[u]]]
     for k in range(n):
         prev.append(end_l[k] if travels_l[k] else prev[k])
@@ -57,10 +69,7 @@ def route_points(
         if travels_l[k]:
             here, speed = start_l[k], unit_speed[route[k]]
         nxt[k], speeds[k] = here, speed
-    prev_xy = np.array(prev, dtype=float).reshape(n + 1, 2)
-    next_xy = np.array(nxt, dtype=float).reshape(n + 1, 2)
-    next_speed = np.array(speeds, dtype=float).reshape(n + 1)
-    return prev_xy, next_xy, next_speed
+    return prev, nxt, speeds
 
 
 def xy_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -129,22 +138,10 @@ def _insertion_rows(
         return None
     speed_u, work_u, travels = static.speed[u], static.work_time[u], static.travels
     sx, sy, ex, ey = static.sx[u], static.sy[u], static.ex[u], static.ey[u]
-    # Where the unit is before each position, where it goes next and how fast (route_points).
-    px, py = [static.ux[u]], [static.uy[u]]
-    for t in route:
-        moves = travels[t]
-        px.append(ex[t] if moves else px[-1])
-        py.append(ey[t] if moves else py[-1])
-    here_x, here_y, speed = 0.0, 0.0, math.inf
-    if static.has_home[u]:
-        here_x, here_y, speed = static.home_x[u], static.home_y[u], static.home_speed[u]
-    n = len(route)
-    nx, ny, ns = [here_x] * (n + 1), [here_y] * (n + 1), [speed] * (n + 1)
-    for k in range(n - 1, -1, -1):
-        t = route[k]
-        if travels[t]:
-            here_x, here_y, speed = sx[t], sy[t], speed_u[t]
-        nx[k], ny[k], ns[k] = here_x, here_y, speed
+    # Where the unit is before each position, where it goes next and how fast.
+    prev, nxt, ns = _route_lists(problem, u, route)
+    px, py = [p[0] for p in prev], [p[1] for p in prev]
+    nx, ny = [q[0] for q in nxt], [q[1] for q in nxt]
     cols = cand.tolist()
     if 0.0 in ns or any(speed_u[t] == 0.0 for t in cols):
         return None
