@@ -231,14 +231,14 @@ def coverage_path(
 
 
 @functools.lru_cache(maxsize=1024)
-def _swept(data: bytes, n: int, width: float, ax: float, ay: float, fill: bool = True
+def _swept(data: bytes, n: int, width: float, ax: float, ay: float, fill: bool, /
            ) -> tuple[tuple[np.ndarray, ...], np.ndarray, int]:
     """(cells, variant 0's path, lane segments) of the sweep along (ax, ay), read-only:
     remembered, as choosing the direction sweeps the winner already, and the cost tables then
     fly its cells (``flown_sweep``) or ask for its path. ``fill``: with lanes through the strips
     the even lanes leave unseen (``_gap_lanes``; False only to screen directions quickly).
-    Every caller passes all six arguments by position: ``lru_cache`` keys a defaulted or named
-    argument differently, and the winner of ``_best_direction`` would be swept twice."""
+    Its arguments are positional only, none defaulted: ``lru_cache`` keys a defaulted or named
+    argument apart from a positional one, and the winner of ``_best_direction`` was swept twice."""
     poly = np.frombuffer(data, dtype=float).reshape(n, 2)
     along = np.array([ax, ay])
     segments, lane = _segments(poly, width, along)
