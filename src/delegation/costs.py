@@ -260,12 +260,6 @@ def search_polygons_xy(node: TstNode, frame: LocalFrame) -> list[np.ndarray]:
     return _polygons_xy(g, frame)
 
 
-def _sweep_ways(polygons: list[np.ndarray], width: float) -> tuple[np.ndarray, ...]:
-    """The ways to fly the sweep, turns inside the area (``coverage.flown_ways``, issue 21): the
-    plan counts the path the simulated units fly, from where each is when it starts."""
-    return flown_ways(polygons, width)
-
-
 def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None,
               here: GeoPoint | None = None) -> list[GeoPoint]:
     """The points the unit moves through to do the task's work (for simulators and maps).
@@ -286,7 +280,7 @@ def task_path(node: TstNode, unit: UnitState, frame: LocalFrame | None = None,
         return []
     pts = _geo_points(g)
     frame = frame or LocalFrame.around(pts)
-    ways = _sweep_ways(_polygons_xy(g, frame), sweep_width(unit, g.target_size))
+    ways = flown_ways(_polygons_xy(g, frame), sweep_width(unit, g.target_size))
     if not ways:
         return []
     at = frame.point_xy(here if here is not None else unit.position)
@@ -688,7 +682,7 @@ def _sweep_work(
         at_ref = np.flatnonzero(col == ref)
     per_width: dict[float, list[tuple[float, float, float, float, float]]] = {}
     for w in sorted(set(col[np.isfinite(col)].tolist())):  # (np.unique, cheaper here)
-        ways = _sweep_ways(polygons, w)
+        ways = flown_ways(polygons, w)
         rows = per_width[w] = way_ends(ways)
         for u in np.flatnonzero(col == w).tolist():
             sx, sy, ex, ey, length = rows[pick_way(rows, (float(unit_xy[u, 0]),
@@ -698,7 +692,7 @@ def _sweep_work(
         if w == ref:
             ends = unit_ends[0][at_ref[0]].copy(), unit_ends[1][at_ref[0]].copy()
     if ends is None:  # no unit at all: a nominal sweep for the geometry
-        rows = way_ends(_sweep_ways(polygons, detection_width(g.target_size)))
+        rows = way_ends(flown_ways(polygons, detection_width(g.target_size)))
         first = rows[pick_way(rows, None)] if rows else (math.nan,) * 5
         ends = np.array(first[0:2]), np.array(first[2:4])
     unit_ends[0][~np.isfinite(col)], unit_ends[1][~np.isfinite(col)] = ends
